@@ -1,0 +1,229 @@
+"""Numeric predictions of the 2D incremental bulk and shear moduli: fast, vectorised, stable.
+
+The formulas are derived in :mod:`microhom.symbolic` and checked against these functions by
+``python -m microhom.derivations`` (check ``numeric_matches_symbolic``). For identical disks of
+diameter D with constant contact stiffnesses kn, kt [N/m] (2D moduli are in N/m too):
+
+* mean field (37):     ``K_mf = Nc phi kn / (2 pi)``,  ``G_mf = Nc phi (kn + kt) / (4 pi)``
+* corrected (50)-(51): ``K = K_mf [1 - 4 kn/(3kn + kt) * x]``,
+  ``G = G_mf [1 - 2 (2kn + kt)/(3kn + kt) * x]``, with ``x = r (Nbar/Nc) rho``
+* ``rho = Nc sum V.W / sum V^2``, modelled (54) as ``cos(pi alpha/2)/(1 - alpha^2)``
+* ``Nbar`` from ``phi = (pi/4)/sin(pi (Nbar-2)/Nbar)`` (branch Nbar >= 4, needs phi >= pi/4)
+
+Everything broadcasts over numpy arrays and pandas Series. This module imports numpy only.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
+           "PHI_MAX", "PHI_MIN_NBAR"]
+
+PHI_MAX = np.pi / (2 * np.sqrt(3))  # triangular close packing
+PHI_MIN_NBAR = np.pi / 4  # below this phi the Nbar(phi) relation has no solution
+
+_REASONS = (
+    (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
+    (2, "first-order correction larger than max_correction of the mean field: outside the theory's range"),
+)
+
+
+def _check(name, x, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
+    """Array of float64, finite, in the allowed range; else ValueError naming the parameter."""
+    a = np.asarray(x, dtype=np.float64)
+    bad = ~np.isfinite(a)
+    rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else f'{lo:.6g}'}, " \
+          f"{'inf' if hi is None else f'{hi:.6g}'}{')' if hi_open or hi is None else ']'}"
+    if lo is not None:
+        bad |= (a <= lo) if lo_open else (a < lo)
+    if hi is not None:
+        bad |= (a >= hi) if hi_open else (a > hi)
+    if np.any(bad):
+        first = np.flatnonzero(np.broadcast_to(bad, a.shape).ravel())[0]
+        val = a.ravel()[first] if a.ndim else a
+        where = f" (first at flat index {first})" if a.ndim else ""
+        raise ValueError(f"{name} must be finite and in {rng}{unit}; got {val!r}{where}")
+    return a
+
+
+def rho_from_alpha(alpha):
+    """rho(alpha) = cos(pi alpha/2)/(1 - alpha^2) (54), evaluated without the 0/0 at alpha = 1.
+
+    Written as ``(pi/2) sinc((1 - alpha)/2) / (1 + alpha)`` (numpy's normalised sinc), which is the
+    same function (sympy check ``alignment_model``) and equals pi/4 at alpha = 1.
+    alpha: the alignment width, in [0, 2]. Returns rho in [1/3, 1].
+    """
+    a = _check("alpha", alpha, 0.0, 2.0)
+    return 0.5 * np.pi * np.sinc(0.5 * (1.0 - a)) / (1.0 + a)
+
+
+def nbar_from_phi(phi):
+    """Mean number of near neighbours Nbar from the solid fraction (section 6).
+
+    Inverts ``phi = (pi/4)/sin(pi (Nbar - 2)/Nbar)`` on the branch Nbar in [4, 6]:
+    ``Nbar = 2 pi / arcsin(pi/(4 phi))``. phi must lie in [pi/4, pi/(2 sqrt 3)].
+    """
+    p = _check("phi", phi, PHI_MIN_NBAR * (1 - 1e-12), PHI_MAX * (1 + 1e-12))
+    return 2.0 * np.pi / np.arcsin(np.minimum(np.pi / (4.0 * p), 1.0))
+
+
+@dataclass
+class Prediction:
+    """Result of :func:`predict_moduli`; every field is an array of the broadcast input shape.
+
+    Moduli in the unit of kn (N/m for 2D disks per unit thickness). ``drop_*`` is the fraction
+    change ``1 - modulus/mean field`` (the seed table's "fraction change"). ``delta`` is the
+    biaxial volume-change ratio ``(G - K)/(G + K)`` and ``poisson`` the 2D Poisson ratio
+    ``(K - G)/(K + G)``. ``valid`` is False where the first-order theory is out of range; ``reason``
+    says why (``"ok"`` otherwise).
+    """
+
+    K_mf: np.ndarray
+    G_mf: np.ndarray
+    K: np.ndarray
+    G: np.ndarray
+    drop_K: np.ndarray
+    drop_G: np.ndarray
+    delta_mf: np.ndarray
+    delta: np.ndarray
+    poisson_mf: np.ndarray
+    poisson: np.ndarray
+    nbar: np.ndarray
+    rho: np.ndarray
+    valid: np.ndarray
+    flags: np.ndarray  # bit mask of _REASONS
+    index: object = None  # pandas index of the inputs, if any
+
+    @property
+    def reason(self) -> np.ndarray:
+        """Why a result is flagged, as text per parameter set ("ok" where valid)."""
+        texts = ["; ".join(t for bit, t in _REASONS if code & bit) or "ok" for code in range(4)]
+        return np.asarray(texts, dtype=object)[np.asarray(self.flags)]
+
+    def to_frame(self):
+        """A pandas DataFrame with one column per field (pandas imported only here)."""
+        import pandas as pd
+
+        cols = {f.name: np.ravel(getattr(self, f.name)) for f in fields(self) if f.name not in ("flags", "index")}
+        cols["reason"] = np.ravel(self.reason)
+        return pd.DataFrame(cols, index=self.index)
+
+    def as_dict(self):
+        """Plain Python scalars (for one parameter set) or lists, e.g. for JSON."""
+        out = {}
+        for f in fields(self):
+            if f.name in ("flags", "index"):
+                continue
+            a = np.asarray(getattr(self, f.name))
+            out[f.name] = a.item() if a.ndim == 0 else a.tolist()
+        r = self.reason
+        out["reason"] = r.item() if r.ndim == 0 else r.tolist()
+        return out
+
+
+def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=None,
+                   max_correction=0.5, warn=True) -> Prediction:
+    """Mean-field and fluctuation-corrected 2D bulk and shear moduli of a random disk packing.
+
+    Parameters (all broadcast together; numpy arrays or pandas Series)
+    ----------
+    kn : normal contact stiffness [N/m], > 0.
+    kt : tangential contact stiffness [N/m], >= 0 (0 = all contacts sliding/frictionless).
+    nc : mean coordination number Nc (contacts per particle), > 0.
+    phi : solid (area) fraction, in (0, pi/(2 sqrt 3)].
+    r : contact-number fluctuation mean((Nc_mu - Nc)^2)/Nc^2, >= 0; r = 0 gives the mean field.
+    alpha : alignment width of the paper's model (54), in [0, 2]. Used when ``rho`` is None;
+        if both are None, the paper's estimate ``alpha = 2 (1 - 1/Nbar)`` is used.
+    rho : measured ``Nc sum V.W / sum V^2`` (overrides ``alpha``), finite.
+    diameter : particle diameter [m], > 0. The 2D moduli do not depend on it (they scale with
+        D^2/v = 4 phi/pi); it is validated and kept for symmetry with the 3D theory.
+    nbar : mean number of near neighbours; default from ``phi`` (requires phi >= pi/4).
+    max_correction : fraction change above which a result is flagged as outside the first-order
+        range (default 0.5).
+    warn : emit a RuntimeWarning when any result is flagged invalid.
+
+    Returns
+    -------
+    Prediction. Reproduces the seed's table: Nc = 4.1, r = 0.35, Nbar = 5, alpha = 1.76, kt = kn
+    gives fraction changes 0.19 (bulk) and 0.28 (shear).
+    """
+    index = getattr(next((a for a in (kn, kt, nc, phi, r, alpha, rho, nbar) if hasattr(a, "index")), None),
+                    "index", None)
+    kn = _check("kn", kn, 0.0, lo_open=True, unit=" N/m")
+    kt = _check("kt", kt, 0.0, unit=" N/m")
+    nc = _check("nc", nc, 0.0, lo_open=True)
+    phi = _check("phi", phi, 0.0, PHI_MAX * (1 + 1e-12), lo_open=True)
+    r = _check("r", r, 0.0)
+    _check("diameter", diameter, 0.0, lo_open=True, unit=" m")
+    _check("max_correction", max_correction, 0.0, 1.0, lo_open=True)
+    if nbar is None:
+        if np.any(phi < PHI_MIN_NBAR * (1 - 1e-12)):
+            raise ValueError(
+                f"phi must be in [pi/4, pi/(2 sqrt 3)] = [{PHI_MIN_NBAR:.4f}, {PHI_MAX:.4f}] to derive Nbar "
+                f"from phi = (pi/4)/sin(pi (Nbar-2)/Nbar); got min phi = {np.min(phi):.4f}. "
+                "Pass nbar explicitly for looser packings.")
+        nbar = nbar_from_phi(phi)
+    else:
+        nbar = _check("nbar", nbar, 2.0, lo_open=True)
+    if rho is None:
+        if alpha is None:
+            alpha = 2.0 * (1.0 - 1.0 / nbar)
+        rho = rho_from_alpha(alpha)
+    else:
+        if alpha is not None:
+            raise ValueError("give either alpha (the paper's model) or rho (measured), not both")
+        rho = _check("rho", rho)
+
+    ratio = kt / kn  # stable for kn over many decades; kt = 0 exactly gives the frictionless pair
+    K_mf = nc * phi * kn / (2.0 * np.pi)
+    G_mf = nc * phi * (kn + kt) / (4.0 * np.pi)
+    x = r * (nbar / nc) * rho
+    drop_K = 4.0 / (3.0 + ratio) * x
+    drop_G = 2.0 * (2.0 + ratio) / (3.0 + ratio) * x
+    K = K_mf * (1.0 - drop_K)
+    G = G_mf * (1.0 - drop_G)
+    drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
+    big = np.maximum(drop_K, drop_G)
+    flags = np.where(big >= 1.0, 1, 0) | np.where(big > max_correction, 2, 0)
+    flags = flags.astype(np.int8)
+    valid = flags == 0
+    if warn and not np.all(valid):
+        n_bad = int(np.size(valid) - np.count_nonzero(valid))
+        warnings.warn(f"{n_bad} parameter set(s) outside the first-order theory's range; see .valid/.reason",
+                      RuntimeWarning, stacklevel=2)
+    K_mf, G_mf, K, G = np.broadcast_arrays(K_mf, G_mf, K, G)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta_mf = (G_mf - K_mf) / (G_mf + K_mf)
+        delta = (G - K) / (G + K)
+    return Prediction(K_mf=K_mf, G_mf=G_mf, K=K, G=G, drop_K=drop_K, drop_G=drop_G,
+                      delta_mf=delta_mf, delta=delta, poisson_mf=-delta_mf, poisson=-delta,
+                      nbar=np.broadcast_to(nbar, K.shape), rho=np.broadcast_to(rho, K.shape),
+                      valid=valid, flags=flags, index=index)
+
+
+def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="exclude", min_contacts=None,
+                         nbar=None, **kwargs) -> Prediction:
+    """Predict the moduli of a :class:`~microhom.network.ContactNetwork` from its own statistics.
+
+    ``kn`` is the mean contact ``kn``; ``kt`` the mean *effective* tangent stiffness (0 for sliding
+    contacts), so the mean field equals the affine structural sum of an isotropic network.
+    ``Nc``, ``r`` and ``rho`` are measured (see :func:`microhom.structural_sums.network_statistics`)
+    with rattlers excluded (``rattlers="exclude"``, default) or included; ``phi`` is the network's
+    solid fraction. With ``measured_rho=False`` the paper's alpha model is used instead.
+    """
+    from .structural_sums import network_statistics
+
+    st = network_statistics(network, min_contacts=min_contacts)
+    key = {"exclude": "", "include": "_all"}.get(rattlers)
+    if key is None:
+        raise ValueError(f"rattlers must be 'exclude' or 'include', got {rattlers!r}")
+    kn = float(np.mean(network.kn))
+    kt = float(np.mean(network.effective_kt))
+    rho = st["rho" + key] if measured_rho else None
+    if measured_rho and alpha is not None:
+        raise ValueError("alpha is only used with measured_rho=False")
+    return predict_moduli(kn, kt, st["nc" + key], st["phi"], st["r" + key], alpha=alpha, rho=rho,
+                          nbar=nbar, diameter=st["diameter"], **kwargs)
