@@ -245,8 +245,9 @@ def numeric_matches_symbolic():
                  "(50)-(54)", err < 1e-12 and err_rho < 1e-14, f"max rel err {err:.2e}, rho err {err_rho:.2e}")
 
 
-def run(verbose=True, out=sys.stdout):
+def run(verbose=True, out=None):
     """Run every check, print one line each; return the list of :class:`Check`."""
+    out = sys.stdout if out is None else out
     results = []
     for fn in CHECKS:
         t0 = time.perf_counter()

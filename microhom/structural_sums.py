@@ -141,9 +141,9 @@ def isotropic_fit(A4):
 def _rho(sums: ParticleSums, mask):
     V, W = sums.V[mask], sums.W[mask]
     vv = float(np.sum(V * V))
-    if vv == 0.0:
-        return 0.0  # no odd structure at all (perfect lattice): the correction has nothing to act on
     nc = float(np.mean(sums.counts[mask])) if np.any(mask) else 0.0
+    if vv <= 1e-24 * max(nc, 1.0) ** 2 * max(len(V), 1):
+        return 0.0  # no odd structure (perfect lattice; V is round-off): nothing for the correction to act on
     return nc * float(np.sum(V * W)) / vv
 
 
