@@ -43,7 +43,7 @@ def _check(name, x, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
         bad |= (a >= hi) if hi_open else (a > hi)
     if np.any(bad):
         first = np.flatnonzero(np.broadcast_to(bad, a.shape).ravel())[0]
-        val = a.ravel()[first] if a.ndim else a
+        val = float(a.ravel()[first])
         where = f" (first at flat index {first})" if a.ndim else ""
         raise ValueError(f"{name} must be finite and in {rng}{unit}; got {val!r}{where}")
     return a
@@ -101,7 +101,7 @@ class Prediction:
     def reason(self) -> np.ndarray:
         """Why a result is flagged, as text per parameter set ("ok" where valid)."""
         texts = ["; ".join(t for bit, t in _REASONS if code & bit) or "ok" for code in range(4)]
-        return np.asarray(texts, dtype=object)[np.asarray(self.flags)]
+        return np.asarray(np.asarray(texts, dtype=object)[np.asarray(self.flags)], dtype=object)
 
     def to_frame(self):
         """A pandas DataFrame with one column per field (pandas imported only here)."""

@@ -1,0 +1,127 @@
+"""Command line of the theory half: ``python -m microhom predict ...``.
+
+Examples::
+
+    python -m microhom predict                       # the seed paper's case (Kuhn's simulations)
+    python -m microhom predict --kn 1e8 --kt 0 --nc 4.1 --phi 0.82 --r 0.35 --alpha 1.76
+    python -m microhom predict --nc 3.8 4.1 4.5 --json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from .moduli import predict_moduli
+
+SEED_CASE = dict(kn=1.0e8, kt=1.0e8, nc=4.1, phi=0.82, r=0.35, alpha=1.76, nbar=5.0)
+
+
+def _floats(name):
+    def conv(text):
+        try:
+            return float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+    return conv
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog="python -m microhom",
+                                 description="Micromechanical homogenisation of dense random disk packings.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser(
+        "predict", help="mean-field and fluctuation-corrected 2D bulk and shear moduli",
+        description="Predict the incremental 2D bulk modulus K and shear modulus G of an isotropic random "
+                    "packing of identical disks (paper eqs. 37, 50, 51, 54). Several values per option "
+                    "broadcast (one row per combination). Defaults: the seed paper's case.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--kn", nargs="+", type=_floats("kn"), default=[SEED_CASE["kn"]],
+                   help="normal contact stiffness [N/m], > 0 (2D: force per unit thickness per unit overlap)")
+    p.add_argument("--kt", nargs="+", type=_floats("kt"), default=None,
+                   help="tangential contact stiffness [N/m], >= 0; default kt = kn; 0 = frictionless/sliding")
+    p.add_argument("--nc", nargs="+", type=_floats("nc"), default=[SEED_CASE["nc"]],
+                   help="mean coordination number Nc (contacts per particle), > 0")
+    p.add_argument("--phi", nargs="+", type=_floats("phi"), default=[SEED_CASE["phi"]],
+                   help="solid (area) fraction, in (0, pi/(2 sqrt 3)] = (0, 0.9069]")
+    p.add_argument("--r", nargs="+", type=_floats("r"), default=[SEED_CASE["r"]],
+                   help="contact-number fluctuation r = var(Nc)/Nc^2 [-], >= 0 (0 = mean field)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--alpha", nargs="+", type=_floats("alpha"), default=None,
+                   help="alignment width of the V-W correlation model (54), in [0, 2]; "
+                        f"default {SEED_CASE['alpha']} (the paper's fit) unless --rho is given")
+    g.add_argument("--rho", nargs="+", type=_floats("rho"), default=None,
+                   help="measured rho = Nc sum V.W / sum V^2 (replaces the alpha model)")
+    p.add_argument("--nbar", nargs="+", type=_floats("nbar"), default=None,
+                   help="mean number of near neighbours; default from phi via phi = (pi/4)/sin(pi(Nbar-2)/Nbar) "
+                        "(needs phi >= pi/4); with all defaults the paper's Nbar = 5")
+    p.add_argument("--max-correction", type=float, default=0.5,
+                   help="fraction change above which a result is flagged outside the first-order range")
+    p.add_argument("--json", action="store_true", help="print JSON (a list of records) instead of a table")
+    p.add_argument("--csv", action="store_true", help="print CSV instead of a table")
+    return ap
+
+
+def _grid(args):
+    cols = {"kn": args.kn, "kt": args.kt if args.kt is not None else [None], "nc": args.nc, "phi": args.phi,
+            "r": args.r}
+    if args.rho is not None:
+        cols["rho"] = args.rho
+    else:
+        cols["alpha"] = args.alpha if args.alpha is not None else [SEED_CASE["alpha"]]
+    defaults = all(getattr(args, k) == [SEED_CASE[k]] for k in ("nc", "phi")) and args.nbar is None
+    cols["nbar"] = args.nbar if args.nbar is not None else ([SEED_CASE["nbar"]] if defaults else [None])
+    names = list(cols)
+    mesh = np.meshgrid(*[np.arange(len(cols[n])) for n in names], indexing="ij")
+    rows = []
+    for idx in zip(*(m.ravel() for m in mesh)):
+        row = {n: cols[n][i] for n, i in zip(names, idx)}
+        if row["kt"] is None:
+            row["kt"] = row["kn"]
+        rows.append(row)
+    return rows
+
+
+def cmd_predict(args):
+    import pandas as pd
+
+    rows = _grid(args)
+    frames = []
+    for row in rows:
+        kw = {k: v for k, v in row.items() if v is not None}
+        p = predict_moduli(max_correction=args.max_correction, warn=False, **kw)
+        f = p.to_frame()
+        for k in ("r", "phi", "nc", "kt", "kn"):
+            f.insert(0, k, row[k])
+        frames.append(f)
+    df = pd.concat(frames, ignore_index=True)
+    if args.json:
+        print(df.to_json(orient="records", indent=1))
+    elif args.csv:
+        print(df.to_csv(index=False), end="")
+    else:
+        for i, r in df.iterrows():
+            print(f"case {i}: kn = {r.kn:.4g} N/m, kt = {r.kt:.4g} N/m, Nc = {r.nc:.4g}, phi = {r.phi:.4g}, "
+                  f"r = {r.r:.4g}, Nbar = {r.nbar:.4g}, rho = {r.rho:.4g}")
+            print(f"  {'modulus':<8}{'mean field':>14}{'corrected':>14}{'fraction change':>18}")
+            print(f"  {'bulk K':<8}{r.K_mf:>14.4g}{r.K:>14.4g}{r.drop_K:>18.3f}")
+            print(f"  {'shear G':<8}{r.G_mf:>14.4g}{r.G:>14.4g}{r.drop_G:>18.3f}")
+            print(f"  Delta = (G-K)/(G+K): mean field {r.delta_mf:.4f}, corrected {r.delta:.4f}; "
+                  f"2D Poisson ratio {r.poisson:.4f}")
+            print(f"  validity: {'ok' if r.valid else 'FLAGGED: ' + r.reason}")
+    return 0 if bool(df["valid"].all()) else 3
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return cmd_predict(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
