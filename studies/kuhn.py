@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from microhom.moduli import predict_moduli
+from studies.common import write_table
 
 # The seed's table (paper 001, section 6): Kuhn's DEM, kt = kn, friction angle 26 deg
 SEED = {"nc": 4.1, "phi": 0.82, "r": 0.35, "nbar": 5.0, "alpha": 1.76,
@@ -48,17 +49,8 @@ def main(argv=None):
     print("The seed's table (kt = kn, Nc = 4.1, r = 0.35, Nbar = 5, phi = 0.82), moduli in N/m, "
           "kn = 5e7 N/m (OVAL's 1e8 on half the overlap):")
     print(df.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
-    df.to_csv(out / "table.csv", index=False)
-    (out / "table.md").write_text(df.to_markdown(index=False) if _has_tabulate() else df.to_string(index=False))
-    print(f"written: {out / 'table.csv'}")
-
-
-def _has_tabulate():
-    try:
-        import tabulate  # noqa: F401
-        return True
-    except ImportError:
-        return False
+    md = write_table(df, out, "table", "The seed's table, theory beside it")
+    print(f"written: {md}")
 
 
 if __name__ == "__main__":
