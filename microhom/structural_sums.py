@@ -95,31 +95,37 @@ def particle_sums(network: ContactNetwork, active=None) -> ParticleSums:
     return ParticleSums(network, active)
 
 
-def rattlers(network: ContactNetwork, min_contacts=None, max_iter=10_000):
+def rattlers(network: ContactNetwork, min_contacts=None):
     """Iteratively flag rattlers: particles with fewer than ``min_contacts`` load-bearing contacts.
 
     Removing a rattler removes its contacts, which may make neighbours rattlers; iterate to a fixed
-    point. Default ``min_contacts`` is 2 if any contact has tangent stiffness (frictional disks)
-    and 3 otherwise (frictionless disks need d + 1 contacts).
+    point. Default ``min_contacts=None`` decides per particle: 2 if any of its remaining contacts
+    has tangent stiffness (a frictional disk is held by 2 contacts), else 3 (frictionless disks
+    need d + 1 contacts, the jamming convention).
 
     Returns (is_rattler (N,) bool, active (C,) bool: contacts between non-rattlers).
     """
-    if min_contacts is None:
-        min_contacts = 2 if np.any(network.effective_kt > 0) else 3
-    if int(min_contacts) != min_contacts or min_contacts < 0:
+    if min_contacts is not None and (int(min_contacts) != min_contacts or min_contacts < 0):
         raise ValueError(f"min_contacts must be a non-negative integer, got {min_contacts}")
     n = network.n_particles
-    pairs = network.pairs
+    i, j = network.pairs[:, 0], network.pairs[:, 1]
+    fric = (network.effective_kt > 0).astype(np.float64)
     active = np.ones(network.n_contacts, dtype=bool)
     rattler = np.zeros(n, dtype=bool)
-    for _ in range(max_iter):
-        counts = np.bincount(pairs[active].ravel(), minlength=n)
-        new = (~rattler) & (counts < min_contacts)
+    while True:
+        ia, ja = i[active], j[active]
+        counts = np.bincount(ia, minlength=n) + np.bincount(ja, minlength=n)
+        if min_contacts is None:
+            fa = fric[active]
+            n_fric = np.bincount(ia, weights=fa, minlength=n) + np.bincount(ja, weights=fa, minlength=n)
+            threshold = np.where(n_fric > 0, 2, 3)
+        else:
+            threshold = int(min_contacts)
+        new = (~rattler) & (counts < threshold)
         if not np.any(new):
-            break
+            return rattler, active
         rattler |= new
-        active &= ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
-    return rattler, active
+        active &= ~(rattler[i] | rattler[j])
 
 
 def isotropic_fit(A4):

@@ -1,0 +1,186 @@
+"""Benchmark of the exact stiffness solver (dem.stiffness) and comparison with jax-md.
+
+    python -m studies.bench_stiffness [--quick] [--no-jax] [--sizes 1000,10000,100000]
+
+1. Timing on large disordered *frictional* networks. Until the project's DEM packer exists the
+   network is built, not packed: a triangular lattice of N disks, positions jittered by +-5 % of D,
+   every contact kept with probability 4.1/6 (mean coordination ~4.1 before rattler removal), kn = kt
+   = 1, branch vectors from the jittered positions. It is rigid (z > 3 for frictional disks) apart
+   from a handful of local zero modes, which the solver reports.
+   Solvers: scipy SuperLU (default, always installed) and pypardiso (MKL PARDISO) if importable.
+2. Frictionless harmonic soft disks, bidisperse 1:1.4, phi = 0.88, minimised with scipy L-BFGS:
+   exact moduli with pre-stress vs jax-md ``elasticity.athermal_moduli`` (if ``import jax_md``
+   works), after the conversion K = B_jaxmd + p/2, G = G_jaxmd - p/2 (full tensor: C = C_jaxmd +
+   sym(sigma0 dE) - sigma0 tr dE). Not a CI test.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.spatial import cKDTree
+
+from dem.stiffness import _prestress_correction, isotropic_moduli, mandel_to_strain, stiffness, \
+    tensor_to_mandel
+from microhom import lattices
+from microhom.network import ContactNetwork, from_overlaps
+
+
+# ---- networks --------------------------------------------------------------------------------
+def diluted_triangular(n, z=4.1, kt=1.0, jitter=0.05, seed=0) -> ContactNetwork:
+    """Jittered triangular lattice of ~n disks with contacts kept with probability z/6."""
+    rng = np.random.default_rng(seed)
+    ny = max(4, int(round(np.sqrt(n * np.sqrt(3) / 2) / 2)) * 2)
+    nx = max(3, int(round(n / ny)))
+    net = lattices.triangular(nx, ny, kn=1.0, kt=kt)
+    sh = net.image_shifts()
+    pos = net.positions + jitter * rng.uniform(-1, 1, net.positions.shape)
+    i, j = net.pairs.T
+    br = pos[j] + sh @ net.cell.T - pos[i]
+    keep = rng.random(net.n_contacts) < z / 6
+    return ContactNetwork(positions=pos, radii=net.radii, cell=net.cell, pairs=net.pairs[keep],
+                          branch=br[keep], kn=1.0, kt=kt, sliding=False)
+
+
+def soft_disk_packing(n, phi=0.88, seed=0, gtol=1e-13):
+    """Bidisperse (1:1.4) harmonic soft disks (U = 1/2 (r_i + r_j - d)^2) in a square periodic box,
+    minimised from random positions with scipy L-BFGS. Returns (positions, radii, L)."""
+    rng = np.random.default_rng(seed)
+    rad = np.where(np.arange(n) < n // 2, 0.5, 0.7)
+    L = float(np.sqrt(np.pi * np.sum(rad ** 2) / phi))
+    cut = 2 * rad.max()
+
+    def fg(x):
+        p = np.mod(x.reshape(n, 2), L)
+        pr = cKDTree(p, boxsize=L).query_pairs(cut, output_type="ndarray")
+        i, j = pr[:, 0], pr[:, 1]
+        d = p[j] - p[i]
+        d -= L * np.rint(d / L)
+        r = np.hypot(d[:, 0], d[:, 1])
+        ov = rad[i] + rad[j] - r
+        m = ov > 0
+        i, j, d, r, ov = i[m], j[m], d[m], r[m], ov[m]
+        f = (ov / r)[:, None] * d                    # dU/dx_j = -f, dU/dx_i = +f
+        g = np.zeros((n, 2))
+        np.add.at(g, i, f)
+        np.add.at(g, j, -f)
+        return 0.5 * np.sum(ov ** 2), g.ravel()
+
+    x = rng.uniform(0, L, 2 * n)
+    for _ in range(20):
+        res = minimize(fg, x, jac=True, method="L-BFGS-B",
+                       options=dict(maxiter=200000, gtol=gtol, ftol=0, maxcor=20))
+        x = res.x
+        if np.abs(fg(x)[1]).max() < 10 * gtol:
+            break
+    return np.mod(x.reshape(n, 2), L), rad, L
+
+
+def packing_network(pos, rad, L):
+    net = from_overlaps(pos, rad, np.diag([L, L]), kn=1.0, kt=0.0)
+    ov = rad[net.pairs[:, 0]] + rad[net.pairs[:, 1]] - net.lengths
+    return ContactNetwork(positions=net.positions, radii=net.radii, cell=net.cell,
+                          pairs=net.pairs, branch=net.branch, kn=1.0, kt=0.0, sliding=False,
+                          fn=ov)
+
+
+# ---- jax-md peer -----------------------------------------------------------------------------
+def jaxmd_moduli(pos, rad, L, cg_tol=1e-7, tether=1e-10):
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    from jax_md import elasticity, energy, partition, space
+
+    n = rad.size
+    species = (rad > 0.6).astype(np.int32)
+    s = np.array([[1.0, 1.2], [1.2, 1.4]])       # sigma_ab = r_a + r_b
+    box = jnp.eye(2) * L
+    disp, _ = space.periodic_general(box, fractional_coordinates=True)
+    # neighbour-list energy (kn = eps/sigma^2 = 1); the list is built once, outside the timing
+    nfn, efn = energy.soft_sphere_neighbor_list(
+        disp, box, species=jnp.array(species), sigma=jnp.array(s), epsilon=jnp.array(s ** 2),
+        alpha=2.0, fractional_coordinates=True, dr_threshold=0.0)
+    R = jnp.array(pos / L)
+    nbrs = nfn.allocate(R)
+    emt = elasticity.athermal_moduli(efn, tether_strength=tether, cg_tol=cg_tol,
+                                     check_convergence=True)
+    fn = jax.jit(emt)
+    t0 = time.perf_counter()
+    C, conv = fn(R, box, neighbor=nbrs)
+    C.block_until_ready()
+    t_first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    C, conv = fn(R, box, neighbor=nbrs)
+    C.block_until_ready()
+    t_run = time.perf_counter() - t0
+    return np.asarray(C), bool(conv), t_first, t_run, n
+
+
+# ---- main ------------------------------------------------------------------------------------
+def _solvers():
+    out = ["splu"]
+    try:
+        import pypardiso  # noqa: F401
+        out.append("pardiso")
+    except Exception:   # noqa: BLE001
+        pass
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="N = 1e3, 1e4 and a 256-disk jax-md check")
+    ap.add_argument("--no-jax", action="store_true")
+    ap.add_argument("--sizes", default=None)
+    a = ap.parse_args(argv)
+    sizes = [1000, 10000] if a.quick else [1000, 10000, 100000]
+    if a.sizes:
+        sizes = [int(float(s)) for s in a.sizes.split(",")]
+
+    print("## exact stiffness, frictional diluted triangular network (kt = kn, z ~ 4.1)")
+    print(f"{'N':>8} {'solver':>8} {'dof':>8} {'ratt':>6} {'flop':>5} {'K/K_aff':>9} {'G/G_aff':>9} "
+          f"{'assembly s':>10} {'solve s':>8} {'total s':>8} {'resid':>8}")
+    for n in sizes:
+        net = diluted_triangular(n)
+        for s in _solvers():
+            t0 = time.perf_counter()
+            r = stiffness(net, solver=s)
+            tt = time.perf_counter() - t0
+            print(f"{net.n_particles:>8} {s:>8} {r.n_dof:>8} {r.n_rattlers:>6} {r.n_floppy:>5} "
+                  f"{r.K / r.K_affine:>9.6f} {r.G / r.G_affine:>9.6f} {r.assembly_time:>10.3f} "
+                  f"{r.solve_time:>8.3f} {tt:>8.3f} {r.residual:>8.1e}", flush=True)
+
+    if a.no_jax:
+        return
+    try:
+        import jax_md  # noqa: F401
+    except Exception as exc:   # noqa: BLE001
+        print(f"\n(jax-md not importable: {exc}; skipping the peer comparison)")
+        return
+    print("\n## frictionless harmonic disks with pre-stress vs jax-md athermal_moduli")
+    print(f"{'N':>6} {'K':>12} {'G':>12} {'dK rel':>9} {'dG rel':>9} {'dC rel':>9} {'ours s':>8} "
+          f"{'jax s':>8} {'jax 1st s':>9} {'ratio':>7} {'p':>9}")
+    for n in ([256] if a.quick else [256, 1024, 4096]):
+        pos, rad, L = soft_disk_packing(n)
+        net = packing_network(pos, rad, L)
+        t0 = time.perf_counter()
+        r = stiffness(net, prestress=True)
+        t_ours = time.perf_counter() - t0
+        for cg_tol, tether in ((1e-7, 1e-10), (1e-12, 1e-14)):
+            Cj, conv, t1, tj, _ = jaxmd_moduli(pos, rad, L, cg_tol=cg_tol, tether=tether)
+            sig0 = mandel_to_strain(r.stress0_mandel)
+            p = -0.5 * np.trace(sig0)
+            Bj, Gj = isotropic_moduli(tensor_to_mandel(Cj))
+            Kc, Gc = Bj + p / 2, Gj - p / 2
+            Cc = tensor_to_mandel(Cj) + _prestress_correction(sig0)
+            dC = np.abs(Cc - r.C_mandel).max() / np.abs(r.C_mandel).max()
+            print(f"{n:>6} {r.K:>12.9f} {r.G:>12.9f} {abs(Kc - r.K) / r.K:>9.1e} "
+                  f"{abs(Gc - r.G) / r.G:>9.1e} {dC:>9.1e} {t_ours:>8.3f} {tj:>8.3f} {t1:>9.3f} "
+                  f"{tj / t_ours:>7.1f} {p:>9.2e}  (cg_tol {cg_tol:g}, tether {tether:g}, "
+                  f"converged {conv}, rattlers {r.n_rattlers}, floppy {r.n_floppy})", flush=True)
+
+
+if __name__ == "__main__":
+    main()
