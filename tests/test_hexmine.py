@@ -1,0 +1,278 @@
+"""Verification tests of the free-hexagon mine scene (MINE_SCENE.md §6.2, ids T1-T10 there).
+
+Fast by default (small scenes); longer ones are marked slow.
+"""
+import numpy as np
+import pytest
+
+from dem.hexmine import (InterfaceLaw, MineParams, advance, build_scene, element_stiffness, energies,
+                         gershgorin_dt, hex_geometry, isotropic_from_C, periodic_moduli, power_dt)
+from dem.hexmine.dynamics import assemble_stiffness
+from dem.hexmine.element import lattice_closed_form, linear_modes, plane_strain_D, rigid_modes
+from dem.hexmine.runner import load_checkpoint, run_scene, save_checkpoint
+
+E, NU, R = 50e9, 0.25, 0.25
+
+
+def small(**kw):
+    base = dict(width=8.0, height=4.0, seam_bottom=0.0, seam_top=2.0, opening_x0=0.0, opening_width=1.0,
+                n_disl=1, disl_first=1.5, disl_spacing=2.0, elastic_layer=1.0, depth=1000.0,
+                duration=0.01, ramp_time=0.002, output_every=2e-4)
+    base.update(kw)
+    return MineParams(**base)
+
+
+# ----------------------------------------------------------------------------- T1 lattice moduli
+def test_T1_periodic_moduli_hybrid_kn24():
+    K = element_stiffness(E, NU, R, kind="hybrid")
+    kn = 24 * E / (2 * R)
+    C = periodic_moduli(K, R, kn, kn)
+    Ee, nue = isotropic_from_C(C)
+    assert abs(Ee / E / 0.9615 - 1) < 5e-3
+    assert abs(nue / 0.2419 - 1) < 5e-3
+    assert abs(C[0, 0] - C[1, 1]) < 1e-6 * C[0, 0]
+    assert abs(C[0, 0] - C[0, 1] - 2 * C[2, 2]) < 1e-6 * C[0, 0]     # isotropy
+
+
+def test_T1_stiff_limit_and_rigid_element_lattice():
+    K = element_stiffness(E, NU, R, kind="hybrid")
+    Ee, nue = isotropic_from_C(periodic_moduli(K, R, 1e7 * E, 1e7 * E))
+    assert abs(Ee / E - 1) < 1e-5 and abs(nue - 0.25) < 1e-5
+    # rigid hexagons -> triangular lattice closed form with kn_l = L kn, ks_l = L kt
+    L = hex_geometry(R)["L"]
+    kn, kt = 1e9, 0.4e9
+    Kr = element_stiffness(1e9 * E, NU, R, kind="hybrid")
+    C = periodic_moduli(Kr, R, kn, kt)
+    Cc = lattice_closed_form(L * kn, L * kt)
+    assert np.allclose(C, Cc, rtol=1e-6, atol=1e-6 * Cc.max())
+
+
+# ----------------------------------------------------------------------------- T2/T3 element
+@pytest.mark.parametrize("theta0", [0.0, np.pi / 6, 0.3])
+def test_T2_patch_test_hybrid_exact_bem_off(theta0):
+    geo = hex_geometry(R, theta0)
+    D = plane_strain_D(E, NU)
+    lin = linear_modes(geo)[:, 3:]
+    for kind, lo, hi in (("hybrid", 0, 1e-10), ("bem", 0.05, 0.15)):
+        K = element_stiffness(E, NU, R, theta0, kind=kind)
+        for e in np.eye(3):
+            s = D @ e
+            S = np.array([[s[0], s[2]], [s[2], s[1]]])
+            fex = np.concatenate([S @ geo["n"][k] * geo["L"] for k in range(6)])
+            err = np.linalg.norm(K @ (lin @ e) - fex) / np.linalg.norm(fex)
+            assert lo <= err <= hi, (kind, err)
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "bem"])
+def test_T3_rigid_modes_and_definiteness(kind):
+    geo = hex_geometry(R)
+    K = element_stiffness(E, NU, R, kind=kind)
+    assert np.abs(K - K.T).max() == 0
+    r = np.linalg.norm(K @ rigid_modes(geo), axis=0) / np.linalg.norm(K)
+    assert r.max() < 1e-12
+    ev = np.linalg.eigvalsh(K)
+    assert ev.min() >= -1e-12 * ev.max()
+    assert np.sum(ev > 1e-9 * ev.max()) == 9
+
+
+def test_T3_raw_bem_is_indefinite_when_only_symmetrised():
+    ev = np.linalg.eigvalsh(element_stiffness(E, NU, R, kind="bem_sym"))
+    assert ev.min() / E == pytest.approx(-3.3e-4, rel=0.05)
+
+
+# ----------------------------------------------------------------------------- T9 interface law
+def test_T9_interface_law():
+    kn = kt = 2.4e12
+    ft, c, phi = 1e5, 1e6, 25.0
+    law = InterfaceLaw(kn, kt, ft, c, phi)
+    # tension: breaks when sn reaches ft, then carries no tension
+    law.update(0.99 * ft / kn, 0.0)
+    assert law.broken == 0 and law.sn == pytest.approx(0.99 * ft)
+    law.update(1.0001 * ft / kn, 0.0)
+    assert law.broken == 1 and law.sn == 0.0
+    law.update(2 * ft / kn, 0.0)
+    assert law.sn == 0.0
+    law.update(-1e6 / kn, 0.0)                          # re-closes: compression, friction only
+    assert law.sn == pytest.approx(-1e6)
+    law.update(-1e6 / kn, 1.0)                          # large slip: tau = -sn tan(phi)
+    assert law.tau == pytest.approx(1e6 * np.tan(np.radians(phi)))
+    # shear: |tau| = c - sn tan(phi) at sn = -5 MPa
+    sn = -5e6
+    lim = c - sn * np.tan(np.radians(phi))
+    law = InterfaceLaw(kn, kt, ft, c, phi, sn0=sn)
+    law.update(0.0, 0.999 * lim / kt)
+    assert law.broken == 0
+    law.update(0.0, 1.001 * lim / kt)
+    assert law.broken == 2
+    assert abs(law.tau) == pytest.approx(-sn * np.tan(np.radians(phi)))
+    assert law.d_break > 0
+
+
+def test_T9_gas_shifts_onset_by_pg():
+    kn = kt = 2.4e12
+    pg = 1e6
+    for ft in (0.0, 1e4):
+        a = InterfaceLaw(kn, kt, ft, 1e5, 22.0, pg=0.0, sn0=-3e6)   # apex c/tan(phi) > ft
+        b = InterfaceLaw(kn, kt, ft, 1e5, 22.0, pg=pg, sn0=-3e6)
+        jn_a = (ft + 3e6) / kn
+        jn_b = (ft - pg + 3e6) / kn
+        a.update(jn_a * 0.9999, 0.0)
+        b.update(jn_b * 0.9999, 0.0)
+        assert a.broken == 0 and b.broken == 0
+        a.update(jn_a * 1.0001, 0.0)
+        b.update(jn_b * 1.0001, 0.0)
+        assert a.broken == 1 and b.broken == 1
+        assert b.sn == pytest.approx(-pg)                 # open faces carry the gas pressure
+
+
+# ----------------------------------------------------------------------------- T4 time step
+def test_T4_time_step_bound_and_stability():
+    sc = build_scene(small(elastic=True, ramp="none", n_disl=0))
+    m = sc.model
+    dg = gershgorin_dt(m)
+    dp = power_dt(m)
+    assert dg <= dp and dg > 0.95 * dp
+    with pytest.raises(ValueError, match="dt=.*exceeds the stability limit"):
+        advance(m, 1, 1.01 * dg, dg)
+    rng = np.random.default_rng(1)
+    res = {}
+    for f in (0.95, 1.05):
+        sc = build_scene(small(elastic=True, ramp="none", n_disl=0))
+        m = sc.model
+        free = m.minv > 0
+        m.u = m.u + 1e-9 * rng.standard_normal(m.u.shape) * free
+        m.f = None
+        e0 = None
+        amp = 0.0
+        try:
+            for _ in range(20):                      # 10^4 steps
+                advance(m, 500, f * dp, np.inf)
+                amp = np.abs(m.u - m.u0).max()
+                e0 = e0 or amp
+            res[f] = amp / e0
+        except RuntimeError:                         # runaway guard fired: unstable
+            res[f] = np.inf
+    assert res[0.95] < 10
+    assert res[1.05] > 1e3
+
+
+def test_T4_bulk_scene_timestep_matches_note():
+    sc = build_scene(MineParams())
+    dg = gershgorin_dt(sc.model)
+    assert 13e-6 < dg < 16.5e-6            # note: 15.7 us for d = 0.5 m, kn d/E = 24
+
+
+# ----------------------------------------------------------------------------- T5 virgin state
+def test_T5_virgin_state_exact():
+    sc = build_scene(MineParams(ramp="none"))
+    assert sc.virgin_residual < 1e-12
+    assert sc.virgin_utilisation < 1.0
+    m = sc.model
+    dg = gershgorin_dt(m)
+    advance(m, 10000, 0.85 * dg, dg)
+    assert np.abs(m.vh).max() < 1e-9
+    assert (m.broken == 0).all()
+
+
+def test_flat_top_orientation_is_refused_at_virgin_state():
+    with pytest.raises(ValueError, match="virgin state violates Mohr-Coulomb"):
+        build_scene(MineParams(orientation_deg=30.0))
+
+
+# ----------------------------------------------------------------------------- T7 static solve
+def test_T7_elastic_excavation_matches_direct_sparse_solve():
+    import scipy.sparse.linalg as spla
+    p = small(elastic=True, ramp="instant", n_disl=0, damping=3000.0, contact_damping=0.0)
+    sc = build_scene(p)
+    m = sc.model
+    K = assemble_stiffness(m)
+    free = m.minv.ravel() > 0
+    rhs = np.zeros(m.u.size)
+    idx = 12 * m.wc + 2 * m.wk
+    np.add.at(rhs, idx, -m.FE0[:, 0])
+    np.add.at(rhs, idx + 1, -m.FE0[:, 1])
+    du = np.zeros(m.u.size)
+    du[free] = spla.spsolve(K[free][:, free].tocsc(), rhs[free])
+    dg = gershgorin_dt(m)
+    for _ in range(40):
+        advance(m, 1000, 0.8 * dg, dg)
+    got = (m.u - m.u0).ravel()
+    assert np.abs(got - du).max() < 1e-4 * np.abs(du).max()
+    # released energy = 1/2 sum F_E0 . du (linear), absorbed by the damping after an instant release
+    Wr = abs(0.5 * rhs @ du)
+    e = energies(m)
+    assert e["D_damp"] == pytest.approx(Wr, rel=0.02)
+
+
+# ----------------------------------------------------------------------------- T8 mirror symmetry
+def _mirror_pair(angle):
+    return MineParams(seam_bottom=2.375, seam_top=7.125, top_bc="roller", elastic_layer=0.0,
+                      disl_angle_deg=angle, duration=0.004, ramp="linear", ramp_time=0.002,
+                      output_every=2e-4)
+
+
+def test_T8_mirror_symmetry_about_seam_midplane():
+    a = run_scene(_mirror_pair(60.0))
+    b = run_scene(_mirror_pair(120.0))
+    ea, eb = a.series["Ek"], b.series["Ek"]
+    assert ea.max() > 0
+    assert np.abs(ea - eb).max() <= 1e-9 * ea.max()
+    assert a.indicators["n_shear"] == b.indicators["n_shear"]
+
+
+# ----------------------------------------------------------------------------- T10 energy balance
+def test_T10_energy_balance_nonlinear():
+    r = run_scene(small(duration=0.02, ramp_time=0.002))
+    s = r.series
+    assert r.indicators["n_shear"] + r.indicators["n_tension"] > 0
+    W = np.abs(s["W_ext"]).max()
+    assert np.abs(s["residual"]).max() < 0.01 * W
+
+
+# ----------------------------------------------------------------------------- input, checkpoints
+@pytest.mark.parametrize("kw,name", [
+    (dict(coal_E=-1.0), "coal_E"), (dict(rock_phi_deg=90.0), "rock_phi_deg"),
+    (dict(coal_phi_deg=-1.0), "coal_phi_deg"), (dict(n_disl=3, disl_first=20.0), "dislocation"),
+    (dict(disl_angle_deg=180.0), "disl_angle_deg"), (dict(rock_nu=0.5), "rock_nu"),
+    (dict(ramp="linear", ramp_time=0.0), "ramp_time"), (dict(top_bc="free"), "top_bc")])
+def test_invalid_scenes_refused(kw, name):
+    with pytest.raises(ValueError, match=name):
+        MineParams(**kw).validate()
+
+
+def test_toml_loading(tmp_path):
+    from dem.hexmine import load_toml
+    f = tmp_path / "s.toml"
+    f.write_text('[scene]\ndisl_angle_deg = 120.0\nn_disl = 2\ngas = false\n')
+    p = load_toml(f)
+    assert p.disl_angle_deg == 120.0 and p.n_disl == 2 and p.gas is False
+    f.write_text('bogus = 1\n')
+    with pytest.raises(ValueError, match="bogus"):
+        load_toml(f)
+
+
+def test_checkpoint_resume_bit_exact(tmp_path):
+    p = small(duration=0.004)
+    full = run_scene(p)
+    d = tmp_path / "run"
+    r1 = run_scene(p, out_dir=d, t_end=0.002, checkpoint_every=1e-3)
+    r2 = run_scene(p, out_dir=d, resume=True)
+    assert np.array_equal(full.scene.model.u, r2.scene.model.u)
+    assert np.array_equal(full.scene.model.vh, r2.scene.model.vh)
+    assert full.series["Ek"][-1] == r2.series["Ek"][-1]
+
+
+def test_generic_step_matches_fused_loop():
+    from dem.hexmine.dynamics import model_forces, step
+    p = small(duration=0.001)
+    a = build_scene(p).model
+    b = build_scene(p).model
+    dg = gershgorin_dt(a)
+    dt = 0.7 * dg
+    advance(a, 50, dt, dg)
+    st = {"u": b.u.copy(), "vh": b.vh.copy(), "f": b.f.copy(), "t": 0.0}
+    b.dt_last = dt
+    for _ in range(50):
+        b.vh = st["vh"]
+        st = step(st, dt, lambda u, t: model_forces(b, u, t), b.minv)
+    assert np.allclose(st["u"], a.u, rtol=0, atol=1e-12 * np.abs(a.u).max())
