@@ -242,14 +242,23 @@ def _candidate_pairs(positions, cell, origin, cutoff):
         d = local[j] - local[i]
         d -= box * np.rint(d / box)
     else:
-        shifts = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=float)
-        images = (wrapped[None, :, :] + (shifts @ cell.T)[:, None, :]).reshape(-1, 2)
-        tree = cKDTree(images)
-        base = cKDTree(wrapped)
-        sdm = base.sparse_distance_matrix(tree, cutoff, output_type="ndarray")
+        # sheared cell: the particles plus the images of those within `cutoff` of an edge
+        fm = cutoff / heights  # margin in fractional units per cell direction
+        pts, own = [wrapped], [np.arange(n)]
+        for a in (-1, 0, 1):
+            for b in (-1, 0, 1):
+                if a == 0 and b == 0:
+                    continue
+                f = frac + np.array([a, b], dtype=float)
+                near = np.all((f > -fm) & (f < 1 + fm), axis=1)
+                pts.append(origin + f[near] @ cell.T)
+                own.append(np.flatnonzero(near))
+        images = np.concatenate(pts)
+        owner = np.concatenate(own)
+        sdm = cKDTree(wrapped).sparse_distance_matrix(cKDTree(images), cutoff, output_type="ndarray")
         i = sdm["i"].astype(np.int64)
         img = sdm["j"].astype(np.int64)
-        j = img % n
+        j = owner[img]
         keep = i < j
         i, j, img = i[keep], j[keep], img[keep]
         d = images[img] - wrapped[i]

@@ -177,3 +177,22 @@ def test_bad_network_inputs():
         from_overlaps(np.zeros((2, 2)) + 0.5, 0.5, np.diag([1.5, 1.5]))
     with pytest.raises(ValueError, match="positions"):
         from_overlaps(np.array([[0.0, np.nan]]), 0.5)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 2.5, -7.0])
+def test_from_overlaps_matches_brute_force(tilt):
+    rng = np.random.default_rng(5)
+    L = 12.0
+    h = np.array([[L, tilt], [0.0, L * 0.9]])
+    pos = rng.uniform(-3, 15, (150, 2))
+    radii = rng.uniform(0.4, 0.6, 150)
+    net = from_overlaps(pos, radii, h)
+    found = {(int(i), int(j), *np.round(b, 9)) for (i, j), b in zip(net.pairs, net.branch)}
+    brute = set()
+    iu, ju = np.triu_indices(150, 1)
+    for a in range(-3, 4):
+        for b in range(-3, 4):
+            d = pos[ju] + h @ [a, b] - pos[iu]
+            hit = np.hypot(d[:, 0], d[:, 1]) <= (radii[iu] + radii[ju]) * (1 + 1e-9)
+            brute |= {(int(i), int(j), *np.round(dd, 9)) for i, j, dd in zip(iu[hit], ju[hit], d[hit])}
+    assert found == brute and len(found) > 50

@@ -1,0 +1,96 @@
+"""Configurations in and out: LAMMPS data/dump, Kuhn's OVAL D-files, npz, CSV and VTK.
+
+Every reader returns a :class:`Configuration` (positions, radii, periodic cell, origin, ids, ...)
+whose :meth:`Configuration.network` builds the :class:`~microhom.network.ContactNetwork`; every
+writer takes a ``Configuration`` (or a ``ContactNetwork``). Malformed files raise
+:class:`FormatError` (a ``ValueError``) naming the file, the line and the field.
+
+>>> from dem import io
+>>> cfg = io.read("packing.lammpstrj")            # format from the extension
+>>> net = cfg.network(kn=1e5, kt=5e4)             # contacts by overlap
+>>> io.write("packing.data", cfg)                 # continue in LAMMPS (read_data)
+>>> io.write("packing.vtu", cfg, network=net)     # ParaView (needs meshio)
+
+Formats (``format=`` names and extensions) are described in ``docs/formats.md``.
+"""
+from __future__ import annotations
+
+import os
+
+from ._core import KN_CONVENTIONS, Configuration, FormatError
+from .lammps import (box_from_dump_bounds, dump_bounds, iter_lammps_dump, read_lammps_data,
+                     read_lammps_dump, write_lammps_data, write_lammps_dump)
+from .oval import read_oval, write_oval
+from .simple import FORMAT_VERSION, read_csv, read_npz, write_csv, write_npz
+from .vtk import read_vtk, write_vtk
+
+__all__ = ["Configuration", "FormatError", "KN_CONVENTIONS", "FORMAT_VERSION", "FORMATS",
+           "read", "write", "detect_format",
+           "read_lammps_data", "write_lammps_data", "read_lammps_dump", "write_lammps_dump",
+           "iter_lammps_dump", "dump_bounds", "box_from_dump_bounds",
+           "read_oval", "write_oval", "read_npz", "write_npz", "read_csv", "write_csv",
+           "read_vtk", "write_vtk"]
+
+#: format name -> (reader, writer)
+FORMATS = {
+    "lammps-data": (read_lammps_data, write_lammps_data),
+    "lammps-dump": (read_lammps_dump, write_lammps_dump),
+    "oval": (read_oval, write_oval),
+    "npz": (read_npz, write_npz),
+    "csv": (read_csv, write_csv),
+    "vtk": (read_vtk, write_vtk),
+}
+
+_EXTENSIONS = {".data": "lammps-data", ".lmp": "lammps-data",
+               ".dump": "lammps-dump", ".lammpstrj": "lammps-dump",
+               ".dfile": "oval", ".d": "oval",
+               ".npz": "npz", ".csv": "csv", ".vtu": "vtk", ".vtk": "vtk"}
+
+
+def detect_format(path) -> str:
+    """Format name from the file name: the extension (a trailing ``.gz`` is looked through for
+    LAMMPS files), else ``"oval"`` for names starting with ``D`` (Kuhn's ``D0001`` style)."""
+    name = os.path.basename(os.fspath(path))
+    base = name[:-3] if name.lower().endswith(".gz") else name
+    ext = os.path.splitext(base)[1].lower()
+    if ext in _EXTENSIONS:
+        fmt = _EXTENSIONS[ext]
+        if name != base and not fmt.startswith("lammps"):
+            raise ValueError(f"{name}: gzip is supported for LAMMPS files only")
+        return fmt
+    if base.startswith("D"):
+        return "oval"
+    raise ValueError(f"cannot tell the format of {name!r} from its name; pass format= one of "
+                     f"{sorted(FORMATS)} (extensions: {sorted(_EXTENSIONS)}, or D* for OVAL)")
+
+
+def _format(path, format):
+    if format is None:
+        return detect_format(path)
+    if format not in FORMATS:
+        raise ValueError(f"unknown format {format!r}; known: {sorted(FORMATS)}")
+    return format
+
+
+def read(path, format=None, **kwargs) -> Configuration:
+    """Read a configuration; ``format`` from the name (:func:`detect_format`) unless given.
+    ``kwargs`` go to the reader (e.g. ``frame=-1`` for dumps, ``periodic=False`` for data files)."""
+    return FORMATS[_format(path, format)][0](path, **kwargs)
+
+
+def write(path, config, format=None, **kwargs):
+    """Write a :class:`Configuration` or a :class:`~microhom.network.ContactNetwork`.
+
+    ``format`` from the name unless given; ``kwargs`` go to the writer. For VTK a network given as
+    ``config`` (or as ``network=``) also writes its contacts as lines.
+    """
+    fmt = _format(path, format)
+    if not isinstance(config, Configuration):
+        from microhom.network import ContactNetwork
+        if isinstance(config, ContactNetwork):
+            if fmt == "vtk":
+                kwargs.setdefault("network", config)
+            config = Configuration.from_network(config)
+        else:
+            raise TypeError(f"expected a Configuration or ContactNetwork, got {type(config)!r}")
+    return FORMATS[fmt][1](path, config, **kwargs)

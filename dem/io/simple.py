@@ -1,0 +1,253 @@
+"""Plain npz and CSV configuration files (this project's own schema, versioned).
+
+npz schema (``format_version`` 1), one array per key:
+
+=====================  ==========  =========================================================
+key                    shape       meaning
+=====================  ==========  =========================================================
+``format``             ()          the string ``"microhom-configuration"``
+``format_version``     ()          int, 1
+``positions``          (N, 2)      float64 centres
+``radii``              (N,)        float64 radii
+``cell``               (2, 2)      float64 shape matrix, columns = cell vectors (absent: open)
+``origin``             (2,)        float64 lower-left corner of the cell
+``ids``, ``types``     (N,)        int64
+``velocities``         (N, 2)      optional
+``forces``             (N, 2)      optional
+``field:<name>``       (N,)        optional further per-particle fields
+``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
+=====================  ==========  =========================================================
+
+CSV schema (``format_version`` 1): ``#`` header lines ``key: value`` (``format_version``,
+``cell_a: ax ay``, ``cell_b: bx by`` — both absent for an open packing —, ``origin: ox oy``,
+``meta: {json}``), then a comma-separated table with a header row ``id,type,x,y,radius`` followed
+by optional ``vx,vy``, ``fx,fy`` and further field columns. Floats are written with 17 significant
+digits, so a round trip is exact.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+
+import numpy as np
+
+from ._core import Configuration, FormatError, open_bytes
+
+
+def _f(x):
+    """Shortest text that reads back as the same float64."""
+    return repr(float(x))
+
+
+__all__ = ["read_npz", "write_npz", "read_csv", "write_csv", "FORMAT_VERSION"]
+
+FORMAT_VERSION = 1
+_MAGIC = "microhom-configuration"
+
+
+def _jsonable_meta(meta):
+    out = {}
+    for k, v in meta.items():
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        elif isinstance(v, np.generic):
+            v = v.item()
+        try:
+            json.dumps(v)
+        except (TypeError, ValueError):
+            continue
+        out[str(k)] = v
+    return out
+
+
+def write_npz(path, config, *, compressed=False):
+    """Write ``config`` as an npz file (schema in the module docstring)."""
+    arrays = {"format": np.array(_MAGIC), "format_version": np.array(FORMAT_VERSION),
+              "positions": config.positions, "radii": config.radii, "origin": config.origin,
+              "ids": config.ids, "types": config.types,
+              "meta_json": np.array(json.dumps(_jsonable_meta(config.meta)))}
+    if config.cell is not None:
+        arrays["cell"] = config.cell
+    if config.velocities is not None:
+        arrays["velocities"] = config.velocities
+    if config.forces is not None:
+        arrays["forces"] = config.forces
+    for name, v in config.fields.items():
+        arrays[f"field:{name}"] = v
+    with open(path, "wb") as f:  # a file object: numpy would otherwise append ".npz"
+        (np.savez_compressed if compressed else np.savez)(f, **arrays)
+
+
+def read_npz(path) -> Configuration:
+    """Read an npz configuration written by :func:`write_npz` (checks format and version)."""
+    path = os.fspath(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except Exception as e:  # not a zip / corrupt
+        raise FormatError(path, None, None, f"not a readable npz file ({e})") from None
+    with z:
+        keys = set(z.files)
+        if "format" not in keys or str(z["format"]) != _MAGIC:
+            raise FormatError(path, None, "format", f"not a {_MAGIC} npz file")
+        version = int(z["format_version"]) if "format_version" in keys else None
+        if version is None or version > FORMAT_VERSION or version < 1:
+            raise FormatError(path, None, "format_version",
+                              f"unsupported version {version} (this reader: {FORMAT_VERSION})")
+        for key in ("positions", "radii"):
+            if key not in keys:
+                raise FormatError(path, None, key, "missing")
+        get = {k: z[k] for k in keys}
+    kw = {}
+    for key in ("cell", "origin", "ids", "types", "velocities", "forces"):
+        if key in get:
+            kw[key] = get[key]
+    fields = {k.split(":", 1)[1]: v for k, v in get.items() if k.startswith("field:")}
+    meta = json.loads(str(get["meta_json"])) if "meta_json" in get else {}
+    rad = get["radii"]
+    if rad.ndim == 1:
+        bad = np.flatnonzero(~(rad > 0))
+        if bad.size:
+            raise FormatError(path, None, "radii", f"radius of particle {int(bad[0])} is "
+                              f"{rad[bad[0]]!r} (must be > 0)")
+    try:
+        return Configuration(positions=get["positions"], radii=rad, fields=fields, meta=meta,
+                             source=path, source_format="npz", **kw)
+    except ValueError as e:
+        raise FormatError(path, None, None, str(e)) from None
+
+
+def write_csv(path, config):
+    """Write ``config`` as CSV (schema in the module docstring)."""
+    lines = ["# microhom configuration (dem.io CSV)", f"# format_version: {FORMAT_VERSION}"]
+    if config.cell is not None:
+        h = config.cell
+        lines += [f"# cell_a: {_f(h[0, 0])} {_f(h[1, 0])}",
+                  f"# cell_b: {_f(h[0, 1])} {_f(h[1, 1])}"]
+    lines += [f"# origin: {_f(config.origin[0])} {_f(config.origin[1])}",
+              f"# meta: {json.dumps(_jsonable_meta(config.meta))}"]
+    names = ["id", "type", "x", "y", "radius"]
+    cols = [config.ids, config.types, config.positions[:, 0], config.positions[:, 1],
+            config.radii]
+    fmts = ["%d", "%d", "%.17g", "%.17g", "%.17g"]
+    for label, v in (("v", config.velocities), ("f", config.forces)):
+        if v is not None:
+            names += [label + "x", label + "y"]
+            cols += [v[:, 0], v[:, 1]]
+            fmts += ["%.17g", "%.17g"]
+    for name, v in config.fields.items():
+        if name in names or "," in name:
+            raise ValueError(f"field name {name!r} clashes with a column or contains a comma")
+        v = np.asarray(v)
+        if v.dtype.kind not in "iufb":
+            raise ValueError(f"field {name!r} is not numeric")
+        names.append(name)
+        cols.append(v)
+        fmts.append("%d" if v.dtype.kind in "iub" else "%.17g")
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n" + ",".join(names) + "\n")
+        np.savetxt(f, np.column_stack(cols), fmt=fmts, delimiter=",")
+
+
+def _csv_floats(path, lineno, name, text, n):
+    toks = text.split()
+    if len(toks) != n:
+        raise FormatError(path, lineno, name, f"expected {n} numbers, found {len(toks)}")
+    try:
+        vals = [float(t) for t in toks]
+    except ValueError:
+        raise FormatError(path, lineno, name, f"non-numeric value in {text!r}") from None
+    if not all(np.isfinite(vals)):
+        raise FormatError(path, lineno, name, "non-finite value")
+    return vals
+
+
+def read_csv(path) -> Configuration:
+    """Read a CSV configuration written by :func:`write_csv` (checks version and every field)."""
+    import pandas as pd
+
+    path = os.fspath(path)
+    data = open_bytes(path)
+    lines = data.split(b"\n")
+    head = {}
+    k = 0
+    while k < len(lines) and lines[k].startswith(b"#"):
+        text = lines[k][1:].decode("utf-8", "replace").strip()
+        if ":" in text:
+            key, val = text.split(":", 1)
+            head[key.strip()] = (val.strip(), k + 1)
+        k += 1
+    if "format_version" not in head:
+        raise FormatError(path, 1, "format_version", "missing '# format_version: N' header line")
+    v, ln = head["format_version"]
+    if v not in {str(i) for i in range(1, FORMAT_VERSION + 1)}:
+        raise FormatError(path, ln, "format_version",
+                          f"unsupported version {v!r} (this reader: {FORMAT_VERSION})")
+    cell = None
+    if "cell_a" in head or "cell_b" in head:
+        for key in ("cell_a", "cell_b"):
+            if key not in head:
+                raise FormatError(path, None, key, "missing (cell_a and cell_b go together)")
+        a = _csv_floats(path, head["cell_a"][1], "cell_a", head["cell_a"][0], 2)
+        b = _csv_floats(path, head["cell_b"][1], "cell_b", head["cell_b"][0], 2)
+        cell = np.array([a, b]).T
+    origin = (_csv_floats(path, head["origin"][1], "origin", head["origin"][0], 2)
+              if "origin" in head else (0.0, 0.0))
+    meta = {}
+    if "meta" in head:
+        try:
+            meta = json.loads(head["meta"][0])
+        except ValueError:
+            raise FormatError(path, head["meta"][1], "meta", "invalid JSON") from None
+    if k >= len(lines):
+        raise FormatError(path, k, None, "truncated: no column header row")
+    names = [c.strip() for c in lines[k].decode("utf-8", "replace").split(",")]
+    for req in ("x", "y", "radius"):
+        if req not in names:
+            raise FormatError(path, k + 1, req, f"column missing from header {names}")
+    first = k + 2
+    block = b"\n".join(lines[k + 1:])
+    arr = None
+    try:
+        df = pd.read_csv(io.BytesIO(block), header=None, names=names, dtype=np.float64,
+                         engine="c")
+        arr = df.to_numpy(dtype=np.float64)
+        if not np.all(np.isfinite(arr)):
+            arr = None
+    except (ValueError, pd.errors.ParserError):
+        arr = None
+    if arr is None:  # locate the problem
+        for j, raw in enumerate(lines[k + 1:]):
+            text = raw.decode("utf-8", "replace").strip()
+            if not text:
+                continue
+            toks = text.split(",")
+            if len(toks) != len(names):
+                raise FormatError(path, first + j, None,
+                                  f"expected {len(names)} columns, found {len(toks)}")
+            for tok, name in zip(toks, names):
+                try:
+                    val = float(tok)
+                except ValueError:
+                    raise FormatError(path, first + j, name, f"non-numeric value {tok!r}") from None
+                if not np.isfinite(val):
+                    raise FormatError(path, first + j, name, f"non-finite value {tok!r}")
+        raise FormatError(path, first, None, "unparseable table")
+    col = {c: i for i, c in enumerate(names)}
+    rad = arr[:, col["radius"]]
+    bad = np.flatnonzero(~(rad > 0))
+    if bad.size:
+        raise FormatError(path, first + int(bad[0]), "radius",
+                          f"value {rad[bad[0]]!r} (must be > 0)")
+    used = {"id", "type", "x", "y", "radius", "vx", "vy", "fx", "fy"}
+    fields = {c: arr[:, i] for c, i in col.items() if c not in used}
+    for c in ("ix", "iy", "iz"):
+        if c in fields:
+            fields[c] = fields[c].astype(np.int64)
+    return Configuration(
+        positions=arr[:, [col["x"], col["y"]]], radii=rad, cell=cell, origin=origin,
+        ids=arr[:, col["id"]].astype(np.int64) if "id" in col else None,
+        types=arr[:, col["type"]].astype(np.int64) if "type" in col else None,
+        velocities=arr[:, [col["vx"], col["vy"]]] if "vx" in col and "vy" in col else None,
+        forces=arr[:, [col["fx"], col["fy"]]] if "fx" in col and "fy" in col else None,
+        fields=fields, meta=meta, source=path, source_format="csv")
