@@ -1,0 +1,117 @@
+"""Periodic deformable cell (2D): shape matrix, velocity gradient, wrapping and cell control.
+
+The cell is the parallelogram spanned by the columns of the shape matrix ``h`` (2x2) [m], with its
+origin at (0, 0). Fractional coordinates are ``s = h^{-1} x``; a position is wrapped by ``s -> s -
+floor(s)``. The cell deforms with the velocity gradient ``L`` [1/s]: ``dh/dt = L h``. Particle
+velocities are stored as fluctuations about the affine field (total velocity ``v + L x``, Yade
+``homoDeform`` style) and one explicit step maps both the cell and the positions with the same
+operator ``(I + dt L)``, so branch vectors ``x_j + h s - x_i`` are identical whichever image
+represents a particle.
+
+Cell control (called once per step with the measured stress):
+
+* :class:`StrainRate` — imposed constant velocity gradient ``L``.
+* :class:`PressureServo` — isotropic servo on the mean stress, target pressure ``p_target > 0``
+  (compression positive, ``p = -tr(sigma)/2``, 2D: force per length [N/m]). Stiffness-adaptive
+  gain: the isotropic strain rate is ``edot = -alpha (p_target - p) / (K dt)`` where
+  ``K = sum_c kn_c |l_c|^2 / (2 A)`` is the affine isotropic stiffness ``dp/d(eps)`` of the contact
+  network (``eps`` the strain per direction), capped at ``max_rate`` [1/s]; with no contacts the
+  cell compresses (or expands) at ``max_rate``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["heights", "wrap", "fractional", "StrainRate", "PressureServo", "rotation", "lammps_box"]
+
+
+def heights(h) -> np.ndarray:
+    """Perpendicular widths of the cell across its two pairs of faces [m]: (A/|a2|, A/|a1|)."""
+    h = np.asarray(h, dtype=float)
+    a = abs(np.linalg.det(h))
+    return np.array([a / np.hypot(*h[:, 1]), a / np.hypot(*h[:, 0])])
+
+
+def fractional(x, h) -> np.ndarray:
+    """Fractional coordinates s = h^{-1} x of positions x (N, 2)."""
+    return np.linalg.solve(np.asarray(h, float), np.asarray(x, float).T).T
+
+
+def wrap(x, h):
+    """Wrap positions into the cell. Returns (x_wrapped, k) with x = x_wrapped + h k, k integer (N, 2)."""
+    s = fractional(x, h)
+    k = np.floor(s)
+    return (s - k) @ np.asarray(h, float).T, k.astype(np.int64)
+
+
+def rotation(angle) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def lammps_box(h):
+    """(lx, ly, xy) of a LAMMPS/freud triclinic box equivalent to h (after a rigid rotation making
+    the first cell vector horizontal)."""
+    h = np.asarray(h, float)
+    a1, a2 = h[:, 0], h[:, 1]
+    lx = float(np.hypot(*a1))
+    xy = float(a2 @ a1 / lx)
+    ly = float(np.linalg.det(h) / lx)
+    return lx, ly, xy
+
+
+@dataclass
+class StrainRate:
+    """Imposed constant velocity gradient L (2, 2) [1/s] (e.g. ``[[-e, 0], [0, -e]]`` compresses)."""
+    L: np.ndarray
+
+    def __post_init__(self):
+        self.L = np.array(self.L, dtype=float).reshape(2, 2)
+        if not np.all(np.isfinite(self.L)):
+            raise ValueError("L must be finite")
+
+    def update(self, state, p, K, dt):
+        return self.L
+
+    def to_meta(self):
+        return {"kind": "strain_rate", "L": self.L.tolist()}
+
+
+@dataclass
+class PressureServo:
+    """Isotropic servo-control of the pressure p = -tr(sigma)/2 [N/m] to ``p_target`` (> 0).
+
+    alpha : fraction of the pressure error corrected per step with the affine stiffness (0, 1].
+    max_rate : cap on |edot| [1/s] (also the rate used while there are no contacts).
+    """
+    p_target: float
+    max_rate: float
+    alpha: float = 0.5
+
+    def __post_init__(self):
+        if not (np.isfinite(self.p_target) and self.p_target > 0):
+            raise ValueError(f"p_target must be > 0 (compression positive), got {self.p_target}")
+        if not (np.isfinite(self.max_rate) and self.max_rate > 0):
+            raise ValueError(f"max_rate must be > 0 [1/s], got {self.max_rate}")
+        if not (0 < self.alpha <= 1):
+            raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
+
+    def rate(self, p, K, dt) -> float:
+        """Isotropic strain rate (negative = compression) for measured pressure p and stiffness K."""
+        err = self.p_target - p
+        if K > 0:
+            e = -self.alpha * err / (K * dt)
+        else:
+            e = -self.max_rate if err > 0 else self.max_rate
+        return max(-self.max_rate, min(self.max_rate, e))
+
+    def update(self, state, p, K, dt):
+        e = self.rate(p, K, dt)
+        return np.array([[e, 0.0], [0.0, e]])
+
+    def to_meta(self):
+        return {"kind": "pressure_servo", "p_target": self.p_target, "max_rate": self.max_rate,
+                "alpha": self.alpha}

@@ -1,0 +1,442 @@
+"""Explicit time stepping of a 2D disk assembly in a periodic deformable cell.
+
+Scheme (leapfrog / velocity Verlet in kick-drift form, as in PFC and Yade)::
+
+    F_n      = contact forces at x_n (tangential history advanced with v_{n-1/2})
+    v_{n+1/2} = v_{n-1/2} + dt (F_n + F_damp) / m          (fluctuation velocities)
+    x_{n+1}   = x_n + dt (v_{n+1/2} + L x_n)               (affine field of the cell)
+    h_{n+1}   = h_n + dt L h_n                             (same operator: images stay consistent)
+
+with spins ``w`` and rotations integrated the same way with torques and ``I = m r^2 / 2``.
+
+Cundall local non-viscous damping, per component: ``F_damp,k = -lambda |F_k| sign(v_k)`` (first
+order, ``v = v_{n-1/2}``); default ``lambda = 0.7`` for quasi-static work, 0 for dynamics. The work
+done by it is accumulated in ``Simulation.damping_work`` [J/m].
+
+Critical time step (stated formula): ``dt_crit = min_i sqrt(m_i / K_i)`` with
+``K_i = z_i * k_law`` the sum over the *possible* contacts of particle i of the law's stiffness,
+``z_i = floor(pi / asin(r_min / (r_i + r_min)))`` the largest number of disks of the smallest radius
+that can touch disk i (6 for identical disks) and ``k_law`` = ``kn`` (frictionless) or
+``max(kn, 2 kt)`` (with friction and spins, covering the rotational modes of disks). Since the
+largest eigenfrequency of the assembly obeys ``omega_max^2 <= 2 K_i / m_i`` (Gershgorin), the
+leapfrog limit ``2 / omega_max`` is at least ``sqrt(2) dt_crit``. Default ``dt = 0.8 dt_crit``; a
+larger user ``dt`` than ``dt_crit`` raises ``ValueError``.
+
+Instability guard: every ``check_every`` steps the state is checked for NaN/inf and for a kinetic
+energy above ``ke_limit`` (default ``N * k_law * r_min^2``: every particle as energetic as a
+full-diameter overlap); a failure raises :class:`InstabilityError` carrying the last good state (and
+saves it to ``failure_path`` if set).
+
+Timing: every run ends with a per-phase table (neighbours, forces, integration, other) and the
+particle-steps per second, like LAMMPS (``Simulation.timing_report()``).
+"""
+from __future__ import annotations
+
+import math
+import time as _time
+
+import numpy as np
+from numba import njit
+
+from . import neighbors
+from .contact_laws import law_from_meta
+
+__all__ = ["Simulation", "InstabilityError", "critical_dt", "possible_contacts", "RunReport"]
+
+
+class InstabilityError(RuntimeError):
+    """The run became unstable; ``state`` is the last good state, ``step`` the failing step."""
+
+    def __init__(self, reason, state, step):
+        super().__init__(f"unstable run stopped at step {step}: {reason} "
+                         f"(last good state kept at step {state.step if state is not None else '?'})")
+        self.reason = reason
+        self.state = state
+        self.step = step
+
+
+def possible_contacts(radius) -> np.ndarray:
+    """(N,) largest number of smallest disks that can touch each disk (6 for identical disks)."""
+    r = np.asarray(radius, dtype=float)
+    rmin = r.min()
+    return np.floor(np.pi / np.arcsin(rmin / (r + rmin)) + 1e-9).astype(np.int64)
+
+
+def critical_dt(state, law) -> float:
+    """dt_crit = min_i sqrt(m_i / K_i), K_i = possible_contacts_i * law.dt_stiffness() [s]."""
+    K = possible_contacts(state.radius) * law.dt_stiffness()
+    return float(np.min(np.sqrt(state.mass / K)))
+
+
+# --------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _step_translation(x, v, f, mass, dt, damping, L00, L01, L10, L11, x_ref, F00, F01, F10, F11):
+    """Kick-drift of translations; returns (max non-affine displacement^2 since the last build,
+    kinetic energy at the integer time, work of the local damping)."""
+    d2max = 0.0
+    ke = 0.0
+    wd = 0.0
+    for i in range(x.shape[0]):
+        m = mass[i]
+        for k in range(2):
+            F = f[i, k]
+            vo = v[i, k]
+            Fd = 0.0
+            if damping > 0.0:
+                if vo > 0.0:
+                    Fd = -damping * abs(F)
+                elif vo < 0.0:
+                    Fd = damping * abs(F)
+            vn = vo + dt * (F + Fd) / m
+            vm = 0.5 * (vo + vn)
+            ke += 0.5 * m * vm * vm
+            wd += Fd * vm * dt
+            v[i, k] = vn
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x[i, 0] = x0 + dt * (v[i, 0] + L00 * x0 + L01 * x1)
+        x[i, 1] = x1 + dt * (v[i, 1] + L10 * x0 + L11 * x1)
+        dx = x[i, 0] - (F00 * x_ref[i, 0] + F01 * x_ref[i, 1])
+        dy = x[i, 1] - (F10 * x_ref[i, 0] + F11 * x_ref[i, 1])
+        d2 = dx * dx + dy * dy
+        if d2 > d2max:
+            d2max = d2
+    return d2max, ke, wd
+
+
+@njit(cache=True)
+def _step_rotation(omega, theta, torque, inertia, dt, damping):
+    ke = 0.0
+    wd = 0.0
+    for i in range(omega.shape[0]):
+        T = torque[i]
+        wo = omega[i]
+        Td = 0.0
+        if damping > 0.0:
+            if wo > 0.0:
+                Td = -damping * abs(T)
+            elif wo < 0.0:
+                Td = damping * abs(T)
+        wn = wo + dt * (T + Td) / inertia[i]
+        wm = 0.5 * (wo + wn)
+        ke += 0.5 * inertia[i] * wm * wm
+        wd += Td * wm * dt
+        omega[i] = wn
+        theta[i] += dt * wn
+    return ke, wd
+
+
+@njit(cache=True)
+def _kinetic(v, mass, omega, inertia):
+    ke = 0.0
+    for i in range(v.shape[0]):
+        ke += 0.5 * mass[i] * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1])
+    for i in range(omega.shape[0]):
+        ke += 0.5 * inertia[i] * omega[i] * omega[i]
+    return ke
+
+
+@njit(cache=True)
+def _resultants(f):
+    s = 0.0
+    m = 0.0
+    for i in range(f.shape[0]):
+        a = math.sqrt(f[i, 0] * f[i, 0] + f[i, 1] * f[i, 1])
+        s += a
+        if a > m:
+            m = a
+    return s, m
+
+
+def _norm2_2x2(a, b, c, d):
+    """Spectral norm of [[a, b], [c, d]]."""
+    s = a * a + b * b + c * c + d * d
+    det = a * d - b * c
+    return math.sqrt(max(0.0, 0.5 * (s + math.sqrt(max(0.0, s * s - 4 * det * det)))))
+
+
+class RunReport(dict):
+    """Summary of one ``Simulation.run`` call (dict) with a LAMMPS-like ``table`` string."""
+
+    def __str__(self):
+        return self["table"]
+
+
+class Simulation:
+    """A disk assembly, a contact law and an integrator in a periodic cell.
+
+    Parameters
+    ----------
+    state : :class:`dem.state.State` (modified in place).
+    law : a contact law from :mod:`dem.contact_laws`.
+    dt : time step [s]; default ``0.8 * critical_dt``; refused (ValueError) above ``critical_dt``
+        unless ``unsafe_dt=True`` (for tests of the instability guard).
+    damping : Cundall local damping lambda in [0, 1).
+    skin : Verlet skin [m], default 0.1 * mean diameter... (0.2 * mean radius).
+    control : cell control (:class:`dem.cell.StrainRate`, :class:`dem.cell.PressureServo`) or None
+        (the cell keeps its current ``L``).
+    sort_every : spatially sort the particles every this many list rebuilds (0: never).
+    check_every : steps between instability checks; ke_limit : kinetic-energy bound [J/m].
+    """
+
+    def __init__(self, state, law, *, dt=None, damping=0.7, skin=None, control=None, sort_every=20,
+                 check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None):
+        self.state = state
+        self.law = law
+        if not (0 <= damping < 1):
+            raise ValueError(f"damping must be in [0, 1), got {damping}")
+        self.damping = float(damping)
+        self.skin = float(0.2 * np.mean(state.radius) if skin is None else skin)
+        if not (self.skin > 0):
+            raise ValueError(f"skin must be > 0, got {skin}")
+        self.dt_crit = critical_dt(state, law)
+        if dt is None:
+            dt = 0.8 * self.dt_crit
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be > 0, got {dt}")
+        if dt > self.dt_crit and not unsafe_dt:
+            raise ValueError(f"dt = {dt:.6g} exceeds the stable time step dt_crit = {self.dt_crit:.6g} "
+                             f"(dt_crit = min_i sqrt(m_i/K_i); allowed range (0, {self.dt_crit:.6g}])")
+        self.dt = float(dt)
+        self.control = control
+        self.sort_every = int(sort_every)
+        self.check_every = int(check_every)
+        rmin = float(np.min(state.radius))
+        self.ke_limit = float(state.n * law.dt_stiffness() * rmin * rmin if ke_limit is None else ke_limit)
+        self.failure_path = failure_path
+        self.rc = neighbors.list_cutoff(state.radius, self.skin)
+        if law.needs_spin and state.omega is None:
+            state.omega = np.zeros(state.n)
+            state.theta = np.zeros(state.n)
+        if law.needs_history and state.nl_i is not None and state.nl_ft is None:
+            state.nl_ft = np.zeros(state.nl_i.shape[0])
+        meta = state.meta.get("sim", {})
+        self.n_rebuilds = int(meta.get("n_rebuilds", 0))
+        self.need_rebuild = bool(meta.get("need_rebuild", state.nl_i is None))
+        self.damping_work = float(meta.get("damping_work", 0.0))
+        self._alloc()
+        self.last_good = None
+        self.timers = {"neighbours": 0.0, "forces": 0.0, "integration": 0.0, "other": 0.0}
+        self.steps_timed = 0
+        self.ke_n = float("nan")          # kinetic energy at the last integer time
+        self.energy_n = float("nan")      # elastic + kinetic energy at the last integer time
+
+    # ---- buffers --------------------------------------------------------------------------------
+    def _alloc(self):
+        n = self.state.n
+        self.f = np.zeros((n, 2))
+        self.torque = np.zeros(n if self.law.needs_spin else 0)
+        self.out = np.zeros(8)
+        self._empty = np.zeros(0)
+        self._prm = self.law.params()
+        self._href_inv = None if self.state.h_ref is None else np.linalg.inv(self.state.h_ref)
+
+    def set_law(self, law):
+        """Switch the contact law (e.g. preparation friction -> test friction); dt is re-checked."""
+        if law.needs_spin != self.law.needs_spin or law.needs_history != self.law.needs_history:
+            raise ValueError("set_law: the new law must have the same spin/history needs")
+        dtc = critical_dt(self.state, law)
+        if self.dt > dtc:
+            raise ValueError(f"dt = {self.dt:.6g} exceeds the stable time step {dtc:.6g} of the new law")
+        self.law = law
+        self.dt_crit = dtc
+        self._prm = law.params()
+
+    # ---- pieces of a step ------------------------------------------------------------------------
+    def rebuild(self):
+        sort = self.sort_every > 0 and self.n_rebuilds % self.sort_every == 0
+        neighbors.rebuild(self.state, self.skin, sort=sort, with_history=self.law.needs_history)
+        self.n_rebuilds += 1
+        self.need_rebuild = False
+        self._href_inv = np.linalg.inv(self.state.h_ref)
+
+    def compute_forces(self):
+        """Contact forces at the current positions (advances the tangential history: call it only
+        as part of a step; use :meth:`measure` for read-only quantities)."""
+        st = self.state
+        if self.need_rebuild or st.nl_i is None:
+            self.rebuild()
+        h, L = st.h, st.L
+        omega = st.omega if self.law.needs_spin else self._empty
+        ft = st.nl_ft if self.law.needs_history else self._empty
+        self.law.kernel(st.x, st.v, omega, st.radius, st.mass, L[0, 0], L[0, 1], L[1, 0], L[1, 1],
+                        h[0, 0], h[0, 1], h[1, 0], h[1, 1], st.nl_i, st.nl_j, st.nl_shift, ft,
+                        self._prm, self.dt, self.f, self.torque, self.out)
+
+    def step(self):
+        st = self.state
+        t0 = _time.perf_counter()
+        if self.need_rebuild or st.nl_i is None:
+            self.rebuild()
+        t1 = _time.perf_counter()
+        self.compute_forces()
+        t2 = _time.perf_counter()
+        A = st.h[0, 0] * st.h[1, 1] - st.h[0, 1] * st.h[1, 0]
+        if self.control is not None:
+            p = (self.out[0] + self.out[3]) / (2.0 * A)  # p = -tr(sigma)/2, sigma = -S/A
+            st.L = np.asarray(self.control.update(st, p, self.out[7] / (2.0 * A), self.dt), dtype=float)
+        L = st.L
+        dt = self.dt
+        h = st.h
+        # h_{n+1} = (I + dt L) h_n
+        h00 = h[0, 0] + dt * (L[0, 0] * h[0, 0] + L[0, 1] * h[1, 0])
+        h01 = h[0, 1] + dt * (L[0, 0] * h[0, 1] + L[0, 1] * h[1, 1])
+        h10 = h[1, 0] + dt * (L[1, 0] * h[0, 0] + L[1, 1] * h[1, 0])
+        h11 = h[1, 1] + dt * (L[1, 0] * h[0, 1] + L[1, 1] * h[1, 1])
+        r = self._href_inv
+        F00 = h00 * r[0, 0] + h01 * r[1, 0]
+        F01 = h00 * r[0, 1] + h01 * r[1, 1]
+        F10 = h10 * r[0, 0] + h11 * r[1, 0]
+        F11 = h10 * r[0, 1] + h11 * r[1, 1]
+        t3 = _time.perf_counter()
+        d2, ke, wd = _step_translation(st.x, st.v, self.f, st.mass, dt, self.damping,
+                                       L[0, 0], L[0, 1], L[1, 0], L[1, 1], st.x_ref, F00, F01, F10, F11)
+        if self.law.needs_spin:
+            ker, wdr = _step_rotation(st.omega, st.theta, self.torque, st.inertia, dt, self.damping)
+            ke += ker
+            wd += wdr
+        t4 = _time.perf_counter()
+        st.h = np.array([[h00, h01], [h10, h11]])
+        self.damping_work += wd
+        self.ke_n = ke
+        self.energy_n = ke + self.out[6]
+        dF = _norm2_2x2(F00 - 1.0, F01, F10, F11 - 1.0)
+        if 2.0 * math.sqrt(d2) + dF * self.rc > self.skin:
+            self.need_rebuild = True
+        st.step += 1
+        st.time += dt
+        if self.check_every > 0 and st.step % self.check_every == 0:
+            self._guard()
+        t5 = _time.perf_counter()
+        tm = self.timers
+        tm["neighbours"] += t1 - t0
+        tm["forces"] += t2 - t1
+        tm["integration"] += t4 - t3
+        tm["other"] += (t3 - t2) + (t5 - t4)
+        self.steps_timed += 1
+
+    def _guard(self):
+        st = self.state
+        reason = None
+        if not (np.isfinite(st.x).all() and np.isfinite(st.v).all()
+                and (st.omega is None or np.isfinite(st.omega).all()) and np.isfinite(st.h).all()):
+            reason = "NaN or inf in positions/velocities"
+        else:
+            ke = st.kinetic_energy()
+            if ke > self.ke_limit:
+                reason = (f"kinetic energy blow-up: KE = {ke:.4g} > ke_limit = {self.ke_limit:.4g} "
+                          f"(dt = {self.dt:.4g}, dt/dt_crit = {self.dt / self.dt_crit:.3g})")
+        if reason is not None:
+            good = self.last_good
+            if good is not None and self.failure_path is not None:
+                good.save(self.failure_path)
+            raise InstabilityError(reason, good, st.step)
+        self.last_good = self.snapshot()
+
+    def snapshot(self):
+        """A copy of the state with the simulation's own counters in ``meta`` (for checkpoints)."""
+        self.state.meta["sim"] = self.meta()
+        return self.state.copy()
+
+    def meta(self):
+        return {"dt": self.dt, "damping": self.damping, "skin": self.skin, "sort_every": self.sort_every,
+                "check_every": self.check_every, "ke_limit": self.ke_limit,
+                "n_rebuilds": self.n_rebuilds, "need_rebuild": self.need_rebuild,
+                "damping_work": self.damping_work, "law": self.law.to_meta(),
+                "control": None if self.control is None else self.control.to_meta()}
+
+    # ---- runs -------------------------------------------------------------------------------------
+    def run(self, nsteps, *, callback=None, every=0):
+        """Advance ``nsteps`` steps. ``callback(sim)`` is called every ``every`` steps; a truthy
+        return value stops the run. Returns a :class:`RunReport` (timing table included)."""
+        nsteps = int(nsteps)
+        if nsteps < 0:
+            raise ValueError(f"nsteps must be >= 0, got {nsteps}")
+        before = dict(self.timers)
+        s0 = self.steps_timed
+        w0 = _time.perf_counter()
+        stopped = False
+        for k in range(nsteps):
+            self.step()
+            if callback is not None and every > 0 and (k + 1) % every == 0:
+                if callback(self):
+                    stopped = True
+                    break
+        wall = _time.perf_counter() - w0
+        steps = self.steps_timed - s0
+        phases = {k: self.timers[k] - before[k] for k in self.timers}
+        return self._report(steps, wall, phases, stopped)
+
+    def _report(self, steps, wall, phases, stopped=False):
+        n = self.state.n
+        ps = n * steps / wall if wall > 0 else float("nan")
+        lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} particles "
+                 f"(dt = {self.dt:.4g}, dt/dt_crit = {self.dt / self.dt_crit:.3f}, "
+                 f"{self.n_rebuilds} neighbour builds so far)",
+                 f"Performance: {ps:.4g} particle-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
+                 "Section     |  time (s) |   %"]
+        for k, v in phases.items():
+            lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
+        return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
+                         table="\n".join(lines))
+
+    def timing_report(self):
+        """Timing table of all steps run by this Simulation so far."""
+        wall = sum(self.timers.values())
+        return self._report(self.steps_timed, wall, dict(self.timers))
+
+    # ---- read-only measurements ---------------------------------------------------------------
+    def measure(self):
+        """Stress and balance of the *last computed* forces (read-only). Returns a dict with
+        ``stress`` (2x2, tension positive, Love-Weber static part), ``pressure`` (-tr/2),
+        ``n_contacts``, ``mean_contact_force``, ``unbalanced`` (Yade: mean over particles of the
+        resultant contact force |F_i| over the mean contact-force magnitude), ``unbalanced_max``
+        (same with max_i |F_i|), ``kinetic_energy``, ``elastic_energy``, ``iso_stiffness``."""
+        st = self.state
+        A = st.area
+        o = self.out
+        sig = -np.array([[o[0], o[1]], [o[2], o[3]]]) / A
+        sig = 0.5 * (sig + sig.T)
+        nc = int(o[4])
+        fbar = o[5] / nc if nc else 0.0
+        s, m = _resultants(self.f)
+        return {"stress": sig, "pressure": float(-np.trace(sig) / 2), "n_contacts": nc,
+                "mean_contact_force": fbar,
+                "unbalanced": (s / st.n) / fbar if fbar > 0 else float("inf"),
+                "unbalanced_max": m / fbar if fbar > 0 else float("inf"),
+                "kinetic_energy": st.kinetic_energy(), "elastic_energy": float(o[6]),
+                "iso_stiffness": float(o[7] / (2 * A))}
+
+    def refresh(self):
+        """Recompute forces at the current state without changing the tangential history (the
+        history is restored afterwards); use before :meth:`measure` on a freshly loaded state."""
+        st = self.state
+        keep = None if st.nl_ft is None else st.nl_ft.copy()
+        dt = self.dt
+        try:
+            self.dt = 0.0  # no history increment
+            self.compute_forces()
+        finally:
+            self.dt = dt
+            if keep is not None and st.nl_ft is not None and keep.shape == st.nl_ft.shape:
+                st.nl_ft[:] = keep
+        return self.measure()
+
+    # ---- checkpoints ----------------------------------------------------------------------------
+    def save(self, path):
+        """Atomic npz checkpoint of the state and the simulation settings (bit-exact restart)."""
+        self.state.meta["sim"] = self.meta()
+        self.state.save(path)
+
+    @classmethod
+    def load(cls, path, *, control=None, **overrides):
+        """Restart from :meth:`save`. The cell control object is passed again by the caller (its
+        settings are in ``state.meta['sim']['control']`` for reference)."""
+        from .state import State
+        st = State.load(path)
+        m = st.meta["sim"]
+        law = law_from_meta(m["law"])
+        kw = dict(dt=m["dt"], damping=m["damping"], skin=m["skin"], sort_every=m["sort_every"],
+                  check_every=m["check_every"], ke_limit=m["ke_limit"], control=control)
+        kw.update(overrides)
+        return cls(st, law, **kw)

@@ -1,0 +1,297 @@
+"""Cell-list Verlet neighbour lists in a periodic (possibly sheared) cell, with contact history.
+
+Binning is done in fractional coordinates ``s = h^{-1} x``: the cell is cut into ``nb_a x nb_b``
+bins whose perpendicular widths ``H_a / nb_a`` are at least the list cutoff ``rc = 2 r_max + skin``,
+so every pair closer than ``rc`` lies in adjacent bins, whatever the shear of the cell. Each pair is
+stored once (``i < j``) with its integer image shift ``s`` (branch vector ``x_j + h s - x_i``); the
+pair enters the list when ``|branch| < r_i + r_j + skin``.
+
+Rebuild criterion (checked after each step): with ``F = h h_ref^{-1}`` the cell deformation since the
+last build and ``d_i = |x_i - F x_ref_i|`` the non-affine displacement, a pair can have come closer
+by at most ``d_i + d_j + ||F - I||_2 rc``; the list is rebuilt when
+``2 max_i d_i + ||F - I||_2 rc > skin`` (the classic "moved more than half the skin" rule, plus the
+cell deformation).
+
+At a rebuild, positions are wrapped into the cell (the image shifts of the old pairs are updated
+accordingly, ``s' = s + k_j - k_i``), particles are optionally re-ordered by bin (spatial sorting for
+memory locality; ``ids`` keeps the original labels) and the tangential history of every pair
+``(i, j, s)`` still in the list is carried over. A 2D tangential force history is a scalar along
+``t = rot90(n)``, invariant under swapping i and j, so re-ordering keeps it unchanged.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["rebuild", "needs_rebuild", "list_cutoff", "bin_counts"]
+
+
+def list_cutoff(radius, skin) -> float:
+    return 2.0 * float(np.max(radius)) + float(skin)
+
+
+def bin_counts(h, rc):
+    """Number of bins along each fractional direction (>= 1) and the check that the cell is large
+    enough: both perpendicular widths must exceed ``rc`` (a particle then meets at most one image
+    of each neighbour)."""
+    from .cell import heights
+    H = heights(h)
+    if np.any(H <= rc):
+        raise ValueError(f"periodic cell too small: its widths {H} must exceed the neighbour-list "
+                         f"cutoff 2 r_max + skin = {rc:.6g}")
+    return max(1, int(H[0] // rc)), max(1, int(H[1] // rc))
+
+
+@njit(cache=True)
+def _wrap_inplace(x, h00, h01, h10, h11, k):
+    det = h00 * h11 - h01 * h10
+    for i in range(x.shape[0]):
+        s0 = (h11 * x[i, 0] - h01 * x[i, 1]) / det
+        s1 = (-h10 * x[i, 0] + h00 * x[i, 1]) / det
+        k0 = math.floor(s0)
+        k1 = math.floor(s1)
+        k[i, 0] = k0
+        k[i, 1] = k1
+        if k0 != 0 or k1 != 0:
+            x[i, 0] -= h00 * k0 + h01 * k1
+            x[i, 1] -= h10 * k0 + h11 * k1
+
+
+@njit(cache=True)
+def _bin_index(x, h00, h01, h10, h11, nba, nbb, out):
+    det = h00 * h11 - h01 * h10
+    for i in range(x.shape[0]):
+        s0 = (h11 * x[i, 0] - h01 * x[i, 1]) / det
+        s1 = (-h10 * x[i, 0] + h00 * x[i, 1]) / det
+        a = int(math.floor(s0 * nba))
+        b = int(math.floor(s1 * nbb))
+        if a < 0:
+            a = 0
+        elif a >= nba:
+            a = nba - 1
+        if b < 0:
+            b = 0
+        elif b >= nbb:
+            b = nbb - 1
+        out[i] = b * nba + a
+
+
+@njit(cache=True)
+def _shift_old_pairs(oi, oj, osh, k):
+    for p in range(oi.shape[0]):
+        osh[p, 0] += k[oj[p], 0] - k[oi[p], 0]
+        osh[p, 1] += k[oj[p], 1] - k[oi[p], 1]
+
+
+@njit(cache=True)
+def _remap_old_pairs(oi, oj, osh, inv):
+    """Apply a particle permutation (new index = inv[old]) to the old list, keeping i < j."""
+    for p in range(oi.shape[0]):
+        a = inv[oi[p]]
+        b = inv[oj[p]]
+        if a < b:
+            oi[p] = a
+            oj[p] = b
+        else:
+            oi[p] = b
+            oj[p] = a
+            osh[p, 0] = -osh[p, 0]
+            osh[p, 1] = -osh[p, 1]
+
+
+@njit(cache=True)
+def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
+    n = x.shape[0]
+    nbins = nba * nbb
+    start = np.zeros(nbins + 1, np.int64)
+    for i in range(n):
+        start[binof[i] + 1] += 1
+    for c in range(nbins):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, np.int64)
+    for i in range(n):
+        c = binof[i]
+        members[fill[c]] = i
+        fill[c] += 1
+    pi = np.empty(cap, np.int64)
+    pj = np.empty(cap, np.int64)
+    ps = np.empty((cap, 2), np.int64)
+    m = 0
+    for i in range(n):
+        ca = binof[i] % nba
+        cb = binof[i] // nba
+        xi0 = x[i, 0]
+        xi1 = x[i, 1]
+        ri = radius[i]
+        for db in range(-1, 2):
+            ub = cb + db
+            sb = 0
+            if ub < 0:
+                ub += nbb
+                sb = -1
+            elif ub >= nbb:
+                ub -= nbb
+                sb = 1
+            for da in range(-1, 2):
+                ua = ca + da
+                sa = 0
+                if ua < 0:
+                    ua += nba
+                    sa = -1
+                elif ua >= nba:
+                    ua -= nba
+                    sa = 1
+                c = ub * nba + ua
+                ox = h00 * sa + h01 * sb
+                oy = h10 * sa + h11 * sb
+                for q in range(start[c], start[c + 1]):
+                    j = members[q]
+                    if j <= i:
+                        continue
+                    dx = x[j, 0] + ox - xi0
+                    dy = x[j, 1] + oy - xi1
+                    rc = ri + radius[j] + skin
+                    if dx * dx + dy * dy < rc * rc:
+                        if m < cap:
+                            pi[m] = i
+                            pj[m] = j
+                            ps[m, 0] = sa
+                            ps[m, 1] = sb
+                        m += 1
+    return pi, pj, ps, m
+
+
+@njit(cache=True)
+def _sort_pairs(pi, pj, ps, m):
+    """Order the list by (i, j, shift) so that the force summation order does not depend on the
+    bin layout; insertion sort within each i (lists are short per particle)."""
+    # pairs are already grouped by increasing i; sort each group by (j, sa, sb)
+    p = 0
+    while p < m:
+        q = p
+        while q < m and pi[q] == pi[p]:
+            q += 1
+        for a in range(p + 1, q):
+            kj = pj[a]
+            k0 = ps[a, 0]
+            k1 = ps[a, 1]
+            b = a - 1
+            while b >= p and (pj[b] > kj or (pj[b] == kj and (ps[b, 0] > k0 or (ps[b, 0] == k0 and ps[b, 1] > k1)))):
+                pj[b + 1] = pj[b]
+                ps[b + 1, 0] = ps[b, 0]
+                ps[b + 1, 1] = ps[b, 1]
+                b -= 1
+            pj[b + 1] = kj
+            ps[b + 1, 0] = k0
+            ps[b + 1, 1] = k1
+        p = q
+
+
+@njit(cache=True)
+def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
+    """ft[p] = oft of the old pair with the same (i, j, shift), else 0."""
+    start = np.zeros(n + 1, np.int64)
+    for p in range(oi.shape[0]):
+        start[oi[p] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    order = np.empty(oi.shape[0], np.int64)
+    for p in range(oi.shape[0]):
+        order[fill[oi[p]]] = p
+        fill[oi[p]] += 1
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        val = 0.0
+        for q in range(start[i], start[i + 1]):
+            o = order[q]
+            if oj[o] == pj[p] and osh[o, 0] == ps[p, 0] and osh[o, 1] == ps[p, 1]:
+                val = oft[o]
+                break
+        ft[p] = val
+
+
+@njit(cache=True)
+def max_nonaffine_disp2(x, x_ref, f00, f01, f10, f11):
+    """max_i |x_i - F x_ref_i|^2."""
+    m = 0.0
+    for i in range(x.shape[0]):
+        dx = x[i, 0] - (f00 * x_ref[i, 0] + f01 * x_ref[i, 1])
+        dy = x[i, 1] - (f10 * x_ref[i, 0] + f11 * x_ref[i, 1])
+        d2 = dx * dx + dy * dy
+        if d2 > m:
+            m = d2
+    return m
+
+
+def _frel(h, h_ref):
+    return np.asarray(h) @ np.linalg.inv(h_ref)
+
+
+def needs_rebuild(state, skin, rc) -> bool:
+    """True if the Verlet list of ``state`` may miss a contact (see module docstring)."""
+    if state.nl_i is None:
+        return True
+    F = _frel(state.h, state.h_ref)
+    d2 = max_nonaffine_disp2(state.x, state.x_ref, F[0, 0], F[0, 1], F[1, 0], F[1, 1])
+    dF = np.linalg.norm(F - np.eye(2), 2)
+    return 2.0 * math.sqrt(d2) + dF * rc > skin
+
+
+_PER_PARTICLE = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids")
+
+
+def rebuild(state, skin, *, sort=False, with_history=None):
+    """Rebuild the Verlet list of ``state`` in place (wrap, optional spatial sort, history carry-over).
+
+    skin : list skin [m] (> 0). with_history : keep a tangential history array (default: keep it
+    if the state has one). Returns the number of pairs.
+    """
+    if not (skin > 0):
+        raise ValueError(f"skin must be > 0, got {skin}")
+    h = state.h
+    rc = list_cutoff(state.radius, skin)
+    nba, nbb = bin_counts(h, rc)
+    n = state.n
+    if with_history is None:
+        with_history = state.nl_ft is not None
+    k = np.zeros((n, 2), np.int64)
+    _wrap_inplace(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], k)
+    old = state.nl_i is not None and with_history and state.nl_ft is not None
+    if old:
+        oi, oj, osh, oft = state.nl_i.copy(), state.nl_j.copy(), state.nl_shift.copy(), state.nl_ft
+        _shift_old_pairs(oi, oj, osh, k)
+    binof = np.empty(n, np.int64)
+    _bin_index(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], nba, nbb, binof)
+    if sort:
+        perm = np.argsort(binof, kind="stable")
+        for name in _PER_PARTICLE:
+            arr = getattr(state, name)
+            if arr is not None:
+                setattr(state, name, np.ascontiguousarray(arr[perm]))
+        binof = binof[perm]
+        if old:
+            inv = np.empty(n, np.int64)
+            inv[perm] = np.arange(n)
+            _remap_old_pairs(oi, oj, osh, inv)
+    cap = max(16, 2 * (state.nl_i.shape[0] if state.nl_i is not None else 0), 8 * n)
+    while True:
+        pi, pj, ps, m = _find_pairs(state.x, state.radius, h[0, 0], h[0, 1], h[1, 0], h[1, 1],
+                                    nba, nbb, binof, float(skin), cap)
+        if m <= cap:
+            break
+        cap = m
+    pi, pj, ps = pi[:m].copy(), pj[:m].copy(), ps[:m].copy()
+    _sort_pairs(pi, pj, ps, m)
+    ft = None
+    if with_history:
+        ft = np.zeros(m)
+        if old:
+            _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
+    state.nl_i, state.nl_j, state.nl_shift, state.nl_ft = pi, pj, ps, ft
+    state.x_ref = state.x.copy()
+    state.h_ref = state.h.copy()
+    return m
