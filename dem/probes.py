@@ -55,7 +55,7 @@ def _relax(sim, tol_unbalanced, max_steps, check_every):
     return m, steps, False
 
 
-def strain_probes(state, law, *, amplitude=1e-6, ramp_steps=200, tol_unbalanced=1e-6, max_steps=200_000,
+def strain_probes(state, law, *, amplitude=1e-7, ramp_steps=200, tol_unbalanced=1e-7, max_steps=200_000,
                   check_every=100, damping=0.7, dt=None) -> ProbeResult:
     """Measure the 3x3 Mandel stiffness of a relaxed packing by +-``amplitude`` strain probes.
 
@@ -64,7 +64,8 @@ def strain_probes(state, law, *, amplitude=1e-6, ramp_steps=200, tol_unbalanced=
     state : :class:`dem.state.State` of an equilibrated packing (not modified; probes run on copies).
     law : its contact law (e.g. ``PackingResult.law``).
     amplitude : strain increment per probe (dimensionless), > 0; small enough that no new contacts
-        open or close (1e-6 at p/kn = 1e-4 is a good start; see studies.error_vs_runtime).
+        open or close: at p/kn = 1e-4, 1e-7 agrees with the exact response to ~1e-5 and 1e-6
+        already differs by ~1 % (see studies.error_vs_runtime).
     ramp_steps : steps over which the strain is applied through the cell velocity gradient.
     tol_unbalanced : relaxation criterion (Yade's unbalanced force ratio).
     max_steps : cap on the relaxation steps of one probe (the result is then ``converged=False``).

@@ -37,3 +37,24 @@ def test_triangular_lattice_probe_matches_exact_with_prestress():
 def test_zero_amplitude_refused():
     with pytest.raises(ValueError, match="amplitude"):
         strain_probes(compressed_lattice(), LinearFriction(kn=1.0, kt=1.0, mu=0.5), amplitude=0.0)
+
+
+def _packing_agreement(n, seed, rel):
+    res = pack(n, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.02, seed=seed)
+    exact = stiffness(res.to_network(), prestress=True)
+    probe = strain_probes(res.state, res.law, amplitude=1e-7, tol_unbalanced=1e-7)
+    assert probe.converged
+    assert probe.K == pytest.approx(exact.K, rel=rel)
+    assert probe.G == pytest.approx(exact.G, rel=rel)
+    assert np.allclose(probe.C_mandel, exact.C_mandel, atol=rel * exact.K)
+    return probe, exact
+
+
+def test_probe_agrees_with_exact_on_a_frictional_packing():
+    _packing_agreement(300, seed=3, rel=1e-3)
+
+
+@pytest.mark.slow
+def test_probe_agrees_with_exact_on_4000_disks():
+    probe, exact = _packing_agreement(4000, seed=1, rel=1e-2)  # the criterion: within 1 %
+    print(probe.summary(), exact.summary())
