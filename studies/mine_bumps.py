@@ -21,7 +21,8 @@ from dem.hexmine.outputs import plot_series, plot_state
 COLS = ["peak_Ek_J_per_m", "peak_Ek_coal_J_per_m", "peak_Ek_free_J_per_m", "released_WE_J_per_m",
         "kinetic_fraction", "ejected_mass_kg_per_m", "ejected_vmax_m_s", "ejected_vmean_m_s",
         "n_tension", "n_shear", "n_broken_disl", "damage_width_m", "syy_peak_MPa", "syy_peak_dist_m",
-        "energy_residual_rel", "steps", "wall_time_s"]
+        "energy_residual_rel", "contact_damping", "D_dash_over_W_ext", "contact_max_overlap_rel",
+        "max_rot_broken_deg", "closed_max_slip_over_L", "dt_s", "steps", "wall_time_s"]
 
 
 def cases(quick: bool):
@@ -39,6 +40,12 @@ def cases(quick: bool):
                     lab = f"{int(ang)}deg n={n} {rk}{'' if rk == 'instant' else f' {rt * 1e3:g}ms'} gas={'on' if gas else 'off'}"
                     out.append((lab, dict(disl_angle_deg=ang, n_disl=n, ramp=rk, ramp_time=rt, gas=gas,
                                           duration=dur)))
+    # D7 variant: contact dashpot (ratio 0.1) on cracked closed interfaces and new contacts
+    for ang in (60.0, 120.0):
+        for rk, rt in (("linear", 0.01), ("instant", 0.0)):
+            lab = f"D7 dashpot 0.1: {int(ang)}deg n=1 {rk}{'' if rk == 'instant' else f' {rt * 1e3:g}ms'} gas=on"
+            out.append((lab, dict(disl_angle_deg=ang, n_disl=1, ramp=rk, ramp_time=rt, gas=True, duration=dur,
+                                  contact_damping=0.1)))
     # mirror-image check: symmetric geometry (seam centred, rollers top and bottom, no loading layer)
     sym = dict(seam_bottom=2.375, seam_top=7.125, top_bc="roller", elastic_layer=0.0, ramp="linear",
                ramp_time=0.01, duration=dur)
@@ -74,7 +81,8 @@ def main(argv=None):
     df.to_csv(os.path.join(a.out, "table.csv"), index=False)
     show = df[["case", "peak_Ek_J_per_m", "peak_Ek_coal_J_per_m", "peak_Ek_free_J_per_m", "ejected_mass_kg_per_m",
                "ejected_vmax_m_s", "n_tension", "n_shear", "n_broken_disl", "damage_width_m", "syy_peak_MPa",
-               "syy_peak_dist_m", "energy_residual_rel", "wall_time_s"]].copy()
+               "syy_peak_dist_m", "energy_residual_rel", "D_dash_over_W_ext", "max_rot_broken_deg",
+               "closed_max_slip_over_L", "wall_time_s"]].copy()
     for c in ("peak_Ek_J_per_m", "peak_Ek_coal_J_per_m", "peak_Ek_free_J_per_m"):
         show[c] = show[c] / 1e3
     show = show.rename(columns={"peak_Ek_J_per_m": "peak Ek kJ/m", "peak_Ek_coal_J_per_m": "peak Ek coal kJ/m",
@@ -82,6 +90,8 @@ def main(argv=None):
                                 "ejected_vmax_m_s": "v max m/s", "n_broken_disl": "disl broken",
                                 "damage_width_m": "damage width m", "syy_peak_MPa": "syy peak MPa",
                                 "syy_peak_dist_m": "peak dist m", "energy_residual_rel": "energy res",
+                                "D_dash_over_W_ext": "D_dash/W", "max_rot_broken_deg": "max rot deg",
+                                "closed_max_slip_over_L": "closed slip/L",
                                 "wall_time_s": "run s"})
     md = show.to_markdown(index=False, floatfmt=".3g") if _has_tabulate() else show.to_string(index=False)
     with open(os.path.join(a.out, "table.md"), "w") as fh:
@@ -118,7 +128,9 @@ def main(argv=None):
         fh.write("\n".join(lines) + "\n")
     print("\n".join(lines))
     # pictures
-    for lab in list(keep)[:7] + [c for c in keep if c.startswith("MIRROR")]:
+    pics = [c for c in keep if c.startswith(("control", "MIRROR"))
+            or (c.startswith(("60deg n=1", "120deg n=1")) and ("10ms" in c or "instant" in c))]
+    for lab in pics:
         slug = lab.replace(" ", "_").replace("(", "").replace(")", "").replace("=", "").replace("/", "")
         plot_state(keep[lab].scene, os.path.join(a.out, f"state_{slug}.png"), title=lab)
         plot_series(keep[lab].series, os.path.join(a.out, f"series_{slug}.png"), title=lab)

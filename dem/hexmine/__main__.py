@@ -51,6 +51,7 @@ def main(argv=None):
     with open(os.path.join(a.out, "summary.json"), "w") as fh:
         json.dump(out, fh, indent=1, default=float)
     print(json.dumps(out, indent=1, default=float))
+    print(res.report)
     if res.stopped:
         print("STOPPED:", res.stopped, file=sys.stderr)
         return 2

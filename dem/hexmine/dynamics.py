@@ -21,12 +21,18 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import njit
 
+from ..integrate import InstabilityError          # shared with the disk engine (dem.integrate)
 from .interface import mc_update
 
 __all__ = ["Model", "step", "advance", "model_forces", "assemble_stiffness", "gershgorin_dt",
            "power_dt", "energies", "cell_stress", "ramp_value", "RAMP_CODES"]
 
 RAMP_CODES = {"instant": 0, "linear": 1, "nonlinear": 2, "none": 3}
+# energy/contact accounts in Model.acc: W_E, W_gas, D_break, D_fric, D_damp, D_dash (accumulated);
+# V_contact (current contact energy), n_contacts (current), max overlap / d (so far)
+ACC = {"W_E": 0, "W_gas": 1, "D_break": 2, "D_fric": 3, "D_damp": 4, "D_dash": 5, "V_contact": 6,
+       "n_contacts": 7, "max_overlap": 8}
+N_ACC = len(ACC)
 
 
 @dataclass
@@ -83,7 +89,15 @@ class Model:
     t: float = 0.0
     nstep: int = 0
     # energy accounts [J/m]
-    acc: np.ndarray = field(default_factory=lambda: np.zeros(6))   # W_E, W_gas, D_break, D_fric, D_damp, D_dash
+    acc: np.ndarray = field(default_factory=lambda: np.zeros(N_ACC))
+    # new-neighbour (proximity) contact: off unless switched on by the scene (see enable_contact)
+    contact: bool = False
+    nbc: np.ndarray = None        # (N,6) lattice neighbour across each edge in this model, -1 if none
+    nif: np.ndarray = None        # (N,) number of interfaces of each cell
+    kc: float = 0.0               # contact penalty stiffness [N/m per m]
+    cc: float = 0.0               # contact dashpot [N s/m per m] (same ratio as cdash)
+    c_cut: float = 0.0            # contact distance = inscribed diameter d = 2 r_in [m]
+    grid: np.ndarray = None       # (x0, y0, h, nbx, nby) of the fixed binning grid
     u0: np.ndarray = None
     U0: float = 0.0
 
@@ -94,6 +108,39 @@ class Model:
     @property
     def n_ifc(self):
         return len(self.ci)
+
+    def enable_contact(self, kc: float, cc: float = 0.0, margin: float | None = None):
+        """Switch on the proximity contact between cells that were not lattice neighbours, for
+        cells with a broken interface (or no interface at all). ``kc`` [N/m per m] penalty along
+        the centre line when the centre distance is below the inscribed diameter d = 2 r_in."""
+        N = self.n_cells
+        self.nbc = -np.ones((N, 6), np.int64)
+        self.nbc[self.ci, self.ca] = self.cj
+        self.nbc[self.cj, self.cb] = self.ci
+        self.nif = (np.bincount(self.ci, minlength=N) + np.bincount(self.cj, minlength=N)).astype(np.int64)
+        d = 2.0 * float(np.linalg.norm(self.geo["x"][0]))       # 2 r_in (edge midpoints lie at r_in)
+        self.c_cut = d
+        self.kc = float(kc)
+        self.cc = float(cc)
+        h = 1.0001 * d
+        margin = 2 * d if margin is None else margin
+        lo = self.centres.min(axis=0) - margin
+        hi = self.centres.max(axis=0) + margin
+        nb = np.ceil((hi - lo) / h).astype(int) + 1
+        self.grid = np.array([lo[0], lo[1], h, nb[0], nb[1]], float)
+        self._cscratch = None
+        self.contact = True
+        return self
+
+    def contact_args(self):
+        """Arguments of :func:`_contacts` (scratch arrays allocated once, not part of the state)."""
+        N = self.n_cells
+        if getattr(self, "_cscratch", None) is None:
+            nbins = int(self.grid[3]) * int(self.grid[4])
+            self._cscratch = (np.empty(nbins, np.int64), np.empty(N, np.int64), np.empty(N, np.int64),
+                              np.empty((N, 2)), np.empty((N, 2)))
+        return (self.centres, self.nbc, self.nif, self.ci, self.cj, self.broken, self.c_cut, self.kc,
+                self.cc, self.grid, *self._cscratch)
 
     def ifc_args(self):
         return (self.ci, self.ca, self.cj, self.cb, self.nx, self.ny, self.L, self.kn, self.kt, self.ft,
@@ -182,10 +229,128 @@ def _forces(u, f, g, Kmat, mat, f0, fext, wc, wk, FE0,
 
 
 @njit(cache=True)
+def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc, grid,
+              head, nxt, cand, pos, vel):
+    """Proximity contact between cells that were not lattice neighbours (new-neighbour contact).
+
+    Candidates: cells with a broken interface or without any interface. A pair (i, j) with at least
+    one candidate, not neighbours in the lattice, whose current centres (mean of the 6 node
+    displacements) are closer than ``cut`` = 2 r_in gets a penalty force kc (cut - dist) along the
+    centre line (the hexagons' inscribed disks overlap), plus an optional dashpot cc on the normal
+    relative velocity (lagged v^{n+1/2}). The force is spread as F/6 on the 6 nodes (exactly the
+    gradient of the potential 1/2 kc overlap^2 of the mean-node centres: it loads rigid translation
+    only). Binning on a fixed grid of spacing >= cut (positions clamped into it, which keeps
+    neighbouring bins neighbouring). Writes V_contact, n_contacts, max overlap/cut into acc[6:9];
+    returns the dashpot work of the step [J/m]."""
+    N = u.shape[0]
+    nc = 0
+    for c in range(N):
+        cand[c] = 1 if nif[c] == 0 else 0
+        nc += cand[c]
+    for e in range(ci.shape[0]):
+        if broken[e] > 0:
+            if cand[ci[e]] == 0:
+                cand[ci[e]] = 1
+                nc += 1
+            if cand[cj[e]] == 0:
+                cand[cj[e]] = 1
+                nc += 1
+    acc[6] = 0.0
+    acc[7] = 0.0
+    if nc == 0:
+        return 0.0
+    x0 = grid[0]
+    y0 = grid[1]
+    h = grid[2]
+    nbx = int(grid[3])
+    nby = int(grid[4])
+    for b in range(head.shape[0]):
+        head[b] = -1
+    for c in range(N):
+        sx = 0.0
+        sy = 0.0
+        wx = 0.0
+        wy = 0.0
+        for k in range(6):
+            sx += u[c, 2 * k]
+            sy += u[c, 2 * k + 1]
+            wx += vh[c, 2 * k]
+            wy += vh[c, 2 * k + 1]
+        pos[c, 0] = centres[c, 0] + sx / 6.0
+        pos[c, 1] = centres[c, 1] + sy / 6.0
+        vel[c, 0] = wx / 6.0
+        vel[c, 1] = wy / 6.0
+        bx = int(np.floor((pos[c, 0] - x0) / h))
+        by = int(np.floor((pos[c, 1] - y0) / h))
+        bx = min(max(bx, 0), nbx - 1)
+        by = min(max(by, 0), nby - 1)
+        b = by * nbx + bx
+        nxt[c] = head[b]
+        head[b] = c
+    V = 0.0
+    n_ct = 0
+    ovmax = 0.0
+    d_dash = 0.0
+    cut2 = cut * cut
+    for i in range(N):
+        if cand[i] == 0:
+            continue
+        bxi = min(max(int(np.floor((pos[i, 0] - x0) / h)), 0), nbx - 1)
+        byi = min(max(int(np.floor((pos[i, 1] - y0) / h)), 0), nby - 1)
+        for oy in range(-1, 2):
+            by = byi + oy
+            if by < 0 or by >= nby:
+                continue
+            for ox in range(-1, 2):
+                bx = bxi + ox
+                if bx < 0 or bx >= nbx:
+                    continue
+                j = head[by * nbx + bx]
+                while j >= 0:
+                    if j != i and (cand[j] == 0 or j > i):
+                        dx = pos[j, 0] - pos[i, 0]
+                        dy = pos[j, 1] - pos[i, 1]
+                        r2 = dx * dx + dy * dy
+                        if r2 < cut2 and r2 > 0.0:
+                            isnb = False
+                            for k in range(6):
+                                if nbc[i, k] == j:
+                                    isnb = True
+                            if not isnb:
+                                r = np.sqrt(r2)
+                                ov = cut - r
+                                ex = dx / r
+                                ey = dy / r
+                                F = kc * ov                      # repulsion, on j along +e
+                                V += 0.5 * kc * ov * ov
+                                if cc > 0.0:
+                                    vn = (vel[j, 0] - vel[i, 0]) * ex + (vel[j, 1] - vel[i, 1]) * ey
+                                    F -= cc * vn
+                                    d_dash += cc * vn * vn * dt
+                                fx = F * ex / 6.0
+                                fy = F * ey / 6.0
+                                for k in range(6):
+                                    f[j, 2 * k] += fx
+                                    f[j, 2 * k + 1] += fy
+                                    f[i, 2 * k] -= fx
+                                    f[i, 2 * k + 1] -= fy
+                                n_ct += 1
+                                if ov > ovmax:
+                                    ovmax = ov
+                    j = nxt[j]
+    acc[6] = V
+    acc[7] = n_ct
+    if ovmax / cut > acc[8]:
+        acc[8] = ovmax / cut
+    return d_dash
+
+
+@njit(cache=True)
 def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
              Kmat, mat, f0, fext, wc, wk, FE0,
              ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-             sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort):
+             sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort,
+             contact, centres, nbc, nif, cut, kc, cc, grid, head, nxt, cand, pos, vel):
     N = u.shape[0]
     t = t0
     for s in range(nsteps):
@@ -217,6 +382,9 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
         _forces(u, f, g_new, Kmat, mat, f0, fext, wc, wk, FE0,
                 ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
                 sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt)
+        if contact:
+            acc[5] += _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc, grid,
+                                head, nxt, cand, pos, vel)
         vm = 0.0
         for c in range(N):
             for r in range(12):
@@ -227,6 +395,22 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
     return t
 
 
+_NO_CONTACT = None
+
+
+def _contact_call_args(model: Model):
+    """(contact flag, arrays) for the fused loop; tiny dummies when the scene has no contact."""
+    global _NO_CONTACT
+    if model.contact:
+        a = model.contact_args()
+        return (True, a[0], a[1], a[2], a[6], a[7], a[8], a[9], a[10], a[11], a[12], a[13], a[14])
+    if _NO_CONTACT is None:
+        i1 = np.zeros(1, np.int64)
+        _NO_CONTACT = (False, np.zeros((1, 2)), -np.ones((1, 6), np.int64), i1, 0.0, 0.0, 0.0, np.zeros(5),
+                       i1.copy(), i1.copy(), i1.copy(), np.zeros((1, 2)), np.zeros((1, 2)))
+    return _NO_CONTACT
+
+
 def model_forces(model: Model, u: np.ndarray, t: float) -> np.ndarray:
     """F(u, t) of the model (updates the interface states: call once per step)."""
     f = np.empty_like(u)
@@ -234,6 +418,8 @@ def model_forces(model: Model, u: np.ndarray, t: float) -> np.ndarray:
     vh = model.vh if model.vh is not None else np.zeros_like(u)
     _forces(u, f, g, model.Kmat, model.mat, model.f0, model.fext, model.wc, model.wk, model.FE0,
             *model.ifc_args(), model.acc, vh, float(model.cdash), float(model.dt_last))
+    if model.contact:
+        model.acc[5] += _contacts(u, vh, f, model.acc, float(model.dt_last), *model.contact_args())
     return f
 
 
@@ -258,7 +444,9 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
     """Advance the model ``nsteps`` steps of ``dt`` [s] with the fused numba loop.
 
     ``dt_limit``: the safe bound (Gershgorin); ``dt > dt_limit`` raises ValueError. Pass
-    ``dt_limit=np.inf`` only in tests that probe instability on purpose.
+    ``dt_limit=np.inf`` only in tests that probe instability on purpose. A runaway (node speed above
+    ``v_abort`` or NaN) raises :class:`dem.integrate.InstabilityError` (a RuntimeError) naming the
+    step; the model is left at that step (the runner attaches its last good snapshot).
     """
     if dt_limit is None:
         raise ValueError("advance needs dt_limit (use gershgorin_dt(model))")
@@ -272,14 +460,15 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
     t = _advance(int(nsteps), float(dt), float(model.t), model.u, model.vh, model.vh_prev, model.f,
                  model.minv, float(model.alpha), int(model.ramp_kind), float(model.ramp_time),
                  model.Kmat, model.mat, model.f0, model.fext, model.wc, model.wk, model.FE0,
-                 *model.ifc_args(), model.acc, model.mnode, float(model.cdash), float(model.v_abort))
+                 *model.ifc_args(), model.acc, model.mnode, float(model.cdash), float(model.v_abort),
+                 *_contact_call_args(model))
     model.dt_last = float(dt)
     if t < 0:
         done = int(-t)
         model.t = model.t + done * dt
         model.nstep += done
-        raise RuntimeError(f"run stopped at t={model.t:.6g} s (step {model.nstep}): a node velocity exceeded "
-                           f"v_abort={model.v_abort:g} m/s or became NaN (runaway/instability)")
+        raise InstabilityError(f"a node velocity exceeded v_abort={model.v_abort:g} m/s or became NaN at "
+                               f"t={model.t:.6g} s (runaway/instability)", None, model.nstep)
     model.t = t
     model.nstep += int(nsteps)
     return model
@@ -322,14 +511,22 @@ def assemble_stiffness(model: Model, intact_only: bool = False):
     return K
 
 
-def gershgorin_dt(model: Model, K=None) -> float:
-    """Safe critical step 2/sqrt(max_i sum_j |K_ij| / m_i) over the free dofs [s]."""
+def gershgorin_dt(model: Model, K=None, contact: bool = True) -> float:
+    """Safe critical step [s]: 2/sqrt(omega^2) with omega^2 = max_i sum_j |K_ij| / m_i over the free
+    dofs of the assembled lattice (elements + all interface springs), plus, when the proximity
+    contact is on (and ``contact``), the bound 2 kc / m_node of the contact springs. They act on the
+    cells' mean translation only: a cell of mass 6 m_node pressed by at most 6 others has
+    omega_c^2 <= 2 * 6 kc / (6 m_node) (Gershgorin on the cell graph), and the eigenvalues of a sum
+    of symmetric matrices add at most (Weyl), so the sum is a safe bound."""
     if K is None:
         K = assemble_stiffness(model)
     free = model.minv.ravel() > 0
     Kf = K[free][:, free]
     rs = np.asarray(abs(Kf).sum(axis=1)).ravel() * model.minv.ravel()[free]
-    return 2.0 / np.sqrt(rs.max())
+    w2 = rs.max() if rs.size else 0.0
+    if contact and model.contact and model.kc > 0:
+        w2 += 2.0 * model.kc * model.minv.max()
+    return 2.0 / np.sqrt(w2)
 
 
 def power_dt(model: Model, K=None, iters: int = 3000, seed: int = 0, tol: float = 1e-10) -> float:
@@ -371,11 +568,12 @@ def energies(model: Model) -> dict:
     Ek = 0.5 * np.sum(m * vs * vs)
     Eks = 0.5 * np.sum(m * model.vh * model.vh_prev)
     Wd = float(np.sum(model.fext * (model.u - model.u0)))
-    W_E, W_gas, D_break, D_fric, D_damp, D_dash = model.acc[:6]
+    W_E, W_gas, D_break, D_fric, D_damp, D_dash, V_c = model.acc[:7]
+    U = U + V_c                                     # proximity-contact springs (0 when off)
     W = Wd + W_E + W_gas
     D = D_break + D_fric + D_damp + D_dash
     return {"U": U, "Ek": Ek, "Ek_shadow": Eks, "W_dead": Wd, "W_E": W_E, "W_gas": W_gas,
-            "D_break": D_break, "D_fric": D_fric, "D_damp": D_damp, "D_dash": D_dash, "W_ext": W,
+            "D_break": D_break, "D_fric": D_fric, "D_damp": D_damp, "D_dash": D_dash, "V_contact": V_c, "W_ext": W,
             "residual": W - (U + Eks + D)}
 
 

@@ -4,12 +4,10 @@ Units: m, Pa, m/s, J/m.
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from .dynamics import cell_stress
-from .runner import cell_flags, seam_profile
+from .runner import atomic_write, cell_flags, seam_profile
 
 __all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk"]
 
@@ -141,39 +139,40 @@ def write_vtk(scene, path):
         c0 = m.centres[m.ci[e]] + x[m.ca[e]] + d[m.ci[e]]
         tt = t[m.ca[e]]
         lpts += [c0 - 0.5 * L * tt, c0 + 0.5 * L * tt]
+    atomic_write(path, lambda fh: _vtk_body(fh, m, P, N, s, nbr, free, vc, d, brk, lpts), binary=False)
+
+
+def _vtk_body(fh, m, P, N, s, nbr, free, vc, d, brk, lpts):
     npts = 6 * N + len(lpts)
-    tmp = str(path) + ".tmp"
-    with open(tmp, "w") as fh:
-        fh.write("# vtk DataFile Version 3.0\nhexmine state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
-        fh.write(f"POINTS {npts} double\n")
-        for q in P.reshape(-1, 2):
-            fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")
-        for q in lpts:
-            fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")
-        if len(brk):
-            fh.write(f"LINES {len(brk)} {3 * len(brk)}\n")
-            for k in range(len(brk)):
-                fh.write(f"2 {6 * N + 2 * k} {6 * N + 2 * k + 1}\n")
-        fh.write(f"POLYGONS {N} {7 * N}\n")
-        for c in range(N):
-            fh.write("6 " + " ".join(str(6 * c + k) for k in range(6)) + "\n")
-        ncell = len(brk) + N
-        fh.write(f"CELL_DATA {ncell}\n")
+    fh.write("# vtk DataFile Version 3.0\nhexmine state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
+    fh.write(f"POINTS {npts} double\n")
+    for q in P.reshape(-1, 2):
+        fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")
+    for q in lpts:
+        fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")
+    if len(brk):
+        fh.write(f"LINES {len(brk)} {3 * len(brk)}\n")
+        for k in range(len(brk)):
+            fh.write(f"2 {6 * N + 2 * k} {6 * N + 2 * k + 1}\n")
+    fh.write(f"POLYGONS {N} {7 * N}\n")
+    for c in range(N):
+        fh.write("6 " + " ".join(str(6 * c + k) for k in range(6)) + "\n")
+    ncell = len(brk) + N
+    fh.write(f"CELL_DATA {ncell}\n")
 
-        def scal(name, vals_lines, vals_polys, fmt="%.6g"):
-            fh.write(f"SCALARS {name} double 1\nLOOKUP_TABLE default\n")
-            fh.write("\n".join(fmt % v for v in np.concatenate([vals_lines, vals_polys])) + "\n")
+    def scal(name, vals_lines, vals_polys, fmt="%.6g"):
+        fh.write(f"SCALARS {name} double 1\nLOOKUP_TABLE default\n")
+        fh.write("\n".join(fmt % v for v in np.concatenate([vals_lines, vals_polys])) + "\n")
 
-        bl = m.broken[brk].astype(float)
-        z = np.zeros(len(brk))
-        scal("broken_type", bl, np.full(N, -1.0))
-        scal("coal", z, m.is_coal.astype(float))
-        scal("sxx_MPa", z, s[:, 0] / 1e6)
-        scal("syy_MPa", z, s[:, 1] / 1e6)
-        scal("sxy_MPa", z, s[:, 2] / 1e6)
-        scal("n_broken", z, nbr.astype(float))
-        scal("free", z, free.astype(float))
-        scal("speed", z, np.linalg.norm(vc, axis=1))
-        fh.write("VECTORS displacement double\n")
-        fh.write("\n".join(f"{a:.6g} {b:.6g} 0" for a, b in np.vstack([np.zeros((len(brk), 2)), d])) + "\n")
-    os.replace(tmp, path)
+    bl = m.broken[brk].astype(float)
+    z = np.zeros(len(brk))
+    scal("broken_type", bl, np.full(N, -1.0))
+    scal("coal", z, m.is_coal.astype(float))
+    scal("sxx_MPa", z, s[:, 0] / 1e6)
+    scal("syy_MPa", z, s[:, 1] / 1e6)
+    scal("sxy_MPa", z, s[:, 2] / 1e6)
+    scal("n_broken", z, nbr.astype(float))
+    scal("free", z, free.astype(float))
+    scal("speed", z, np.linalg.norm(vc, axis=1))
+    fh.write("VECTORS displacement double\n")
+    fh.write("\n".join(f"{a:.6g} {b:.6g} 0" for a, b in np.vstack([np.zeros((len(brk), 2)), d])) + "\n")

@@ -6,16 +6,18 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dynamics import advance, cell_stress, energies, gershgorin_dt
+from ..integrate import InstabilityError, RunReport      # shared with the disk engine
+from .dynamics import ACC, advance, cell_stress, energies, gershgorin_dt, ramp_value
 from .scene import MineParams, Scene, build_scene
 
 __all__ = ["RunResult", "run_scene", "indicators", "seam_profile", "cell_flags", "save_checkpoint",
-           "load_checkpoint"]
+           "load_checkpoint", "atomic_write", "Snapshot", "broken_kinematics"]
 
 SERIES = ["t", "g", "Ek", "Ek_coal", "Ek_free", "U", "W_ext", "W_E", "W_gas", "D_break", "D_fric",
           "D_dash", "D_damp", "residual", "n_tension", "n_shear", "vmax"]
@@ -32,6 +34,8 @@ class RunResult:
     wall_time: float
     timings: dict = field(default_factory=dict)
     stopped: str = ""
+    report: RunReport = None          # LAMMPS-like timing table (dem.integrate.RunReport)
+    error: InstabilityError = None    # set when the runaway guard stopped the run
 
 
 def cell_flags(model):
@@ -59,6 +63,28 @@ def _sample(model, g):
             "W_gas": e["W_gas"], "D_break": e["D_break"], "D_fric": e["D_fric"], "D_dash": e["D_dash"],
             "D_damp": e["D_damp"], "residual": e["residual"], "n_tension": int((model.broken == 1).sum()),
             "n_shear": int((model.broken == 2).sum()), "vmax": float(np.abs(vs).max())}
+
+
+def broken_kinematics(model):
+    """How far the fixed-normal (linear-kinematics) interfaces are stretched at broken interfaces:
+    max rotation [deg] of a cell with a broken interface (mean tangential node displacement / r_in,
+    since excavation), max |tangential slip| / edge length L and max opening / d over the broken
+    interfaces. Broken pairs re-close along their original normals over the full edge; this is
+    acceptable while the rotation stays at a few degrees and the slip a small fraction of L."""
+    x = model.geo["x"]
+    r_in = float(np.linalg.norm(x[0]))
+    du = (model.u - model.u0).reshape(-1, 6, 2)
+    rot = np.sum(x[None, :, 0] * du[:, :, 1] - x[None, :, 1] * du[:, :, 0], axis=1) / (6 * r_in ** 2)
+    brk = model.broken > 0
+    if not brk.any():
+        return {"max_rot_broken_deg": 0.0, "max_slip_over_L": 0.0, "max_open_over_d": 0.0,
+                "closed_max_slip_over_L": 0.0}
+    cells = np.unique(np.concatenate([model.ci[brk], model.cj[brk]]))
+    closed = brk & (model.sn + model.pg < 0)          # broken and carrying contact pressure
+    return {"max_rot_broken_deg": float(np.degrees(np.abs(rot[cells]).max())),
+            "max_slip_over_L": float(np.abs(model.jtp[brk]).max() / model.L),
+            "max_open_over_d": float(max(model.jnp[brk].max(), 0.0) / (2 * r_in)),
+            "closed_max_slip_over_L": float(np.abs(model.jtp[closed]).max() / model.L) if closed.any() else 0.0}
 
 
 def seam_profile(scene: Scene, u=None):
@@ -96,6 +122,7 @@ def indicators(scene: Scene, series: dict, wall_time: float, nsteps: int) -> dic
     dr = (mid[:, 0] - p.rib_x) if p.disl_side == "right" else (p.rib_x - mid[:, 0])
     seam_b = brk & (mid[:, 1] <= p.seam_top + p.r_in)
     dzw = float(np.percentile(dr[seam_b], 99)) if seam_b.any() else 0.0
+    kin = broken_kinematics(m)
     Ek = np.asarray(series["Ek"])
     WE = np.asarray(series["W_E"])
     Wx = np.asarray(series["W_ext"])
@@ -120,22 +147,54 @@ def indicators(scene: Scene, series: dict, wall_time: float, nsteps: int) -> dic
         "syy_peak_MPa": float(syy[k] / 1e6),
         "syy_peak_dist_m": float(dist[k]),
         "energy_residual_rel": float(np.abs(res).max() / scale),
+        "D_dash_J_per_m": float(np.asarray(series["D_dash"])[-1]),
+        "D_dash_over_W_ext": float(np.asarray(series["D_dash"])[-1] / scale),
+        "contacts_end": int(m.acc[ACC["n_contacts"]]),
+        **kin,
+        "contact_max_overlap_rel": float(m.acc[ACC["max_overlap"]]),
         "steps": int(nsteps),
         "wall_time_s": float(wall_time),
     }
 
 
-def save_checkpoint(path, model, series, meta):
-    """Atomic npz checkpoint (write tmp + os.replace)."""
-    data = {k: getattr(model, k) for k in _STATE}
-    data["t"] = np.array(model.t)
-    data["nstep"] = np.array(model.nstep)
+def atomic_write(path, write, binary=True):
+    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
+    fsync, then ``os.replace`` (the pattern of the engine's ``State.save``, which is bound to the
+    disk ``State`` and so cannot be called for a hexagon model). The temporary file is removed if
+    writing fails."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
+    try:
+        with os.fdopen(fd, "wb" if binary else "w") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class Snapshot(dict):
+    """Copy of the model state arrays (the checkpoint content) at a step; ``.step`` for
+    :class:`dem.integrate.InstabilityError`."""
+
+    def __init__(self, model):
+        super().__init__({k: np.array(getattr(model, k), copy=True) for k in _STATE})
+        self["t"] = np.array(model.t)
+        self["nstep"] = np.array(model.nstep)
+        self.step = int(model.nstep)
+
+
+def save_checkpoint(path, model, series, meta, snapshot=None):
+    """Atomic npz checkpoint of the model state (or of ``snapshot``), the series and ``meta``."""
+    data = dict(snapshot) if snapshot is not None else dict(Snapshot(model))
     for k, v in series.items():
         data["series_" + k] = np.asarray(v)
     data["meta"] = np.array(json.dumps(meta))
-    tmp = str(path) + ".tmp.npz"
-    np.savez(tmp, **data)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: np.savez(fh, **data))
 
 
 def load_checkpoint(path, model):
@@ -190,24 +249,34 @@ def run_scene(p: MineParams | Scene, out_dir=None, progress: bool = False, resum
     t_loop = time.perf_counter()
     n_ck = max(1, int(round(checkpoint_every / dt)))
     stopped = ""
+    error = None
     t_sample = 0.0
+    t_ck = 0.0
+    nstep0 = m.nstep
+    last_good = Snapshot(m)
     while m.nstep < n_total:
         k = min(n_out - (m.nstep % n_out), n_total - m.nstep)
         try:
             advance(m, k, dt, dtg)
-        except RuntimeError as exc:
-            stopped = str(exc)
+        except InstabilityError as exc:
+            # the shared engine's error, carrying the last good state (the previous sample)
+            error = InstabilityError(exc.reason, last_good, exc.step)
+            stopped = str(error)
+            if out_dir is not None:
+                save_checkpoint(os.path.join(out_dir, "failure.npz"), m, series, meta, snapshot=last_good)
             break
         ts = time.perf_counter()
-        from .dynamics import ramp_value
         s = _sample(m, ramp_value(m.ramp_kind, m.ramp_time, m.t))
         for key in SERIES:
             series[key].append(s[key])
+        last_good = Snapshot(m)
         t_sample += time.perf_counter() - ts
         if bar is not None:
             bar.update(k)
         if ck is not None and (m.nstep % n_ck < k or m.nstep >= n_total):
-            save_checkpoint(ck, m, series, meta)
+            tc = time.perf_counter()
+            save_checkpoint(ck, m, series, meta, snapshot=last_good)
+            t_ck += time.perf_counter() - tc
     if bar is not None:
         bar.close()
     t_dyn = time.perf_counter() - t_loop
@@ -215,8 +284,31 @@ def run_scene(p: MineParams | Scene, out_dir=None, progress: bool = False, resum
     series = {k: np.asarray(v) for k, v in series.items()}
     ind = indicators(scene, series, wall, m.nstep)
     ind["stopped"] = stopped
-    timings = {"build_s": t_build, "dynamics_s": t_dyn - t_sample, "sampling_s": t_sample,
-               "steps_per_s": m.nstep / max(t_dyn - t_sample, 1e-12),
-               "cell_steps_per_s": m.nstep * m.n_cells / max(t_dyn - t_sample, 1e-12)}
+    ind["contact_damping"] = float(p.contact_damping)
+    ind["damping_alpha"] = float(p.damping)
+    ind["dt_s"] = float(dt)
+    ind["dt_over_bound"] = float(dt / dtg)
+    t_int = t_dyn - t_sample - t_ck
+    nrun = m.nstep - nstep0
+    timings = {"build_s": t_build, "dynamics_s": t_int, "sampling_s": t_sample, "checkpoint_s": t_ck,
+               "steps_per_s": nrun / max(t_int, 1e-12),
+               "cell_steps_per_s": nrun * m.n_cells / max(t_int, 1e-12)}
+    report = _report(m, nrun, wall, {"build": t_build, "integration": t_int, "sampling": t_sample,
+                                      "checkpoint": t_ck}, dt, dtg, bool(stopped))
     return RunResult(scene=scene, series=series, indicators=ind, dt=dt, dt_gershgorin=dtg, wall_time=wall,
-                     timings=timings, stopped=stopped)
+                     timings=timings, stopped=stopped, report=report, error=error)
+
+
+def _report(m, steps, wall, phases, dt, dtg, stopped):
+    """Per-phase timing table in the format of the engine's ``Simulation.run`` (LAMMPS-like),
+    returned as the engine's :class:`dem.integrate.RunReport`."""
+    n = m.n_cells
+    ps = n * steps / wall if wall > 0 else float("nan")
+    lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} hexagons "
+             f"(dt = {dt:.4g}, dt/dt_bound = {dt / dtg:.3f})",
+             f"Performance: {ps:.4g} cell-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
+             "Section     |  time (s) |   %"]
+    for k, v in phases.items():
+        lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
+    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
+                     table="\n".join(lines))

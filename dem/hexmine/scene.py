@@ -37,7 +37,7 @@ UNITS = {
     "disl_angle_deg": "deg", "n_disl": "-", "disl_first": "m", "disl_spacing": "m",
     "disl_side": "-", "disl_phi_deg": "deg", "gas": "-", "gas_pressure": "Pa", "gas_vent_opening": "m",
     "elastic": "-", "elastic_layer": "m", "contact_damping": "-", "v_abort": "m/s", "duration": "s", "dt_safety": "-", "damping": "1/s", "output_every": "s",
-    "friction_residual_deg": "deg",
+    "friction_residual_deg": "deg", "contact": "-", "contact_factor": "-",
 }
 
 
@@ -94,9 +94,13 @@ class MineParams:
     elastic_layer: float = 2.375     # top rock layer with unbreakable interfaces (paper: the upper
                                      # rock part 'expresses the depth' and carries the loading)
     duration: float = 0.1            # dynamics after the end of the ramp
-    dt_safety: float = 0.7           # fraction of the Gershgorin bound (0.85 goes unstable late in crushed coal)
+    dt_safety: float = 0.7           # fraction of the safe bound (lattice Gershgorin + contact, D8)
     damping: float = 0.0             # mass-proportional damping alpha [1/s]; 0 in the dynamic phase
-    contact_damping: float = 0.1     # damping ratio of a dashpot on cracked, closed interfaces only
+    contact_damping: float = 0.0     # damping ratio of a dashpot on cracked, closed interfaces and on
+                                     # new contacts (D7 variant: 0.1); 0 = no artificial damping
+    contact: bool = True             # proximity contact of cells that were not neighbours (cells with
+                                     # broken interfaces only)
+    contact_factor: float = 1.0      # its penalty stiffness kc = contact_factor * kn * L
     v_abort: float = 1e3             # runaway guard [m/s]
     output_every: float = 5e-4
 
@@ -106,7 +110,7 @@ class MineParams:
             raise ValueError(f"{name}={getattr(self, name)!r}: {msg}")
 
         for name in ("width", "height", "r_in", "opening_width", "rock_E", "coal_E", "unit_weight",
-                     "penalty_factor", "kt_over_kn", "dt_safety", "output_every"):
+                     "penalty_factor", "kt_over_kn", "dt_safety", "output_every", "contact_factor"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 bad(name, "must be a finite number > 0")
@@ -429,6 +433,11 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
                   alpha=p.damping, v_abort=p.v_abort)
     # dashpot: ratio * critical damping of the node pair (mass m_node/2, stiffness L kn) per edge
     model.cdash = p.contact_damping * 2.0 * np.sqrt(L * kn * mnode_full[0] / 2.0)
+    if p.contact:
+        # new-neighbour contact: centre-line penalty kc = contact_factor * kn L (one face spring),
+        # dashpot of the same ratio on the reduced cell mass m_cell/2
+        kc = p.contact_factor * kn * L
+        model.enable_contact(kc, p.contact_damping * 2.0 * np.sqrt(kc * 6 * mnode_full[0] / 2.0))
     model.u = uv[keep].copy()
     model.u0 = model.u.copy()
     model.vh = np.zeros_like(model.u)
@@ -458,3 +467,36 @@ def _forces_frozen(model: Model, u):
     f = model_forces(model, u, 0.0)
     model.sn, model.tau, model.jtp, model.jnp, model.broken, model.pg, model.acc = saved
     return f
+
+
+def free_cells_model(centres, velocities, E=50e9, nu=0.25, r_in=0.25, rho=25e3 / G_ACC,
+                     contact_factor=1.0, contact_damping=0.0, theta0=0.0) -> Model:
+    """Unbonded hexagons (no interfaces, no supports) with the new-neighbour contact switched on:
+    the smallest model to check the proximity contact (tests). ``centres`` (n,2) m, ``velocities``
+    (n,2) m/s (rigid translation of each cell). Contact stiffness and dashpot as in the scene:
+    kc = contact_factor * kn L with kn from the Itasca rule."""
+    C = np.asarray(centres, float).reshape(-1, 2)
+    N = len(C)
+    geo = make_lattice(1.0, 1.0, r_in, theta0).geo
+    L = geo["L"]
+    kn = spring_stiffness_rule([(E, nu)], r_in)
+    mnode = np.full(N, rho * geo["A"] / 6.0)
+    e64 = np.zeros(0, np.int64)
+    z = np.zeros(0)
+    m = Model(centres=C, mat=np.zeros(N, np.int64), is_coal=np.zeros(N, bool),
+              Kmat=element_stiffness(E, nu, r_in, theta0)[None], f0=np.zeros((N, 12)), fext=np.zeros((N, 12)),
+              mnode=mnode, minv=np.full((N, 12), 1.0 / mnode[0]), geo=geo, ci=e64, ca=e64, cj=e64, cb=e64,
+              nx=z, ny=z, L=L, kn=z, kt=z, ft=z, coh=z, tanphi=z, tanphi_r=z, vent=z, sn0=z,
+              is_disl=np.zeros(0, bool), sn=z.copy(), tau=z.copy(), jtp=z.copy(), jnp=z.copy(), broken=e64.copy(),
+              pg=z.copy(), wc=e64, wk=e64, FE0=np.zeros((0, 2)), ramp_kind=RAMP_CODES["none"])
+    kc = contact_factor * kn * L
+    m.enable_contact(kc, contact_damping * 2.0 * np.sqrt(kc * 6 * mnode[0] / 2.0), margin=10.0 * r_in)
+    m.u = np.zeros((N, 12))
+    m.u0 = m.u.copy()
+    v = np.repeat(np.asarray(velocities, float).reshape(-1, 2), 6, axis=0).reshape(N, 12)
+    m.vh = v.copy()
+    m.vh_prev = v.copy()
+    m.t = 0.0
+    m.U0 = stored_energy_abs(m)
+    m.f = None
+    return m
