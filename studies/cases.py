@@ -114,8 +114,8 @@ def packing_case(case: dict) -> dict:
     if case.get("probes"):
         from dem.probes import strain_probes
 
-        pr = strain_probes(res.state, res.law, amplitude=case.get("probe_amplitude", 1e-7),
-                           tol_unbalanced=case.get("probe_tol", 1e-7))
+        pr = strain_probes(res.state, res.law, amplitude=case.get("probe_amplitude", 1e-8),
+                           tol_unbalanced=case.get("probe_tol", 1e-8))
         out.update({"probe_K": pr.K, "probe_G": pr.G, "probe_time_s": pr.wall_time, "probe_steps": pr.steps,
-                    "probe_converged": pr.converged})
+                    "probe_converged": pr.converged, "probe_contact_events": pr.contact_events})
     return out
