@@ -1,0 +1,125 @@
+"""Error against wall time for every way of getting the moduli: the figure to choose a method by.
+
+    python -m studies.error_vs_runtime [--quick] [--out DIR]
+
+Reference: the exact linear response (pre-stress included) of a packing of ``N_ref`` disks in
+the seed's conditions. On that same packing:
+
+* theory, mean field and corrected (measured rho), from the measured statistics;
+* the DEM affine tensor (structural sum of the network);
+* strain probes with amplitudes 1e-8 .. 1e-5 and relaxation tolerances 1e-4 .. 1e-8 (longer
+  probes relax further);
+
+and, on separate packings of increasing N, the exact solve (finite-size and sample error). Each
+row has the method's own wall time and the time including the packing it needs (the theory needs
+the measured statistics of a packing too, unless they are known). Writes a table (CSV, markdown)
+and a log-log plot.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import pandas as pd
+
+from dem.probes import strain_probes
+from dem.stiffness import stiffness
+from microhom.moduli import predict_moduli
+from microhom.structural_sums import network_statistics
+from studies.cases import DEFAULTS, get_packing
+from studies.common import out_dir, write_table
+
+
+def _row(method, param, K, G, ref, t_method, t_pack, **extra):
+    return {"method": method, "parameter": param, "K": K, "G": G,
+            "err_K": abs(K / ref.K - 1), "err_G": abs(G / ref.G - 1),
+            "time_s": t_method, "time_with_packing_s": t_method + t_pack, **extra}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="small sizes, for CI")
+    ap.add_argument("--n-ref", type=int, default=None, help="reference packing size (default 2000; quick 300)")
+    ap.add_argument("--out", default="out/error_vs_runtime")
+    args = ap.parse_args(argv)
+    n_ref = args.n_ref or (300 if args.quick else 2000)
+    sizes = [100, 200] if args.quick else [250, 500, 1000]
+    out = out_dir(args.out)
+
+    case = {**DEFAULTS, "n": n_ref, "seed": 1}
+    res, t_pack, _ = get_packing(case)
+    net = res.to_network()
+    t0 = time.perf_counter()
+    ref = stiffness(net, prestress=True)
+    t_ref = time.perf_counter() - t0
+    rows = [_row("exact linear response", f"N = {n_ref} (reference)", ref.K, ref.G, ref, t_ref, t_pack)]
+
+    t0 = time.perf_counter()
+    st = network_statistics(net)
+    t_stats = time.perf_counter() - t0
+    for label, kw in (("theory: mean field", dict(r=0.0)),
+                      ("theory: corrected, measured rho", dict(r=st["r"], rho=st["rho"])),
+                      ("theory: corrected, alpha = 1.76", dict(r=st["r"], alpha=1.76))):
+        t0 = time.perf_counter()
+        p = predict_moduli(1.0, 1.0, st["nc"], st["phi"], nbar=st["nbar_phi"], warn=False, **kw)
+        dt = time.perf_counter() - t0 + t_stats
+        rows.append(_row(label, "measured Nc, r, phi", float(p.K), float(p.G), ref, dt, t_pack))
+    rows.append(_row("DEM affine tensor", f"N = {n_ref}", ref.K_affine, ref.G_affine, ref,
+                     ref.assembly_time, t_pack))
+
+    amps = [1e-8, 1e-6, 1e-5] if args.quick else [1e-8, 1e-7, 1e-6, 1e-5]
+    tols = [1e-4, 1e-6, 1e-8] if args.quick else [1e-4, 1e-5, 1e-6, 1e-7, 1e-8]
+    for amp in amps:
+        for tol in (tols if amp == 1e-8 else [1e-8]):
+            pr = strain_probes(res.state, res.law, amplitude=amp, tol_unbalanced=tol)
+            rows.append(_row("strain probes", f"amplitude {amp:g}, tol {tol:g}", pr.K, pr.G, ref, pr.wall_time,
+                             t_pack, steps=pr.steps, contact_events=pr.contact_events))
+            print(f"probe amplitude {amp:g} tol {tol:g}: {pr.steps} steps, {pr.wall_time:.2f} s, "
+                  f"err K {abs(pr.K / ref.K - 1):.2e}, G {abs(pr.G / ref.G - 1):.2e}, events {pr.contact_events}",
+                  flush=True)
+
+    for n in sizes:
+        r2, tp2, _ = get_packing({**DEFAULTS, "n": n, "seed": 1})
+        t0 = time.perf_counter()
+        e2 = stiffness(r2.to_network(), prestress=True)
+        rows.append(_row("exact linear response", f"N = {n}", e2.K, e2.G, ref, time.perf_counter() - t0, tp2))
+        print(f"exact N = {n}: K {e2.K:.4f}, G {e2.G:.4f} (reference {ref.K:.4f}, {ref.G:.4f}); packing {tp2:.1f} s",
+              flush=True)
+
+    df = pd.DataFrame(rows)
+    pd.set_option("display.width", 200)
+    print(df.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    md = write_table(df, out, "error_vs_runtime", "Error against run time",
+                     f"Reference: exact linear response of a {n_ref}-disk packing (seed conditions, p/kn = 1e-4, "
+                     f"kt = kn, mu = 0.488, mu_prep = {DEFAULTS['mu_prep']}); its packing took {t_pack:.1f} s. "
+                     "Errors are relative to the reference; the exact solve at smaller N also carries sample "
+                     "(seed) fluctuations.")
+    _plot(df, out / "error_vs_runtime.png")
+    print(f"written: {md}, {out / 'error_vs_runtime.png'}")
+
+
+def _plot(df, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    markers = {"theory": "o", "DEM affine": "s", "strain probes": "^", "exact": "D"}
+    for ax, key in zip(axes, ("err_G", "err_K")):
+        for method, g in df.groupby("method", sort=False):
+            mk = next((v for k, v in markers.items() if method.startswith(k)), "x")
+            err = np.maximum(g[key].to_numpy(), 1e-12)
+            ax.loglog(g["time_s"], err, mk, label=method, ms=7, alpha=0.8)
+        ax.set_xlabel("wall time of the method [s] (packing not included)")
+        ax.set_ylabel(f"relative error of {'G' if key == 'err_G' else 'K'} vs exact (N_ref)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
