@@ -31,8 +31,16 @@ def cache_dir() -> Path:
     return Path(os.environ.get("MICROHOM_CACHE", "out/cache/packings"))
 
 
+def _protocol_tag() -> str:
+    """Hash of the packing code: a cached packing is reused only if made by the same protocol."""
+    import dem.packing
+
+    return hashlib.sha1(Path(dem.packing.__file__).read_bytes()).hexdigest()[:8]
+
+
 def packing_key(case: dict) -> str:
     p = {k: case.get(k, DEFAULTS[k]) for k in PACK_KEYS}
+    p["protocol"] = _protocol_tag()
     return hashlib.sha1(json.dumps(p, sort_keys=True).encode()).hexdigest()[:16]
 
 

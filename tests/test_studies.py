@@ -1,0 +1,67 @@
+"""Every study runs end to end in --quick mode and writes its table; key numbers are sane."""
+import pandas as pd
+import pytest
+
+
+@pytest.fixture(autouse=True, scope="module")
+def shared_cache(tmp_path_factory):
+    import os
+
+    old = os.environ.get("MICROHOM_CACHE")
+    os.environ["MICROHOM_CACHE"] = str(tmp_path_factory.mktemp("packings"))
+    yield
+    if old is None:
+        del os.environ["MICROHOM_CACHE"]
+    else:
+        os.environ["MICROHOM_CACHE"] = old
+
+
+def test_kuhn_quick(tmp_path, capsys):
+    from studies import kuhn
+
+    kuhn.main(["--quick", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "0.189 (bulk), 0.284 (shear)" in out  # the seed's table reproduced by the theory
+    t = pd.read_csv(tmp_path / "table.csv")
+    ref = t[t.method.str.contains("reference")]
+    probe = t[t.method.str.contains("probes")]
+    assert len(ref) == 2 and len(probe) == 2
+    assert (probe.error_vs_DEM.abs() < 1e-3).all()  # two independent DEM routes agree
+    mf = t[t.method == "theory: mean field"]
+    assert (mf.error_vs_DEM > 0).all()  # the mean field over-predicts, as the paper says
+    assert (tmp_path / "moduli.png").stat().st_size > 10_000
+
+
+def test_error_vs_runtime_quick(tmp_path):
+    from studies import error_vs_runtime
+
+    error_vs_runtime.main(["--quick", "--out", str(tmp_path)])
+    t = pd.read_csv(tmp_path / "error_vs_runtime.csv")
+    best_probe = t[t.method == "strain probes"].sort_values("err_G").iloc[0]
+    assert best_probe.err_G < 1e-3 and best_probe.contact_events == 0
+    assert (tmp_path / "error_vs_runtime.png").exists()
+
+
+def test_sweep_quick_resumes(tmp_path):
+    from studies import sweep
+
+    sweep.main(["--quick", "--out", str(tmp_path), "--scheduler", "serial"])
+    first = pd.read_csv(tmp_path / "sweep.csv")
+    assert len(first) == 8 and (first.status == "ok").sum() >= 6
+    failed = first[first.status != "ok"]
+    assert failed.error.str.contains("rattler").all()  # named failures only
+    sweep.main(["--quick", "--out", str(tmp_path), "--scheduler", "serial"])  # all done: resumes, re-runs failures
+    again = pd.read_csv(tmp_path / "sweep.csv")
+    ok = first.status == "ok"
+    cols = ["case_id", "nc", "exact_K", "exact_G", "theory_rho_G"]
+    pd.testing.assert_frame_equal(first.loc[ok, cols].reset_index(drop=True),
+                                  again.loc[again.status == "ok", cols].reset_index(drop=True))
+
+
+def test_stability_has_no_wrong_case(tmp_path):
+    from studies import stability
+
+    assert stability.main(["--quick", "--out", str(tmp_path)]) == 0
+    t = pd.read_csv(tmp_path / "stability.csv")
+    assert (t.outcome != "WRONG").all()
+    assert set(t.outcome) >= {"ok", "error", "flagged"}
