@@ -23,7 +23,7 @@ from microhom.structural_sums import network_statistics
 
 MU_26DEG = float(np.tan(np.radians(26.0)))  # the seed's friction angle
 PACK_KEYS = ("n", "p_over_kn", "kt_over_kn", "mu", "mu_prep", "dispersity", "seed")
-DEFAULTS = {"n": 1000, "p_over_kn": 1e-4, "kt_over_kn": 1.0, "mu": round(MU_26DEG, 4), "mu_prep": 0.02,
+DEFAULTS = {"n": 1000, "p_over_kn": 1e-4, "kt_over_kn": 1.0, "mu": round(MU_26DEG, 4), "mu_prep": 0.05,
             "dispersity": 0.0, "seed": 1}
 
 

@@ -71,12 +71,12 @@ def sweep_case(case: dict) -> dict:
 
 def make_cases(quick: bool, n=None, seeds=None):
     if quick:
-        grid = [(0.02, 1e-4), (0.3, 1e-4)]
+        grid = [(0.05, 1e-4), (0.3, 1e-4)]
         n = n or 200
         seeds = seeds or [1, 2]
         ratios = (0.0, 1.0)
     else:
-        grid = [(mp, p) for p in (1e-4,) for mp in (0.02, 0.05, 0.1, 0.3, 1.0)] + [(0.02, 1e-3), (0.02, 1e-5)]
+        grid = [(mp, 1e-4) for mp in (0.05, 0.1, 0.2, 0.4, 1.0)] + [(0.05, 1e-3), (0.05, 1e-5)]
         n = n or 1000
         seeds = seeds or [1, 2, 3]
         ratios = KT_RATIOS
