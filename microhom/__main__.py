@@ -1,10 +1,17 @@
-"""Command line of the theory half: ``python -m microhom predict ...``.
+"""Command line: ``python -m microhom predict ...`` (theory) and ``python -m microhom analyse FILE``.
 
 Examples::
 
     python -m microhom predict                       # the seed paper's case (Kuhn's simulations)
     python -m microhom predict --kn 1e8 --kt 0 --nc 4.1 --phi 0.82 --r 0.35 --alpha 1.76
     python -m microhom predict --nc 3.8 4.1 4.5 --json
+    python -m microhom analyse packing.dump --kn 1e5 --kt 5e4     # any file dem.io reads
+    python -m microhom analyse D0001 --kn 2e8 --kn-convention oval --json
+
+``analyse`` measures a packing file (contacts, structural sums, rho, stress) and puts the theory
+beside the exact stiffness tensor. Its engine is :mod:`dem.analyse`, imported lazily *inside* the
+command function only: the library modules of ``microhom`` never import ``dem`` (the arrows point
+studies -> dem -> microhom), so ``predict`` works without the DEM and its numba kernels.
 """
 from __future__ import annotations
 
@@ -61,6 +68,39 @@ def build_parser():
                    help="fraction change above which a result is flagged outside the first-order range")
     p.add_argument("--json", action="store_true", help="print JSON (a list of records) instead of a table")
     p.add_argument("--csv", action="store_true", help="print CSV instead of a table")
+
+    a = sub.add_parser(
+        "analyse", help="measure a packing file and compare the theory with its exact stiffness",
+        description="Read a packing (LAMMPS dump/data, OVAL D-file, dem.io npz/CSV, a dem.packing npz, or a "
+                    "dem.lammps run folder), build its contact network and print coordination with and "
+                    "without rattlers, structural sums (vbar, ebar measured vs eq. 37), measured rho, stress "
+                    "(when the file has contact forces), the theory's moduli (mean field; corrected with the "
+                    "measured rho and with the alignment model) and the exact stiffness tensor (dem.stiffness). "
+                    "Moduli and stresses in 2D are force per length, in the units of kn and the file.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    a.add_argument("file", help="packing file or dem.lammps run folder")
+    a.add_argument("--format", default=None,
+                   help="lammps-data, lammps-dump, oval, npz, csv, vtk, packing (dem.packing npz) or lammps-run "
+                        "(folder); default from the name/extension")
+    a.add_argument("--kn", type=_floats("kn"), default=None,
+                   help="normal contact stiffness [N/m] (force per unit overlap), > 0; default 1 (moduli in units "
+                        "of kn). Ignored for files that carry their contact law (packing npz, LAMMPS run folder)")
+    a.add_argument("--kt", type=_floats("kt"), default=None, help="tangential stiffness [N/m], >= 0; default kt = kn")
+    a.add_argument("--kn-convention", choices=("standard", "oval"), default=None,
+                   help="'oval': --kn is OVAL's, which multiplies half the overlap (the network gets kn/2)")
+    a.add_argument("--branch-length", choices=("distance", "radii"), default="distance",
+                   help="branch vectors: centre distance, or direction kept with length r_i + r_j (paper's |c| = D)")
+    a.add_argument("--alpha", type=_floats("alpha"), default=None,
+                   help="alignment width of the model-rho prediction (54), in [0, 2]; default 2(1 - 1/Nbar)")
+    a.add_argument("--prestress", action="store_true",
+                   help="exact stiffness with the pre-stress terms (normal forces from the file, else kn*overlap)")
+    a.add_argument("--min-contacts", type=int, default=None,
+                   help="rattler threshold; default 2 for frictional, 3 for frictionless particles")
+    a.add_argument("--frame", type=int, default=0, help="frame of a LAMMPS dump (negative from the end)")
+    a.add_argument("--no-exact", action="store_true", help="skip the exact stiffness (one sparse factorisation)")
+    out = a.add_mutually_exclusive_group()
+    out.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    out.add_argument("--csv", action="store_true", help="print one CSV row (flattened section.key columns)")
     return ap
 
 
@@ -114,11 +154,45 @@ def cmd_predict(args):
     return 0 if bool(df["valid"].all()) else 3
 
 
+def cmd_analyse(args):
+    """``analyse``: the only place this package touches dem (lazy import, see the module docstring)."""
+    from dem import analyse as dan  # lazy: microhom's library modules never import dem
+
+    res = dan.analyse_file(args.file, args.format, kn=args.kn, kt=args.kt, kn_convention=args.kn_convention,
+                           branch_length=args.branch_length, alpha=args.alpha, prestress=args.prestress,
+                           min_contacts=args.min_contacts, frame=args.frame, exact=not args.no_exact)
+    if args.json:
+        print(json.dumps(res, indent=1, default=_jsonable))
+    elif args.csv:
+        import csv
+        import io
+
+        flat = dan.flatten(res)
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(flat))
+        w.writeheader()
+        w.writerow(flat)
+        print(buf.getvalue(), end="")
+    else:
+        print(dan.format_table(res))
+    return 0
+
+
+def _jsonable(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
+        if args.command == "analyse":
+            return cmd_analyse(args)
         return cmd_predict(args)
-    except ValueError as exc:
+    except (ValueError, OSError, IndexError) as exc:  # dem.io.FormatError is a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

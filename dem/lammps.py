@@ -1,0 +1,436 @@
+"""Large packings on LAMMPS: the :mod:`dem.packing` protocol as a LAMMPS input, run, read back.
+
+For packings too large for the numba engine (10^5-10^6 disks), :func:`pack_lammps` writes a LAMMPS
+input that prepares a packing with the same contact law and, as far as LAMMPS (29 Sep 2021, GRANULAR
+package) allows, the same protocol as :func:`dem.packing.pack`; runs it with ``mpirun -np K lmp``
+(serial ``lmp`` if K = 1 or no ``mpirun``); and reads the result back with :mod:`dem.io` into a
+:class:`microhom.network.ContactNetwork` with the contact forces LAMMPS computed. The protocol
+side by side with :mod:`dem.packing`, and what differs, is in ``docs/scale_out.md``.
+
+Units: any consistent set (the input uses ``units lj``, which does no unit conversion: the numbers
+are the caller's). 2D, per unit thickness: LAMMPS's ``dimension 2`` forces and its 2D pressure
+(virial over the cell *area*) are then forces per length, as in :mod:`dem.measure`.
+
+Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
+
+* contact law ``pair_style gran/hooke/history kn kt gamma_n gamma_t mu 1``: normal force
+  ``kn (r_i + r_j - d)`` — LAMMPS's hooke ``kn`` is the force per unit overlap, the same number as
+  this project's ``kn`` (OVAL's is twice it); tangential spring ``kt`` on the accumulated shear
+  displacement (history), Coulomb cap ``mu |F_n|``. Disks: ``set density/disc`` (mass
+  ``rho pi r^2``) and ``fix nve/sphere disc`` (inertia ``m r^2 / 2``), ``fix enforce2d``.
+* contacts: ``compute contact/atom`` counts the neighbours with ``d <= r_i + r_j``; the network is
+  built with ``from_overlaps(..., tolerance=0)``, the same test.
+* stress: ``compute pressure NULL virial`` (no kinetic term; with a temperature compute LAMMPS
+  adds ``N k T / A``) gives ``P_ab = (1/A) sum (x_i - x_j)_a f_i,b``; with this project's
+  tension-positive Love-Weber stress ``sigma`` (:func:`dem.measure.stress`, ``symmetric=False``)
+  ``P = -sigma^T`` and LAMMPS's scalar pressure ``(P_xx + P_yy)/2`` (2D) equals ``-tr(sigma)/2``.
+* contact forces: ``compute pair/local dist force p1 p2 p3`` (``force`` = ``|F_n|`` with the
+  sign of a repulsion, ``p1..p3`` = tangential force on the first atom) with
+  ``compute property/local patom1 patom2``, dumped once the velocities are zeroed (so the contact
+  dashpots carry nothing and ``run 0`` does not advance the shear history).
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["LammpsRun", "write_inputs", "run_lammps", "read_run", "pack_lammps", "lammps_available",
+           "read_dump_local", "INPUT_NAME"]
+
+INPUT_NAME = "in.packing"
+_RESULT = re.compile(r"^(PACK_[A-Z_]+)\s+(.*)$")
+
+
+def lammps_available(lmp="lmp") -> bool:
+    """True if the LAMMPS binary ``lmp`` is on PATH."""
+    return shutil.which(lmp) is not None
+
+
+def _num(x) -> str:
+    """A float as LAMMPS input text, exact (repr round-trips)."""
+    return repr(float(x))
+
+
+def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None,
+                 radius=0.5, dispersity=0.0, rho=None, seed=0, phi0=0.2, drag=0.1, restitution=None,
+                 max_strain_per_step=2e-4, switch_fraction=0.5, pdamp_steps=200, modulus=None,
+                 tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8, max_steps=2_000_000, check_every=100,
+                 skin=None, dt=None) -> dict:
+    """Write ``gas.data`` and ``in.packing`` into ``folder``; return the parameters used.
+
+    Parameters follow :func:`dem.packing.pack` (same meaning and units; 2D per unit thickness):
+    ``n``, ``p_over_kn`` or ``pressure``, ``kn``, ``kt`` (None: kn), ``mu``, ``mu_prep`` (None: mu),
+    ``radius``, ``dispersity``, ``rho``, ``seed``, ``phi0``, ``max_strain_per_step``, ``tol_p``,
+    ``tol_unbalanced``, ``tol_ke``, ``max_steps`` (per equilibration phase here),
+    ``check_every``. The starting gas is :func:`dem.packing.random_gas` with the same seed, so both
+    engines start from the same configuration. LAMMPS-only knobs:
+
+    drag : global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``; LAMMPS 2021 has no
+        Cundall local damping), m the mass of a disk of the mean radius.
+    restitution : optional contact dashpot, as the restitution coefficient of a pair of mean disks
+        (LAMMPS's ``gamma_n = 2 zeta sqrt(kn / m_eff)`` is one constant for all pairs).
+    switch_fraction : the fast compression (``fix deform``, true strain rate
+        ``max_strain_per_step / dt`` on both axes) stops when p >= switch_fraction * p_target;
+        ``fix press/berendsen`` then takes the pressure to the target.
+    pdamp_steps, modulus : Berendsen time constant in steps and its bulk-modulus parameter
+        (default ``0.5 kn``, about the affine 2D bulk modulus ``Nc phi kn / (2 pi)`` of a dense
+        packing; a larger value is slower and safer).
+    skin : neighbour skin (default 0.2 mean radius). dt : time step (default ``0.8 dt_crit`` of
+        :func:`dem.integrate.critical_dt`, the same as :mod:`dem.packing`).
+    """
+    from dem import io
+    from dem.contact_laws import LinearFriction
+    from dem.integrate import critical_dt
+    from dem.packing import random_gas
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    kt = kn if kt is None else kt
+    mu_prep = mu if mu_prep is None else mu_prep
+    p_target = float(pressure) if pressure is not None else float(p_over_kn) * kn
+    for name, val, ok in (("n", n, int(n) == n and n >= 2), ("kn", kn, kn > 0), ("kt", kt, kt >= 0),
+                          ("mu", mu, mu >= 0), ("mu_prep", mu_prep, mu_prep >= 0),
+                          ("target pressure", p_target, p_target > 0 and math.isfinite(p_target)),
+                          ("drag", drag, drag >= 0), ("switch_fraction", switch_fraction, 0 < switch_fraction <= 1),
+                          ("pdamp_steps", pdamp_steps, pdamp_steps > 0),
+                          ("check_every", check_every, int(check_every) == check_every and check_every >= 1),
+                          ("max_strain_per_step", max_strain_per_step, 0 < max_strain_per_step < 0.1)):
+        if not ok:
+            raise ValueError(f"{name} out of range: got {val!r}")
+    st = random_gas(int(n), radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
+                    spins=True)
+    law = LinearFriction(kn=kn, kt=kt, mu=mu_prep)
+    if dt is None:
+        dt = 0.8 * critical_dt(st, law)
+    m1 = float(st.rho * math.pi * radius ** 2)
+    gamma_drag = drag * math.sqrt(kn * m1)
+    gn = 0.0
+    if restitution is not None:
+        if not (0 < restitution <= 1):
+            raise ValueError(f"restitution must be in (0, 1], got {restitution}")
+        le = math.log(restitution)
+        zeta = -le / math.sqrt(math.pi ** 2 + le ** 2)
+        gn = 2.0 * zeta * math.sqrt(kn / (0.5 * m1))
+    modulus = 0.5 * kn if modulus is None else float(modulus)
+    skin = 0.2 * radius if skin is None else float(skin)
+
+    cfg = io.Configuration(positions=st.x, radii=st.radius, cell=st.h, ids=np.arange(1, st.n + 1),
+                           fields={"density": np.full(st.n, st.rho)})
+    io.write_lammps_data(folder / "gas.data", cfg, velocities=False,
+                         title=f"random gas: dem.packing.random_gas(n={n}, seed={seed}, phi0={phi0})")
+    prm = dict(n=int(n), p_target=p_target, kn=float(kn), kt=float(kt), mu=float(mu), mu_prep=float(mu_prep),
+               radius=float(radius), dispersity=float(dispersity), rho=float(st.rho), seed=seed, phi0=phi0,
+               dt=float(dt), gamma_drag=gamma_drag, gamma_n=gn, modulus=modulus, skin=skin,
+               rate=max_strain_per_step / dt, switch_fraction=switch_fraction, pdamp=pdamp_steps * dt,
+               tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke, max_steps=int(max_steps),
+               check_every=int(check_every), disk_area=float(np.pi * np.sum(st.radius ** 2)))
+    (folder / INPUT_NAME).write_text(_input_text(prm))
+    return prm
+
+
+def _input_text(p) -> str:
+    N = _num
+    fric_switch = p["mu"] != p["mu_prep"]
+    lines = f"""\
+# LAMMPS input written by dem.lammps.write_inputs: the dem.packing protocol (docs/scale_out.md).
+#   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
+# Units: the caller's consistent set ('units lj' does no conversion); 2D, per unit thickness.
+# N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}
+
+units           lj
+dimension       2
+atom_style      sphere
+boundary        p p p
+comm_modify     vel yes
+newton          on
+read_data       gas.data
+set             group all density/disc {N(p['rho'])}
+
+# ---- contact law: linear kn (force per overlap, = dem's kn), tangential spring kt with history,
+#      Coulomb mu (mu_prep first); contact dashpot gamma_n (0 unless restitution was given) ----
+pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {N(p['gamma_n'])} {N(p['mu_prep'])} 1
+pair_coeff      * *
+neighbor        {N(p['skin'])} bin
+neigh_modify    delay 0 every 1 check yes
+fix             nve all nve/sphere disc
+fix             e2d all enforce2d
+fix             drag all viscous {N(p['gamma_drag'])}
+timestep        {N(p['dt'])}
+
+# ---- measurements: pressure without kinetic term, contacts, unbalanced force, kinetic energy ----
+compute         pv all pressure NULL virial
+compute         cn all contact/atom
+compute         zsum all reduce sum c_cn
+compute         pl all pair/local force
+compute         fsum all reduce sum c_pl
+compute         prop all property/atom radius omegaz
+variable        fres atom sqrt(fx*fx+fy*fy)
+compute         fres all reduce ave v_fres
+variable        kea atom (c_cn>0)*(0.5*mass*(vx*vx+vy*vy)+0.25*mass*c_prop[1]*c_prop[1]*c_prop[2]*c_prop[2])
+compute         kec all reduce sum v_kea
+variable        nc equal c_zsum/2
+variable        Z equal c_zsum/atoms
+variable        phi equal {N(p['disk_area'])}/(lx*ly)
+variable        fmean equal c_fsum/(v_nc+1.0e-300)
+variable        unb equal c_fres/(v_fmean+1.0e-300)
+variable        eel equal v_nc*v_fmean*v_fmean/(2.0*{N(p['kn'])})
+variable        kerel equal c_kec/(v_eel+1.0e-300)
+variable        perr equal abs(c_pv-{N(p['p_target'])})/{N(p['p_target'])}
+variable        conv equal (v_perr<{N(p['tol_p'])})*(v_unb<{N(p['tol_unbalanced'])})*(v_kerel<{N(p['tol_ke'])})
+variable        pgo equal c_pv>={N(p['switch_fraction'] * p['p_target'])}
+thermo_style    custom step atoms v_phi v_Z c_pv v_perr v_unb v_kerel cpu
+thermo_modify   norm no flush yes
+thermo          {max(1000, p['check_every'])}
+
+# ---- 0. push apart the overlaps of the random gas at fixed cell (dem: first servo steps) ----
+fix             h0 all halt 10 v_pgo < 0.5 error continue
+run             {p['max_steps']}
+unfix           h0
+run             0 post no
+print           "PACK_PHASE name=gas steps=$(step) phi=$(v_phi:%.6f) pressure=$(c_pv:%.10g)"
+
+# ---- 1.+2. cycles of: fast isotropic compression (dem: servo at its max strain rate while
+#      unloaded) until p >= switch_fraction * p_target, then the Berendsen servo to the target
+#      with the stop criteria at mu_prep; a cycle whose pressure falls back below 0.1 of the
+#      switch level (the load was collisional, the packing not jammed yet) compresses again ----
+variable        low equal c_pv<{N(0.1 * p['switch_fraction'] * p['p_target'])}
+variable        stop2 equal (v_conv+v_low)>0.5
+variable        cycle loop 100000
+label           cloop
+fix             comp all deform 1 x trate {N(-p['rate'])} y trate {N(-p['rate'])} remap x
+fix             h1 all halt 1 v_pgo > 0.5 error continue
+run             {p['max_steps']}
+unfix           comp
+unfix           h1
+run             0 post no
+print           "PACK_PHASE name=compress cycle=${{cycle}} steps=$(step) phi=$(v_phi:%.6f) pressure=$(c_pv:%.10g)"
+fix             pb all press/berendsen iso {N(p['p_target'])} {N(p['p_target'])} {N(p['pdamp'])} modulus {N(p['modulus'])} dilate all
+fix_modify      pb press pv
+fix             h2 all halt {p['check_every']} v_stop2 > 0.5 error continue
+run             {p['max_steps']}
+unfix           h2
+run             0 post no
+if "$(v_low) > 0.5" then "unfix pb" "next cycle" "jump SELF cloop"
+fix             pb all press/berendsen iso {N(p['p_target'])} {N(p['p_target'])} {N(p['pdamp'])} modulus {N(p['modulus'])} dilate all
+fix_modify      pb press pv
+print           "PACK_PHASE name=prep steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)"
+"""
+    if fric_switch:
+        lines += f"""
+# ---- 3. switch to the test friction mu and equilibrate again (pair history is kept) ----
+pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {N(p['gamma_n'])} {N(p['mu'])} 1
+pair_coeff      * *
+fix             h3 all halt {p['check_every']} v_conv > 0.5 error continue
+run             {p['max_steps']}
+unfix           h3
+run             0 post no
+print           "PACK_PHASE name=test steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)"
+"""
+    lines += f"""
+variable        convf equal $(v_conv)
+unfix           pb
+unfix           drag
+
+# ---- 4. final state: velocities zeroed (no dashpot force; run 0 does not advance the history),
+#      positions/radii/forces/contact counts, per-contact forces, LAMMPS's own pressure ----
+velocity        all set 0.0 0.0 0.0
+set             group all omega 0.0 0.0 0.0
+compute         pf all pair/local dist force p1 p2 p3
+compute         pp all property/local patom1 patom2
+dump            d1 all custom 1 final.dump id type radius x y z vx vy fx fy c_cn
+dump_modify     d1 format float %.17g sort id first yes
+dump            d2 all local 1 contacts.dump c_pp[1] c_pp[2] c_pf[1] c_pf[2] c_pf[3] c_pf[4] c_pf[5]
+dump_modify     d2 format float %.17g first yes
+thermo_style    custom step atoms v_phi v_Z c_pv c_pv[1] c_pv[2] c_pv[4] v_unb
+thermo          1
+run             0
+undump          d1
+undump          d2
+print           "PACK_RESULT N=$(atoms) steps=$(step) converged=${{convf}} phi=$(v_phi:%.17g) Z=$(v_Z:%.17g) pressure=$(c_pv:%.17g) pxx=$(c_pv[1]:%.17g) pyy=$(c_pv[2]:%.17g) pxy=$(c_pv[4]:%.17g) unbalanced=$(v_unb:%.6e) lx=$(lx:%.17g) ly=$(ly:%.17g) xy=$(xy:%.17g)"
+write_data      final.data nocoeff
+"""
+    return lines
+
+
+def run_lammps(folder, *, np=1, lmp="lmp", mpirun="mpirun", input_name=INPUT_NAME, timeout=None,
+               extra_args=()) -> dict:
+    """Run ``lmp -in input_name`` in ``folder`` (``mpirun -np np`` when np > 1 and mpirun exists).
+
+    Returns ``{"wall_s", "np", "command", "log", "returncode"}``; raises RuntimeError (with the
+    log's tail) if LAMMPS fails. Runs as root get OpenMPI's allow-run-as-root variables set, and
+    ``--oversubscribe`` lets np exceed the cores (slower, but runs).
+    """
+    folder = Path(folder)
+    if shutil.which(lmp) is None:
+        raise FileNotFoundError(f"LAMMPS binary {lmp!r} not found on PATH (Debian: apt-get install lammps)")
+    cmd = [lmp, "-in", input_name, "-log", "log.lammps", "-screen", "none", *extra_args]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    used_np = 1
+    if np > 1 and shutil.which(mpirun):
+        cmd = [mpirun, "-np", str(int(np)), "--oversubscribe", *cmd]
+        used_np = int(np)
+        if hasattr(os, "geteuid") and os.geteuid() == 0:
+            env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=folder, env=env, capture_output=True, text=True, timeout=timeout)
+    wall = time.perf_counter() - t0
+    log = folder / "log.lammps"
+    if proc.returncode != 0:
+        tail = log.read_text(errors="replace")[-3000:] if log.exists() else ""
+        raise RuntimeError(f"LAMMPS failed (exit {proc.returncode}): {' '.join(cmd)}\n"
+                           f"{proc.stdout[-2000:]}{proc.stderr[-2000:]}\n--- log tail ---\n{tail}")
+    return {"wall_s": wall, "np": used_np, "command": " ".join(cmd), "log": str(log),
+            "returncode": proc.returncode}
+
+
+def read_dump_local(path) -> tuple[list, np.ndarray]:
+    """Last frame of a LAMMPS ``dump local`` text file: (column names, (M, ncol) array)."""
+    from dem.io import FormatError
+
+    text = Path(path).read_text()
+    k = text.rfind("ITEM: TIMESTEP")
+    if k < 0:
+        raise FormatError(path, 1, "TIMESTEP", "not a LAMMPS dump local file")
+    lines = text[k:].splitlines()
+    first = text[:k].count("\n") + 1
+    n = cols = None
+    for m, line in enumerate(lines):
+        if line.startswith("ITEM: NUMBER OF ENTRIES"):
+            n = int(lines[m + 1])
+        elif line.startswith("ITEM: ENTRIES"):
+            cols = line.split()[2:]
+            rows = [r for r in lines[m + 1:] if r.strip()]
+            if n is None or len(rows) != n:
+                raise FormatError(path, first + m, "ENTRIES", f"expected {n} rows, found {len(rows)}")
+            arr = (np.array([r.split() for r in rows], dtype=float).reshape(n, len(cols))
+                   if n else np.empty((0, len(cols))))
+            return cols, arr
+    raise FormatError(path, first, "ENTRIES", "no 'ITEM: ENTRIES' line")
+
+
+@dataclass
+class LammpsRun:
+    """A packing prepared by LAMMPS and read back (see :func:`read_run`).
+
+    config : the final :class:`dem.io.Configuration` (sorted by id; ``fields['c_cn']`` holds
+        LAMMPS's contact counts). network : :class:`~microhom.network.ContactNetwork` with ``kn``,
+        ``kt`` of the run, ``fn = kn * overlap`` and ``ft`` from LAMMPS's tangential forces.
+    lammps : LAMMPS's own figures from the ``PACK_RESULT`` line (``pressure``, ``pxx``, ``pyy``,
+        ``pxy`` of ``compute pressure NULL virial``, ``Z``, ``phi``, ``converged``, ...).
+    phases : the ``PACK_PHASE`` lines (steps, pressure, criteria per phase).
+    contacts : per-contact LAMMPS data aligned with the network's contacts: ``force`` (normal force
+        magnitude of ``compute pair/local``) and ``fs`` (C, 2) (tangential force on the lower-index
+        particle). params : the parameters written. run : :func:`run_lammps`'s dict (times).
+    """
+    config: object
+    network: object
+    lammps: dict
+    phases: list
+    contacts: dict
+    params: dict = field(default_factory=dict)
+    run: dict = field(default_factory=dict)
+    folder: str = ""
+    timing: dict = field(default_factory=dict)
+
+
+def _parse_kv(text):
+    out = {}
+    for tok in text.split():
+        if "=" in tok:
+            k, v = tok.split("=", 1)
+            try:
+                out[k] = float(v)
+            except ValueError:
+                out[k] = v
+    return out
+
+
+def _parse_log(path):
+    result, phases, loops = {}, [], []
+    for line in Path(path).read_text(errors="replace").splitlines():
+        m = _RESULT.match(line)
+        if m and m.group(1) == "PACK_RESULT":
+            result = _parse_kv(m.group(2))
+        elif m and m.group(1) == "PACK_PHASE":
+            phases.append(_parse_kv(m.group(2)))
+        mm = re.match(r"Loop time of (\S+) on (\d+) procs for (\d+) steps with (\d+) atoms", line)
+        if mm:
+            loops.append({"loop_s": float(mm.group(1)), "procs": int(mm.group(2)),
+                          "steps": int(mm.group(3)), "atoms": int(mm.group(4))})
+    return result, phases, loops
+
+
+def read_run(folder, params=None) -> LammpsRun:
+    """Read a finished run in ``folder`` (``final.dump``, ``contacts.dump``, ``log.lammps``).
+
+    ``params``: the dict :func:`write_inputs` returned (kn, kt, mu); if None they are read back
+    from the header comment of ``in.packing``.
+    """
+    from dem import io
+    from microhom.network import from_overlaps
+
+    folder = Path(folder)
+    if params is None:
+        head = (folder / INPUT_NAME).read_text().splitlines()[3]
+        params = _parse_kv(head.lstrip("# "))
+    kn, kt, mu = float(params["kn"]), float(params["kt"]), float(params["mu"])
+    cfg = io.read(folder / "final.dump").sorted_by_id()
+    net = from_overlaps(cfg.positions, cfg.radii, cfg.cell, kn=kn, kt=kt, tolerance=0.0, origin=cfg.origin)
+    cols, arr = read_dump_local(folder / "contacts.dump")
+    ia = np.searchsorted(cfg.ids, arr[:, 0].astype(np.int64))
+    ib = np.searchsorted(cfg.ids, arr[:, 1].astype(np.int64))
+    dist, force, fs = arr[:, 2], arr[:, 3], arr[:, 4:6]
+    touching = dist < cfg.radii[ia] + cfg.radii[ib]
+    ia, ib, dist, force, fs = ia[touching], ib[touching], dist[touching], force[touching], fs[touching]
+    # key each LAMMPS contact on the (lower, higher) particle index, as the network's pairs
+    lo, hi = np.minimum(ia, ib), np.maximum(ia, ib)
+    n = cfg.n_particles
+    key_l = lo * n + hi
+    key_n = net.pairs[:, 0] * n + net.pairs[:, 1]
+    if len(np.unique(key_l)) != len(key_l) or len(np.unique(key_n)) != len(key_n):
+        raise ValueError("two contacts between the same pair of disks (cell smaller than two diameters?)")
+    order_l = np.argsort(key_l)
+    pos = np.searchsorted(key_l[order_l], key_n)
+    pos = np.clip(pos, 0, max(len(key_l) - 1, 0))
+    matched = (len(key_l) > 0) & (key_l[order_l][pos] == key_n) if len(key_l) else np.zeros(len(key_n), bool)
+    if not np.all(matched) or len(key_l) != len(key_n):
+        raise ValueError(f"contact sets differ: network {len(key_n)} contacts, LAMMPS {len(key_l)}, "
+                         f"{int((~matched).sum())} of the network's not found in LAMMPS's")
+    k = order_l[pos]
+    # LAMMPS pair (a, b): force on a = (x_a - x_b)/d * force + fs. Network contact (i < j):
+    # n = (x_j - x_i)/|.|, force on j = fn n + ft t, t = (-n_y, n_x).
+    first_is_i = ia[k] == net.pairs[:, 0]
+    nrm = net.normals
+    t = np.stack([-nrm[:, 1], nrm[:, 0]], axis=1)
+    fs_k = fs[k]
+    ft = np.where(first_is_i, -1.0, 1.0) * np.einsum("ci,ci->c", fs_k, t)
+    delta = cfg.radii[net.pairs[:, 0]] + cfg.radii[net.pairs[:, 1]] - net.lengths
+    fn = kn * delta
+    sliding = np.abs(ft) >= mu * fn * (1 - 1e-9) if kt > 0 else np.ones(len(fn), bool)
+    net = replace(net, fn=fn, ft=ft, sliding=sliding)
+    fs_low = np.where(first_is_i[:, None], fs_k, -fs_k)  # tangential force on particle i
+    result, phases, loops = _parse_log(folder / "log.lammps")
+    return LammpsRun(config=cfg, network=net, lammps=result, phases=phases,
+                     contacts={"force": force[k], "fs": fs_low, "dist": dist[k]}, params=dict(params),
+                     folder=str(folder), timing={"loops": loops})
+
+
+def pack_lammps(n, folder, *, np=1, lmp="lmp", timeout=None, **kwargs) -> LammpsRun:
+    """Write the inputs (:func:`write_inputs`, same keywords as :func:`dem.packing.pack`), run LAMMPS
+    (:func:`run_lammps` with ``np`` MPI ranks) and read the result (:func:`read_run`)."""
+    prm = write_inputs(folder, n, **kwargs)
+    info = run_lammps(folder, np=np, lmp=lmp, timeout=timeout)
+    t0 = time.perf_counter()
+    res = read_run(folder, prm)
+    res.run = info
+    res.timing["read_s"] = time.perf_counter() - t0
+    res.timing["lammps_wall_s"] = info["wall_s"]
+    return res

@@ -1,0 +1,83 @@
+"""dem.lammps end to end: write the packing input, run LAMMPS, read the dump back, and check the
+contacts, forces and stress measured here against LAMMPS's own computes to round-off.
+
+Skipped only when the LAMMPS binary ``lmp`` is not on PATH (CI installs Debian's ``lammps``)."""
+import shutil
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from dem.lammps import pack_lammps
+    folder = tmp_path_factory.mktemp("lammps")
+    np_ = 2 if shutil.which("mpirun") else 1
+    return pack_lammps(300, folder, np=np_, p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05, dispersity=0.2,
+                       seed=1, tol_unbalanced=1e-3, tol_ke=1e-6, max_steps=200_000, timeout=120)
+
+
+def test_packing_reaches_target(run):
+    res = run.lammps
+    assert res["N"] == 300 and res["converged"] == 1.0
+    assert res["pressure"] == pytest.approx(1e-3, rel=1e-3)
+    names = [ph["name"] for ph in run.phases]
+    assert names[0] == "gas" and names[-2:] == ["prep", "test"] and set(names[1:-2]) == {"compress"}
+    assert 0.78 < res["phi"] < 0.87 and 3.0 < res["Z"] < 4.5
+    # the starting gas is dem.packing.random_gas with the same seed (same N, radii)
+    from dem.packing import random_gas
+    gas = random_gas(300, dispersity=0.2, seed=1)
+    assert np.allclose(np.sort(run.config.radii), np.sort(gas.radius), rtol=1e-15)
+
+
+def test_contacts_agree_with_compute_contact_atom(run):
+    net, cfg = run.network, run.config
+    assert np.array_equal(net.contact_counts(), cfg.fields["c_cn"].astype(np.int64))
+    assert net.n_contacts == int(cfg.fields["c_cn"].sum()) // 2
+    assert run.lammps["Z"] == pytest.approx(2 * net.n_contacts / net.n_particles, rel=1e-14)
+
+
+def test_kn_convention_normal_forces(run):
+    # our fn = kn * overlap (kn = force per overlap) against LAMMPS hooke's normal force
+    net = run.network
+    assert np.all(net.fn > 0)
+    np.testing.assert_allclose(net.fn, run.contacts["force"], rtol=0, atol=1e-10 * net.fn.mean())
+
+
+def test_stress_agrees_with_compute_pressure_virial(run):
+    from dem.measure import stress
+    s = stress(run.network, symmetric=False)        # tension positive; LAMMPS P = -sigma^T
+    L = run.lammps
+    scale = L["pressure"]
+    assert -np.trace(s) / 2 == pytest.approx(L["pressure"], rel=1e-11)
+    assert abs(-s[0, 0] - L["pxx"]) < 1e-11 * scale
+    assert abs(-s[1, 1] - L["pyy"]) < 1e-11 * scale
+    assert abs(-s[1, 0] - L["pxy"]) < 1e-11 * scale   # P_xy = (1/A) sum c_x F_y = -sigma_yx
+
+
+def test_particle_force_balance_agrees_with_dump(run):
+    # resultant of our contact forces (fn from overlaps, ft from LAMMPS) on every particle equals
+    # the force LAMMPS dumped (velocities zeroed: no drag, no dashpot)
+    from dem.measure import contact_forces
+    net, cfg = run.network, run.config
+    F = contact_forces(net)
+    res = np.zeros((net.n_particles, 2))
+    np.add.at(res, net.pairs[:, 1], F)
+    np.add.at(res, net.pairs[:, 0], -F)
+    assert np.abs(res - cfg.forces).max() < 1e-10 * net.fn.mean()
+    assert np.all(np.abs(net.ft) <= 0.5 * net.fn * (1 + 1e-9))   # Coulomb at the test mu
+
+
+def test_analyse_reads_the_run_folder(run):
+    import json
+    import subprocess
+    import sys
+    p = subprocess.run([sys.executable, "-m", "microhom", "analyse", run.folder, "--prestress", "--json"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    r = json.loads(p.stdout)
+    assert r["file"]["format"] == "lammps-run"
+    assert r["stress"]["pressure"] == pytest.approx(run.lammps["pressure"], rel=1e-11)
+    assert r["stiffness"]["n_unstable"] == 0 and r["stiffness"]["K"] > 0
