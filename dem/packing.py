@@ -12,34 +12,53 @@ Protocol (default, :func:`pack`):
    (overlaps allowed; they are pushed apart by the contact law and the local damping in the first
    steps), drawn from ``numpy.random.default_rng(seed)``; radii identical, or uniform in
    ``r (1 +- dispersity)``.
-2. *Fast isotropic compression* with :class:`dem.cell.PressureServo`: the cell shrinks at
+2. *Compaction* (phase ``compact``) with :class:`dem.cell.PressureServo`: the cell shrinks at
    ``max_strain_per_step`` (default 2e-4 per step) while there is no load, then the
-   stiffness-adaptive servo brings the pressure to the target. The fast start from a gas is the
-   choice made against crystallisation of identical disks (2D monodisperse disks order easily
-   when compressed slowly; an optional ``growth_dispersity`` spreads the radii during this first
-   compression only and restores them once the target pressure is reached); the hexatic order ``psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)|``
-   (Delaunay neighbours) is reported for every packing. Measured (N = 500-2000, p/kn = 1e-4):
-   with friction (mu_prep = 0.5) psi6 ~ 0.01-0.13, mean local |psi6_i| ~ 0.56-0.68 (amorphous);
-   frictionless identical disks still come out polycrystalline (psi6 ~ 0.15-0.23, local ~ 0.85)
-   because they creep and order at constant pressure after the fast compression, with or
-   without the growth dispersity: use ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
+   stiffness-adaptive servo holds the pressure at the target while the assembly, still below
+   jamming, flows into a jammed state. This phase runs with a *light* local damping
+   ``damping_compaction`` (default 0.1) and ends when the packing has jammed: ``|p - p_target| <
+   1e-2 p_target`` and unbalanced force ratio < ``jam_unbalanced`` (default 1e-3). The damping then
+   returns to ``damping`` (default 0.7) for the equilibrium phases.
+
+   Why: at the target pressure the unjammed assembly compacts like a dense granular flow whose
+   rate scales as ``sqrt(p / rho) / d`` times a factor set by the dissipation; with ``damping =
+   0.7`` all the way, 90 % of the steps of a 1e4-disk packing at p/kn = 1e-4 were spent creeping
+   from phi ~ 0.76 to jamming at phi ~ 0.79 with the pressure already on target (350 900 steps);
+   with the light compaction damping the same packing (same seed) jams in about 32 000 steps and
+   meets the unchanged stop criteria at about 44 000 (numbers in ``docs/dem.md``).
+   ``damping_compaction=None`` restores the old single-damping protocol.
+
+   The fast start from a gas is the choice made against crystallisation of identical disks (2D
+   monodisperse disks order easily when compressed slowly; an optional ``growth_dispersity``
+   spreads the radii during this first compression only and restores them once the target
+   pressure is reached); the hexatic order ``psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)|``
+   (Delaunay neighbours) is reported for every packing. Frictional preparation comes out
+   amorphous or weakly ordered (psi6 ~ 0.02 for N = 1e4, mu_prep = 0.5; 0.05-0.3 for N = 1000,
+   mu_prep = 0.02-0.1); frictionless identical disks order (psi6 up to ~0.97): use
+   ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
-3. *Equilibrium* at ``mu_prep``: stop when all three criteria hold (checked every ``check_every``
-   steps):
+3. *Equilibrium* at ``mu_prep`` (phase ``prep``): stop when all three criteria hold (checked every
+   ``check_every`` steps, at absolute step numbers that are multiples of ``check_every``):
 
    - ``|p - p_target| / p_target < tol_p`` (default 1e-3);
    - unbalanced force ratio < ``tol_unbalanced`` (default 1e-5), Yade's definition: the mean over
      all particles of the magnitude of the resultant contact force, divided by the mean contact
      force magnitude; the max-based variant (``max_i |F_i|`` over the same mean) is reported too;
-   - kinetic energy (translation + rotation, fluctuations) < ``tol_ke`` times the elastic energy
-     stored in the contacts (default 1e-8).
-4. If ``mu != mu_prep``, switch to the test friction ``mu`` and repeat 3.
+   - kinetic energy (translation + rotation, fluctuations) of the particles in contact <
+     ``tol_ke`` times the elastic energy stored in the contacts (default 1e-8). This one costs a
+     pass over the neighbour list, so it is evaluated only when the two others hold (and every
+     tenth check for the progress report).
+4. If ``mu != mu_prep``, switch to the test friction ``mu`` (phase ``test``) and repeat 3.
 
 Same seed, same parameters -> bit-identical packing (serial kernels, fixed summation order).
 :class:`PackingResult` carries the final :class:`dem.state.State` (a checkpoint: ``save``/``load``),
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
-``pack(..., checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and
-resumes from ``path`` if it exists (bit-exact continuation).
+:meth:`PackingResult.save` writes one npz that is both a checkpoint (:meth:`PackingResult.load`)
+and a ``dem.io`` configuration (:func:`dem.io.read`).
+``pack(..., checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and/or
+every ``checkpoint_seconds`` of wall time (only at check points, after the instability guard
+passed, so a checkpoint is always a good state) and resumes from ``path`` if it exists: the
+continuation is bit-exact whatever the checkpoint times were.
 """
 from __future__ import annotations
 
@@ -146,6 +165,52 @@ def hexatic_psi6(net) -> dict:
     return hexatic_order(net)
 
 
+_CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the cell, in the "
+                "state's (spatially sorted) order; ids = original labels, 0-based")
+
+
+def _write_packing_npz(path, state):
+    """Write ``state`` (a checkpoint, :meth:`State.save`) plus the ``dem.io`` npz configuration
+    keys (``format``, ``positions``, ``radii``, ``cell``, ...; schema in :mod:`dem.io.simple`) into
+    one npz, atomically (temporary file in the same folder, then ``os.replace``)."""
+    import json
+    import tempfile
+    import zipfile
+
+    from .cell import wrap
+
+    path = os.fspath(path)
+    if not path.endswith(".npz"):
+        path += ".npz"
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_pack_", suffix=".npz", dir=folder)
+    os.close(fd)
+    try:
+        state.save(tmp)
+        xw, _ = wrap(state.x, state.h)
+        meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(state.step)}
+        meta.update({k: v for k, v in state.meta.get("packing_report", {}).items()
+                     if isinstance(v, (int, float, str, bool)) or v is None})
+        meta["law"] = state.meta.get("packing_law")
+        arrays = {"format": np.array("microhom-configuration"), "format_version": np.array(1),
+                  "positions": xw, "radii": state.radius, "cell": state.h,
+                  "origin": np.zeros(2), "types": np.ones(state.n, dtype=np.int64),
+                  "velocities": state.v, "meta_json": np.array(json.dumps(meta))}
+        # ``ids`` is already in the file (the state's own labels, same order as ``positions``)
+        with zipfile.ZipFile(tmp, "a") as zf:
+            for k, v in arrays.items():
+                with zf.open(k + ".npy", "w", force_zip64=True) as fh:
+                    np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
 @dataclass
 class PackingResult:
     """Final state of a packing run with its law and report (see :func:`pack`)."""
@@ -158,10 +223,12 @@ class PackingResult:
         return network_from_state(self.state, self.law)
 
     def save(self, path):
+        """One npz that is a checkpoint (:meth:`load`, bit-exact state) and a ``dem.io``
+        configuration (:func:`dem.io.read`: positions, radii, cell, ids, velocities); atomic."""
         self.state.meta["packing_report"] = {k: v for k, v in self.report.items()
                                              if isinstance(v, (int, float, str, bool)) or v is None}
         self.state.meta["packing_law"] = self.law.to_meta()
-        self.state.save(path)
+        return _write_packing_npz(path, self.state)
 
     @classmethod
     def load(cls, path):
@@ -176,10 +243,11 @@ def _make_law(kn, kt, mu, restitution):
 
 
 def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None, radius=0.5,
-         dispersity=0.0, rho=None, seed=0, phi0=0.2, damping=0.7, restitution=None,
-         max_strain_per_step=2e-4, alpha=0.5, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
-         max_steps=2_000_000, check_every=100, checkpoint=None, checkpoint_every=20000,
-         verbose=False, frictionless=None, growth_dispersity=0.0, restore_increments=50) -> PackingResult:
+         dispersity=0.0, rho=None, seed=0, phi0=0.2, damping=0.7, damping_compaction=0.1,
+         jam_unbalanced=1e-3, restitution=None, max_strain_per_step=2e-4, alpha=0.5, tol_p=1e-3,
+         tol_unbalanced=1e-5, tol_ke=1e-8, max_steps=2_000_000, check_every=100, checkpoint=None,
+         checkpoint_every=20000, checkpoint_seconds=None, progress=None, verbose=False,
+         frictionless=None, growth_dispersity=0.0, restore_increments=50, meta=None) -> PackingResult:
     """Dense random packing of ``n`` disks at a target pressure (protocol in the module docstring).
 
     Parameters (units consistent; 2D per unit thickness)
@@ -190,17 +258,32 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     mu_prep : preparation friction (default: mu).  frictionless : force the specialised
         frictionless law (no spins, no history); default True when mu == mu_prep == 0.
     radius [m], dispersity, rho [kg/m^2], seed, phi0 : see :func:`random_gas`.
-    damping : Cundall local damping.  restitution : optional viscous contact damping.
+    damping : Cundall local damping of the equilibrium phases (default 0.7).
+    damping_compaction : local damping of the compaction phase, in [0, 1) (default 0.1); None:
+        no separate compaction phase (``damping`` throughout: the earlier protocol).
+    jam_unbalanced : unbalanced force ratio (with ``|p - p_target| < 1e-2 p_target``) that ends
+        the compaction phase.  restitution : optional viscous contact damping.
     max_strain_per_step : cap on the isotropic strain per step of the servo.
     alpha : servo gain (fraction of the pressure error corrected per step, affine stiffness).
     tol_p, tol_unbalanced, tol_ke : stop criteria.  max_steps : cap on the total step count
         (the result then has ``report['converged'] = False``).
+    check_every : steps between checks of the criteria and of the instability guard.
     growth_dispersity : relative radius spread used only during the first compression (radii
         ``r_i (1 + g u_i)``, ``u_i`` uniform in [-1, 1], masses of the final disks), removed in
         ``restore_increments`` steps of ``check_every`` steps once the target pressure is first
         reached (within 5 %); 0 disables it.
-    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` steps;
-        resumed from if it exists).
+    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` steps
+        and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed from if
+        it exists). Either trigger may be None.
+    progress : optional ``progress(info)`` called at every check with a dict (``step``,
+        ``max_steps``, ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` — None
+        when not evaluated at this check —, ``checkpoint_step``).
+    meta : optional JSON-able dict merged into ``state.meta`` of a new run (it travels in every
+        checkpoint; a resumed run keeps the checkpoint's).
+
+    An unstable run raises :class:`dem.integrate.InstabilityError` (``state`` = last good state);
+    its ``checkpoint``/``checkpoint_step`` attributes name the last checkpoint written (None if
+    none), which the error never overwrites.
     """
     t_start = time.perf_counter()
     kt = kn if kt is None else kt
@@ -212,11 +295,22 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     for name, val in (("mu", mu), ("mu_prep", mu_prep)):
         if not (val >= 0):
             raise ValueError(f"{name} must be >= 0, got {val}")
+    if damping_compaction is not None and not (0 <= damping_compaction < 1):
+        raise ValueError(f"damping_compaction must be in [0, 1) or None, got {damping_compaction}")
+    if not (0 < jam_unbalanced < 1):
+        raise ValueError(f"jam_unbalanced must be in (0, 1), got {jam_unbalanced}")
+    if int(check_every) != check_every or check_every < 1:
+        raise ValueError(f"check_every must be an integer >= 1, got {check_every}")
+    check_every = int(check_every)
     if frictionless is None:
         frictionless = mu == 0 and mu_prep == 0
     law_prep = Frictionless(kn=kn, restitution=restitution) if frictionless else \
         LinearFriction(kn=kn, kt=kt, mu=mu_prep, restitution=restitution)
     law_test = law_prep if frictionless else law_prep.with_friction(mu)
+    params = {"n": int(n), "p_target": p_target, "kn": kn, "kt": kt, "mu": mu, "mu_prep": mu_prep,
+              "seed": seed, "dispersity": dispersity, "phi0": phi0, "damping": damping,
+              "damping_compaction": damping_compaction, "tol_p": tol_p,
+              "tol_unbalanced": tol_unbalanced, "tol_ke": tol_ke, "check_every": check_every}
 
     resumed = checkpoint is not None and os.path.exists(os.fspath(checkpoint))
     if resumed:
@@ -235,31 +329,53 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
             u = np.random.default_rng([seed, 1]).uniform(-1.0, 1.0, st.n)
             st.meta["growth"] = {"r0": st.radius.tolist(), "u": u.tolist(), "g": growth_dispersity, "s": 1.0}
             st.radius = st.radius * (1.0 + growth_dispersity * u)
-        sim = Simulation(st, law_prep, damping=damping, check_every=0)
+        if meta:
+            st.meta.update(meta)
+        compaction = damping_compaction is not None
+        sim = Simulation(st, law_prep, damping=damping_compaction if compaction else damping,
+                         check_every=0)
         ctl = PressureServo(p_target=p_target, max_rate=max_strain_per_step / sim.dt, alpha=alpha)
         sim.control = ctl
-        phase = "grow" if growth_dispersity > 0 else "prep"
+        phase = "grow" if growth_dispersity > 0 else ("compact" if compaction else "prep")
         history = []
     sim.check_every = 0  # guard is done in the callback below (every check_every steps)
     state = sim.state
+    ck_state = {"step": state.step if resumed else None, "t": time.perf_counter()}
 
     last = {}
+    n_checks = [0]
 
-    def converged(m):
-        e_p = abs(m["pressure"] - p_target) / p_target
+    def ke_rel_of(m):
         ke = _contact_kinetic_energy(state, sim.law)
         ke_rel = ke / m["elastic_energy"] if m["elastic_energy"] > 0 else float("inf")
-        last.update(m, rel_p_err=e_p, ke_rel=ke_rel, kinetic_energy_in_contact=ke)
-        return e_p < tol_p and m["unbalanced"] < tol_unbalanced and ke_rel < tol_ke
+        last.update(ke_rel=ke_rel, kinetic_energy_in_contact=ke)
+        return ke_rel
+
+    def converged(m, force_ke=False):
+        e_p = abs(m["pressure"] - p_target) / p_target
+        last.update(m, rel_p_err=e_p)
+        ok = e_p < tol_p and m["unbalanced"] < tol_unbalanced
+        if ok or force_ke:  # the kinetic-energy pass only when it can decide
+            ok = ke_rel_of(m) < tol_ke and ok
+        return ok
+
+    def save_checkpoint():
+        state.meta["packing"] = {"phase": phase, "history": history, "params": params}
+        sim.save(checkpoint)
+        ck_state["step"] = state.step
+        ck_state["t"] = time.perf_counter()
 
     def callback(s):
         nonlocal phase
         s._guard()
         m = s.measure()
+        n_checks[0] += 1
+        last["ke_rel"] = None
         if verbose and state.step % (10 * check_every) == 0:
             print(f"[pack] step {state.step} phase {phase} phi {state.solid_fraction:.4f} "
                   f"p/p0 {m['pressure'] / p_target:.5f} unb {m['unbalanced']:.3g} "
                   f"Z {2 * m['n_contacts'] / state.n:.3f}", flush=True)
+        done = False
         if phase == "grow":
             if abs(m["pressure"] - p_target) < 0.05 * p_target:
                 history.append({"phase": phase, "step": int(state.step)})
@@ -273,6 +389,11 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
             if gr["s"] == 0.0:
                 state.radius = r0.copy()
                 history.append({"phase": phase, "step": int(state.step)})
+                phase = "compact" if damping_compaction is not None else "prep"
+        elif phase == "compact":
+            if abs(m["pressure"] - p_target) < 1e-2 * p_target and m["unbalanced"] < jam_unbalanced:
+                history.append({"phase": phase, "step": int(state.step)})
+                s.damping = float(damping)
                 phase = "prep"
         elif converged(m):
             history.append({"phase": phase, "step": int(state.step)})
@@ -281,29 +402,51 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
                 phase = "test"
             else:
                 phase = "done"
-                return True
-        if checkpoint is not None and state.step % checkpoint_every == 0:
-            state.meta["packing"] = {"phase": phase, "history": history}
-            s.save(checkpoint)
-        return False
+                done = True
+        if progress is not None:
+            if last["ke_rel"] is None and n_checks[0] % 10 == 0:
+                ke_rel_of(m)
+            progress({"step": int(state.step), "max_steps": int(max_steps), "phase": phase,
+                      "phi": state.solid_fraction, "Z": 2.0 * m["n_contacts"] / state.n,
+                      "rel_p_err": abs(m["pressure"] - p_target) / p_target,
+                      "unbalanced": m["unbalanced"],
+                      "ke_rel": last["ke_rel"], "checkpoint_step": ck_state["step"]})
+        if checkpoint is not None and not done:
+            by_steps = checkpoint_every and state.step % checkpoint_every == 0
+            by_time = checkpoint_seconds is not None and \
+                time.perf_counter() - ck_state["t"] >= checkpoint_seconds
+            if by_steps or by_time:
+                save_checkpoint()
+        return done
 
     if resumed and phase == "test":
         sim.set_law(law_test)
-    if phase != "done":
-        remaining = max_steps - state.step
-        if remaining > 0:
-            sim.run(remaining, callback=callback, every=check_every)
-    if not last or "rel_p_err" not in last:
-        converged(sim.measure())
+    try:
+        # steps in chunks ending at absolute multiples of check_every: the checks (and therefore
+        # the trajectory) do not depend on where a run was interrupted and resumed
+        while phase != "done" and state.step < max_steps:
+            k = min(check_every - state.step % check_every, max_steps - state.step)
+            sim.run(k)
+            if state.step % check_every == 0 and callback(sim):
+                break
+    except Exception as exc:
+        from .integrate import InstabilityError
+        if isinstance(exc, InstabilityError):
+            exc.checkpoint = os.fspath(checkpoint) if ck_state["step"] is not None else None
+            exc.checkpoint_step = ck_state["step"]
+        raise
+    converged(sim.measure(), force_ke=True)  # the final values of the three criteria
     net = network_from_state(state, sim.law)
     try:
         hx = hexatic_psi6(net)
     except Exception as exc:  # pragma: no cover - psi6 is informative only
         hx = {"psi6": float("nan"), "psi6_local": float("nan"), "psi6_error": str(exc)}
     nc = net.n_contacts
+    compact_end = [h["step"] for h in history if h["phase"] == "compact"]
     report = {
         "n": state.n, "seed": seed, "converged": phase == "done", "steps": int(state.step),
-        "phase_steps": history, "wall_s": time.perf_counter() - t_start, "resumed": resumed,
+        "phase_steps": history, "compaction_steps": compact_end[0] if compact_end else None,
+        "wall_s": time.perf_counter() - t_start, "resumed": resumed,
         "p_target": p_target, "pressure": last["pressure"], "rel_p_err": last["rel_p_err"],
         "p_over_kn": last["pressure"] / kn, "unbalanced": last["unbalanced"],
         "unbalanced_max": last["unbalanced_max"], "ke_rel": last["ke_rel"],
@@ -313,12 +456,12 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         "sliding_fraction": float(net.sliding.mean()) if nc and not frictionless else float("nan"),
         "dt": sim.dt, "dt_over_dtcrit": sim.dt / sim.dt_crit, "mu": mu, "mu_prep": mu_prep,
         "kn": kn, "kt": 0.0 if frictionless else kt, "tol_p": tol_p, "tol_unbalanced": tol_unbalanced,
-        "tol_ke": tol_ke, "damping_work": sim.damping_work, **hx,
+        "tol_ke": tol_ke, "damping": damping, "damping_compaction": damping_compaction,
+        "damping_work": sim.damping_work, **hx,
         "timing": sim.timing_report()["table"],
         "particle_steps_per_s": sim.timing_report()["particle_steps_per_s"],
     }
     res = PackingResult(state, sim.law, report)
     if checkpoint is not None:
-        state.meta["packing"] = {"phase": phase, "history": history}
-        sim.save(checkpoint)
+        save_checkpoint()
     return res

@@ -97,3 +97,48 @@ def test_isotropic_scene_wiring():
     sim.run(3000)
     assert st.omega is None and st.nl_ft is None
     assert sim.measure()["pressure"] > 0
+
+
+def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
+    from dem.integrate import InstabilityError, Simulation
+    from dem.state import State
+
+    orig = Simulation.run
+
+    def poisoned(self, n, **kw):  # a NaN appears between steps 1000 and 1100
+        out = orig(self, n, **kw)
+        if self.state.step >= 1050:
+            self.state.v[0, 0] = np.nan
+        return out
+
+    monkeypatch.setattr(Simulation, "run", poisoned)
+    ck = tmp_path / "ck.npz"
+    with pytest.raises(InstabilityError, match="NaN") as err:
+        pack(60, **dict(PACK_KW, checkpoint=ck, checkpoint_every=500))
+    e = err.value
+    assert e.step == 1100 and e.state.step == 1000 and np.isfinite(e.state.v).all()
+    assert e.checkpoint == str(ck) and e.checkpoint_step == 1000
+    assert State.load(ck).step == 1000 and np.isfinite(State.load(ck).v).all()
+
+
+def test_checkpoint_by_wall_time_and_progress(tmp_path):
+    seen = []
+    ck = tmp_path / "ck.npz"
+    r = pack(60, **dict(PACK_KW, max_steps=3000, checkpoint=ck, checkpoint_every=None,
+                        checkpoint_seconds=0.0), progress=seen.append)
+    assert [s["step"] for s in seen] == list(range(100, 3001, 100))
+    assert all(s["checkpoint_step"] == s["step"] - 100 for s in seen[1:])  # saved at every check
+    assert all(s["ke_rel"] is not None for s in seen[9::10])
+    assert not r.report["converged"] and r.report["steps"] == 3000
+
+
+def test_compaction_phase_then_equilibrium_damping(small_packing):
+    r = small_packing.report
+    phases = [h["phase"] for h in r["phase_steps"]]
+    assert phases == ["compact", "prep"]  # mu == mu_prep: no test phase
+    assert r["compaction_steps"] == r["phase_steps"][0]["step"] < r["steps"]
+    assert small_packing.state.meta["sim"]["damping"] == 0.7 == r["damping"]
+    old = pack(60, **dict(PACK_KW, damping_compaction=None, max_steps=2000))
+    assert old.report["compaction_steps"] is None
+    with pytest.raises(ValueError, match="damping_compaction"):
+        pack(60, damping_compaction=1.0)

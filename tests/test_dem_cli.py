@@ -1,0 +1,140 @@
+"""The DEM command line (python -m dem pack): every output written and readable, bit-exact resume
+of an interrupted run, bad input exits 2 naming the option, help text with units."""
+import csv
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from dem import io as dio
+from dem.packing import PackingResult
+
+BASE = ["--n", "120", "--pressure", "1e-3", "--mu-prep", "0.1", "--mu", "0.49", "--seed", "2",
+        "--no-progress"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "dem", "pack", *args], capture_output=True,
+                          text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory):
+    d = tmp_path_factory.mktemp("straight")
+    p = run(*BASE, "--out", str(d / "pk.npz"))
+    return d, p
+
+
+def test_cli_writes_every_output(straight):
+    d, p = straight
+    assert p.returncode == 0, p.stderr
+    for name in ("pk.npz", "pk_summary.csv", "pk.png", "pk.lammpstrj", "pk.vtu"):
+        assert (d / name).stat().st_size > 0, name
+    assert not (d / "pk.checkpoint.npz").exists()  # removed after a converged run
+    res = PackingResult.load(d / "pk.npz")
+    assert res.report["converged"] and res.report["n"] == 120
+    net = res.to_network()
+    # the same file read as a dem.io configuration: same disks, same cell, same contacts
+    cfg = dio.read(d / "pk.npz")
+    assert cfg.n_particles == 120 and np.array_equal(cfg.cell, res.state.h)
+    assert np.array_equal(cfg.radii, res.state.radius)
+    assert cfg.network(kn=1.0).n_contacts == net.n_contacts
+    dump = dio.read(d / "pk.lammpstrj")
+    assert dump.n_particles == 120 and np.allclose(dump.cell, res.state.h)
+    with open(d / "pk_summary.csv") as fh:
+        rows = {(r["section"], r["quantity"]): r["value"] for r in csv.DictReader(fh)}
+    # the table holds the packing report and the measurements; the pressure meets its criterion
+    for key in ("steps", "wall_s", "psi6", "rel_p_err", "unbalanced", "ke_rel", "converged"):
+        assert ("packing", key) in rows, key
+    for key in ("nc", "nc_all", "rattler_fraction", "pressure", "fabric_anisotropy", "nbar_delaunay"):
+        assert ("measure", key) in rows, key
+    assert float(rows[("measure", "pressure")]) == pytest.approx(1e-3, rel=1e-3)
+    assert float(rows[("packing", "unbalanced")]) < 1e-5
+    assert "nc_all" in p.stdout and "psi6" in p.stdout  # the printed table
+
+
+def test_resume_after_interruption_is_bit_exact(straight, tmp_path):
+    d, p = straight
+    full = PackingResult.load(d / "pk.npz")
+    steps = full.report["steps"]
+    out = str(tmp_path / "pk.npz")
+    # interrupted: not converged within a small step budget (not a multiple of the check period)
+    first = run(*BASE, "--out", out, "--max-steps", str(steps // 2 + 37))
+    assert first.returncode == 3, first.stderr
+    assert "NOT CONVERGED" in first.stderr
+    assert PackingResult.load(out).report["converged"] is False  # outputs written and flagged
+    assert (tmp_path / "pk.checkpoint.npz").exists()
+    # a fresh start over a checkpoint is refused
+    again = run(*BASE, "--out", out)
+    assert again.returncode == 2 and "--resume" in again.stderr
+    resumed = run("--resume", "--no-progress", "--out", out)
+    assert resumed.returncode == 0, resumed.stderr
+    back = PackingResult.load(out)
+    assert back.report["resumed"] and back.report["steps"] == steps
+    for name in ("x", "v", "omega", "h", "nl_ft"):
+        assert np.array_equal(getattr(back.state, name), getattr(full.state, name)), name
+    assert np.array_equal(dio.read(out).positions, dio.read(d / "pk.npz").positions)
+
+
+@pytest.mark.parametrize("args, option, text", [
+    (["--n", "1"], "--n", ">= 2"),
+    (["--n", "50", "--pressure", "-1e-4"], "--pressure", "(0, 0.1]"),
+    (["--n", "50", "--mu", "-0.1"], "--mu", "[0, 10]"),
+    (["--n", "50", "--dispersity", "0.7"], "--dispersity", "[0, 0.5)"),
+    (["--n", "50", "--kt", "20"], "--kt", "[0, 10 kn]"),
+    (["--n", "50", "--tol-unbalanced", "2"], "--tol-unbalanced", "(0, 1)"),
+    (["--n", "50", "--checkpoint-every", "0"], "--checkpoint-every", "> 0"),
+    (["--n", "50", "--pressure-pa", "100"], "--pressure-pa", "--kn"),
+    (["--n", "50", "--pressure-pa", "1e3", "--kn", "1e3"], "--pressure-pa", "(0, 0.1]"),
+    (["--n", "50", "--out", "x.txt"], "--out", ".npz"),
+    (["--resume"], "--resume", "checkpoint"),
+    (["--n", "abc"], "--n", "invalid int"),
+])
+def test_bad_input_exits_2_naming_the_option(tmp_path, args, option, text):
+    p = run(*args, "--no-progress", cwd=tmp_path)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert option in p.stderr and text in p.stderr, p.stderr
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_absolute_units(tmp_path):
+    out = tmp_path / "si.npz"
+    p = run("--n", "60", "--pressure-pa", "2e3", "--kn", "1e6", "--mu", "0", "--mu-prep", "0",
+            "--dispersity", "0.2", "--tol-unbalanced", "1e-3", "--no-progress", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    r = PackingResult.load(out).report
+    assert r["p_over_kn"] == pytest.approx(2e-3, rel=1e-3) and r["kn"] == 1e6
+
+
+def test_help_explains_units():
+    p = run("--help")
+    assert p.returncode == 0
+    text = " ".join(p.stdout.split())
+    for s in ("p/kn", "[N/m]", "SECONDS", "--resume", "--checkpoint-every", "dimensionless",
+              "unbalanced force ratio", "exit codes", "force per length"):
+        assert s in text, s
+
+
+def test_unstable_run_exits_4_and_keeps_checkpoint(tmp_path, monkeypatch, capsys):
+    from dem.__main__ import main
+    from dem.integrate import Simulation
+    from dem.state import State
+
+    orig = Simulation.run
+
+    def poisoned(self, n, **kw):
+        out = orig(self, n, **kw)
+        if self.state.step >= 1050:
+            self.state.v[0, 0] = np.nan
+        return out
+
+    monkeypatch.setattr(Simulation, "run", poisoned)
+    out = tmp_path / "u.npz"
+    rc = main(["pack", *BASE, "--out", str(out), "--checkpoint-every", "1e-9"])
+    assert rc == 4
+    err = capsys.readouterr().err
+    assert "unstable" in err and "NaN" in err and "step 1000" in err
+    assert State.load(tmp_path / "u.checkpoint.npz").step == 1000
+    assert not out.exists()
