@@ -37,6 +37,27 @@ _ARRAYS = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids", "h", 
            "nl_i", "nl_j", "nl_shift", "nl_ft", "x_ref", "h_ref")
 
 
+
+
+def atomic_write(path, write, binary=True):
+    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
+    fsync, then ``os.replace``; the temporary file is removed if writing fails. Every checkpoint of
+    the project (disk states, hexagon models) goes through here."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
+    try:
+        with os.fdopen(fd, "wb" if binary else "w") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 @dataclass(eq=False)
 class State:
     """Structure-of-arrays state of N disks in a periodic deformable cell.
@@ -145,18 +166,7 @@ class State:
         arrays = {k: getattr(self, k) for k in _ARRAYS if getattr(self, k) is not None}
         scal = {"rho": self.rho, "step": int(self.step), "time": float(self.time), "meta": self.meta}
         arrays["_scalars"] = np.array(json.dumps(scal))
-        folder = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=".npz", dir=folder)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
     @classmethod
     def load(cls, path) -> "State":

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from .dynamics import cell_stress
-from .runner import atomic_write, cell_flags, seam_profile
+from ..state import atomic_write
+from .runner import cell_flags, seam_profile
 
 __all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk"]
 

@@ -6,18 +6,18 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..integrate import InstabilityError, RunReport      # shared with the disk engine
+from ..state import atomic_write                          # the one atomic checkpoint writer
 from .dynamics import ACC, advance, cell_stress, energies, gershgorin_dt, ramp_value
 from .scene import MineParams, Scene, build_scene
 
 __all__ = ["RunResult", "run_scene", "indicators", "seam_profile", "cell_flags", "save_checkpoint",
-           "load_checkpoint", "atomic_write", "Snapshot", "broken_kinematics"]
+           "load_checkpoint", "Snapshot", "broken_kinematics"]
 
 SERIES = ["t", "g", "Ek", "Ek_coal", "Ek_free", "U", "W_ext", "W_E", "W_gas", "D_break", "D_fric",
           "D_dash", "D_damp", "residual", "n_tension", "n_shear", "vmax"]
@@ -155,26 +155,6 @@ def indicators(scene: Scene, series: dict, wall_time: float, nsteps: int) -> dic
         "steps": int(nsteps),
         "wall_time_s": float(wall_time),
     }
-
-
-def atomic_write(path, write, binary=True):
-    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
-    fsync, then ``os.replace`` (the pattern of the engine's ``State.save``, which is bound to the
-    disk ``State`` and so cannot be called for a hexagon model). The temporary file is removed if
-    writing fails."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
-    try:
-        with os.fdopen(fd, "wb" if binary else "w") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 class Snapshot(dict):
