@@ -1,0 +1,60 @@
+"""Scaling of the disk engine: time per step against N from 10^3 to 10^6, and memory per particle.
+
+    python -m studies.bench_scaling [--quick]
+
+The dense frictional benchmark scene of ``studies.bench_throughput`` (phi 0.84, kt = kn, mu = 0.5,
+same dt) is prepared once at N = 1000 and tiled to larger N. For each N: wall time per step,
+particle-steps per second, and the bytes per particle held by the state and the simulation's
+buffers (every numpy array they own, Verlet list and contact history included). Prints a table and
+a least-squares slope of log(time per step) against log(N) (1 = linear).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from dem.integrate import Simulation
+from studies.bench_throughput import DT, bench_law, dense_base, tile
+
+
+def owned_bytes(*objs) -> int:
+    seen, total = set(), 0
+    for o in objs:
+        for v in vars(o).values():
+            if isinstance(v, np.ndarray) and id(v) not in seen:
+                seen.add(id(v))
+                total += v.nbytes
+    return total
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="up to 64 000 disks")
+    args = ap.parse_args(argv)
+    base = dense_base(n=1000, ncomp=20000, nrelax=3000)
+    tiles = [(1, 1), (2, 2), (4, 4), (8, 8)] + ([] if args.quick else [(16, 16), (32, 32)])
+    rows = []
+    for rx, ry in tiles:
+        st = tile(base, rx, ry)
+        n = st.n
+        sim = Simulation(st, bench_law(), dt=DT, damping=0.0, skin=0.1, sort_every=50)
+        sim.run(20)  # compile, first list build and spatial sort
+        steps = max(20, int(2e7 / n))
+        t0 = time.perf_counter()
+        rep = sim.run(steps)
+        wall = time.perf_counter() - t0
+        per_step = wall / steps
+        rows.append((n, steps, per_step, n * steps / wall, owned_bytes(st, sim) / n))
+        print(f"N = {n:>8d}: {steps:>6d} steps, {per_step * 1e3:9.3f} ms/step, {n * steps / wall:.3g} particle-steps/s, "
+              f"{owned_bytes(st, sim) / n:.0f} bytes/particle", flush=True)
+    ns = np.array([r[0] for r in rows], float)
+    ts = np.array([r[2] for r in rows])
+    slope = np.polyfit(np.log(ns), np.log(ts), 1)[0]
+    print(f"slope of log(time per step) vs log(N): {slope:.3f} (1 = linear); "
+          f"memory {min(r[4] for r in rows):.0f}-{max(r[4] for r in rows):.0f} bytes per particle (target < 1000)")
+
+
+if __name__ == "__main__":
+    main()
