@@ -53,11 +53,14 @@ def damping_ratio(e) -> float:
 
 
 # --------------------------------------------------------------------------------------------------
-# kernels. Signature: (x, v, omega, radius, mass, L(4), h(4), pi, pj, ps, ft, prm, dt, f, torque, out)
+# kernels. Signature: (x, v, omega, radius, mass, L(4), h(4), pi, pj, ps, ft, prm, dt, f, torque, out, pc)
+# pc: per-pair constants from the law's ``pair_constants`` (depends only on the list and the masses;
+# LinearFriction: the normal dashpot coefficient c = 2 zeta sqrt(m_eff kn), bit-identical to the
+# per-contact formula), an empty array for the other laws.
 # --------------------------------------------------------------------------------------------------
 @njit(cache=True)
 def _forces_frictionless(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10, h11,
-                         pi, pj, ps, ft, prm, dt, f, torque, out):
+                         pi, pj, ps, ft, prm, dt, f, torque, out, pc):
     kn = prm[0]
     zeta = prm[1]
     f[:, :] = 0.0
@@ -118,8 +121,21 @@ def _forces_frictionless(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01
 
 
 @njit(cache=True)
+def _dashpot_per_pair(mass, pi, pj, kn, zeta):
+    """c_p = 2 zeta sqrt(m_eff kn) for every listed pair (same expression as the per-contact one)."""
+    c = np.zeros(pi.shape[0])
+    if zeta > 0.0:
+        for p in range(pi.shape[0]):
+            i = pi[p]
+            j = pj[p]
+            meff = mass[i] * mass[j] / (mass[i] + mass[j])
+            c[p] = 2.0 * zeta * math.sqrt(meff * kn)
+    return c
+
+
+@njit(cache=True)
 def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10, h11,
-                   pi, pj, ps, ft, prm, dt, f, torque, out):
+                   pi, pj, ps, ft, prm, dt, f, torque, out, pc):
     kn = prm[0]
     kt = prm[1]
     mu = prm[2]
@@ -127,6 +143,11 @@ def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10,
     tdamp = prm[4]
     f[:, :] = 0.0
     torque[:] = 0.0
+    # flat views: xf[2 * j] -> xf[2 j] saves the stride arithmetic (same values, same order)
+    xf = x.reshape(-1)
+    vf = v.reshape(-1)
+    ff = f.reshape(-1)
+    psf = ps.reshape(-1)
     s00 = 0.0
     s01 = 0.0
     s10 = 0.0
@@ -138,10 +159,10 @@ def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10,
     for p in range(pi.shape[0]):
         i = pi[p]
         j = pj[p]
-        sa = ps[p, 0]
-        sb = ps[p, 1]
-        lx = x[j, 0] + h00 * sa + h01 * sb - x[i, 0]
-        ly = x[j, 1] + h10 * sa + h11 * sb - x[i, 1]
+        sa = psf[2 * p]
+        sb = psf[2 * p + 1]
+        lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
+        ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
         ri = radius[i]
         rj = radius[j]
         rs = ri + rj
@@ -155,16 +176,15 @@ def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10,
         tx = -ny
         ty = nx
         delta = rs - d
-        dvx = v[j, 0] - v[i, 0] + L00 * lx + L01 * ly
-        dvy = v[j, 1] - v[i, 1] + L10 * lx + L11 * ly
+        dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
+        dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
         vn = dvx * nx + dvy * ny
         vt = dvx * tx + dvy * ty - (omega[i] * ri + omega[j] * rj)
         fn = kn * delta
         U += 0.5 * kn * delta * delta
         c = 0.0
         if zeta > 0.0:
-            meff = mass[i] * mass[j] / (mass[i] + mass[j])
-            c = 2.0 * zeta * math.sqrt(meff * kn)
+            c = pc[p]
             fn -= c * vn
         fc = fn if fn > 0.0 else 0.0
         lim = mu * fc
@@ -183,10 +203,10 @@ def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10,
             U += 0.5 * fs * fs / kt
         fx = fn * nx + ftot * tx
         fy = fn * ny + ftot * ty
-        f[j, 0] += fx
-        f[j, 1] += fy
-        f[i, 0] -= fx
-        f[i, 1] -= fy
+        ff[2 * j] += fx
+        ff[2 * j + 1] += fy
+        ff[2 * i] -= fx
+        ff[2 * i + 1] -= fy
         torque[i] -= ri * ftot
         torque[j] -= rj * ftot
         s00 += fx * lx
@@ -208,7 +228,7 @@ def _forces_linear(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10,
 
 @njit(cache=True)
 def _forces_hertz(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10, h11,
-                  pi, pj, ps, ft, prm, dt, f, torque, out):
+                  pi, pj, ps, ft, prm, dt, f, torque, out, pc):
     kh = prm[0]
     ktr = prm[1]
     mu = prm[2]
@@ -291,6 +311,9 @@ def _forces_hertz(x, v, omega, radius, mass, L00, L01, L10, L11, h00, h01, h10, 
 # --------------------------------------------------------------------------------------------------
 # law objects
 # --------------------------------------------------------------------------------------------------
+_EMPTY = np.zeros(0)
+
+
 def _pos(name, v, allow_zero=False):
     ok = np.isfinite(v) and (v >= 0 if allow_zero else v > 0)
     if not ok:
@@ -325,6 +348,9 @@ class Frictionless:
 
     def params(self):
         return np.array([self.kn, damping_ratio(self.restitution)], dtype=np.float64)
+
+    def pair_constants(self, mass, pi, pj):
+        return _EMPTY
 
     def dt_stiffness(self):
         """Stiffness per possible contact entering the critical time step: kn."""
@@ -373,6 +399,10 @@ class LinearFriction:
     def params(self):
         return np.array([self.kn, self.kt, self.mu, damping_ratio(self.restitution),
                          1.0 if self.tangential_damping else 0.0], dtype=np.float64)
+
+    def pair_constants(self, mass, pi, pj):
+        """Per-pair normal dashpot coefficients for the kernel (recomputed at each list build)."""
+        return _dashpot_per_pair(mass, pi, pj, float(self.kn), damping_ratio(self.restitution))
 
     def dt_stiffness(self):
         """Stiffness per possible contact entering the critical time step: max(kn, 2 kt).
@@ -424,6 +454,9 @@ class HertzMindlin:
     def params(self):
         return np.array([self.kh, self.kt_ratio, self.mu, damping_ratio(self.restitution)],
                         dtype=np.float64)
+
+    def pair_constants(self, mass, pi, pj):
+        return _EMPTY
 
     def dt_stiffness(self):
         kn = 1.5 * self.kh * math.sqrt(self.delta_ref)

@@ -73,14 +73,19 @@ def critical_dt(state, law) -> float:
 def _step_translation(x, v, f, mass, dt, damping, L00, L01, L10, L11, x_ref, F00, F01, F10, F11):
     """Kick-drift of translations; returns (max non-affine displacement^2 since the last build,
     kinetic energy at the integer time, work of the local damping)."""
+    # flat views of the (N, 2) C arrays: no stride arithmetic in the loop (same operations)
+    xf = x.reshape(-1)
+    vf = v.reshape(-1)
+    ff = f.reshape(-1)
+    rf = x_ref.reshape(-1)
     d2max = 0.0
     ke = 0.0
     wd = 0.0
     for i in range(x.shape[0]):
         m = mass[i]
         for k in range(2):
-            F = f[i, k]
-            vo = v[i, k]
+            F = ff[2 * i + k]
+            vo = vf[2 * i + k]
             Fd = 0.0
             if damping > 0.0:
                 if vo > 0.0:
@@ -91,13 +96,17 @@ def _step_translation(x, v, f, mass, dt, damping, L00, L01, L10, L11, x_ref, F00
             vm = 0.5 * (vo + vn)
             ke += 0.5 * m * vm * vm
             wd += Fd * vm * dt
-            v[i, k] = vn
-        x0 = x[i, 0]
-        x1 = x[i, 1]
-        x[i, 0] = x0 + dt * (v[i, 0] + L00 * x0 + L01 * x1)
-        x[i, 1] = x1 + dt * (v[i, 1] + L10 * x0 + L11 * x1)
-        dx = x[i, 0] - (F00 * x_ref[i, 0] + F01 * x_ref[i, 1])
-        dy = x[i, 1] - (F10 * x_ref[i, 0] + F11 * x_ref[i, 1])
+            vf[2 * i + k] = vn
+        x0 = xf[2 * i]
+        x1 = xf[2 * i + 1]
+        y0 = x0 + dt * (vf[2 * i] + L00 * x0 + L01 * x1)
+        y1 = x1 + dt * (vf[2 * i + 1] + L10 * x0 + L11 * x1)
+        xf[2 * i] = y0
+        xf[2 * i + 1] = y1
+        r0 = rf[2 * i]
+        r1 = rf[2 * i + 1]
+        dx = y0 - (F00 * r0 + F01 * r1)
+        dy = y1 - (F10 * r0 + F11 * r1)
         d2 = dx * dx + dy * dy
         if d2 > d2max:
             d2max = d2
@@ -229,6 +238,9 @@ class Simulation:
         self.out = np.zeros(8)
         self._empty = np.zeros(0)
         self._prm = self.law.params()
+        self._pc = None          # per-pair law constants, valid for (self._pc_list, self._pc_mass)
+        self._pc_list = None
+        self._pc_mass = None
         self._href_inv = None if self.state.h_ref is None else np.linalg.inv(self.state.h_ref)
 
     def set_law(self, law):
@@ -241,6 +253,7 @@ class Simulation:
         self.law = law
         self.dt_crit = dtc
         self._prm = law.params()
+        self._pc = None
 
     # ---- pieces of a step ------------------------------------------------------------------------
     def rebuild(self):
@@ -259,9 +272,13 @@ class Simulation:
         h, L = st.h, st.L
         omega = st.omega if self.law.needs_spin else self._empty
         ft = st.nl_ft if self.law.needs_history else self._empty
+        if self._pc is None or self._pc_list is not st.nl_i or self._pc_mass is not st.mass:
+            self._pc = self.law.pair_constants(st.mass, st.nl_i, st.nl_j)
+            self._pc_list = st.nl_i
+            self._pc_mass = st.mass
         self.law.kernel(st.x, st.v, omega, st.radius, st.mass, L[0, 0], L[0, 1], L[1, 0], L[1, 1],
                         h[0, 0], h[0, 1], h[1, 0], h[1, 1], st.nl_i, st.nl_j, st.nl_shift, ft,
-                        self._prm, self.dt, self.f, self.torque, self.out)
+                        self._prm, self.dt, self.f, self.torque, self.out, self._pc)
 
     def step(self):
         st = self.state
