@@ -7,6 +7,14 @@ package) allows, the same protocol as :func:`dem.packing.pack`; runs it with ``m
 :class:`microhom.network.ContactNetwork` with the contact forces LAMMPS computed. The protocol
 side by side with :mod:`dem.packing`, and what differs, is in ``docs/scale_out.md``.
 
+Protocol (the input's comments give the details): a proportional pressure servo with the law and
+cap of :class:`dem.cell.PressureServo` (``fix deform`` with a variable rate from the virial-only
+pressure and the affine stiffness) from the gas on; a compaction phase at light drag that ends when
+the packing has jammed (pressure within ``jam_p``, unbalanced force below ``jam_unbalanced``, a
+contact network with Z >= ``jam_z``); equilibrium phases at ``mu_prep`` then ``mu`` with a stronger
+drag, ended by ``fix halt`` on dem's three stop criteria. Measured against :func:`dem.packing.pack`
+in ``docs/scale_out.md``.
+
 Units: any consistent set (the input uses ``units lj``, which does no unit conversion: the numbers
 are the caller's). 2D, per unit thickness: LAMMPS's ``dimension 2`` forces and its 2D pressure
 (virial over the cell *area*) are then forces per length, as in :mod:`dem.measure`.
@@ -60,29 +68,33 @@ def _num(x) -> str:
 
 
 def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None,
-                 radius=0.5, dispersity=0.0, rho=None, seed=0, phi0=0.2, drag=0.1, restitution=None,
-                 max_strain_per_step=2e-4, switch_fraction=0.5, pdamp_steps=200, modulus=None,
-                 tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8, max_steps=2_000_000, check_every=100,
-                 skin=None, dt=None) -> dict:
+                 radius=0.5, dispersity=0.0, rho=None, seed=0, phi0=0.2, drag=0.1,
+                 drag_compaction=0.01, jam_unbalanced=1e-3, jam_p=1e-2, jam_z=3.0, restitution=None,
+                 max_strain_per_step=2e-4, alpha=0.5, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
+                 max_steps=2_000_000, check_every=100, skin=None, dt=None) -> dict:
     """Write ``gas.data`` and ``in.packing`` into ``folder``; return the parameters used.
 
     Parameters follow :func:`dem.packing.pack` (same meaning and units; 2D per unit thickness):
     ``n``, ``p_over_kn`` or ``pressure``, ``kn``, ``kt`` (None: kn), ``mu``, ``mu_prep`` (None: mu),
-    ``radius``, ``dispersity``, ``rho``, ``seed``, ``phi0``, ``max_strain_per_step``, ``tol_p``,
-    ``tol_unbalanced``, ``tol_ke``, ``max_steps`` (per equilibration phase here),
-    ``check_every``. The starting gas is :func:`dem.packing.random_gas` with the same seed, so both
-    engines start from the same configuration. LAMMPS-only knobs:
+    ``radius``, ``dispersity``, ``rho``, ``seed``, ``phi0``, ``max_strain_per_step``, ``alpha``
+    (servo gain), ``jam_unbalanced``, ``tol_p``, ``tol_unbalanced``, ``tol_ke``, ``max_steps``
+    (per phase here), ``check_every``. The starting gas is :func:`dem.packing.random_gas` with the
+    same seed, so both engines start from the same configuration. LAMMPS-specific knobs:
 
-    drag : global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``; LAMMPS 2021 has no
-        Cundall local damping), m the mass of a disk of the mean radius.
+    drag, drag_compaction : global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``; LAMMPS
+        2021 has no Cundall local damping), m the mass of a disk of the mean radius. It acts on
+        translation only: the spins are zeroed once at the start of each equilibrium phase (a
+        lightly loaded disk spinning after the compaction would otherwise hold the kinetic-energy
+        criterion for tens of thousands of steps; zero-temperature ``fix langevin ... omega yes``
+        damps the spins too but was 5x slower, measured). Light
+        (``drag_compaction``) during the compaction phase, ``drag`` in the equilibrium phases
+        (the analogue of dem's ``damping_compaction`` / ``damping``).
+    jam_p, jam_z : the compaction phase ends when ``|p - p_t| < jam_p p_t``, the unbalanced force
+        ratio is below ``jam_unbalanced`` and the mean contact number of the disks that have
+        contacts is at least ``jam_z`` (a contact network exists; lower it for mu_prep >~ 1,
+        where jammed packings approach Z = 3).
     restitution : optional contact dashpot, as the restitution coefficient of a pair of mean disks
         (LAMMPS's ``gamma_n = 2 zeta sqrt(kn / m_eff)`` is one constant for all pairs).
-    switch_fraction : the fast compression (``fix deform``, true strain rate
-        ``max_strain_per_step / dt`` on both axes) stops when p >= switch_fraction * p_target;
-        ``fix press/berendsen`` then takes the pressure to the target.
-    pdamp_steps, modulus : Berendsen time constant in steps and its bulk-modulus parameter
-        (default ``0.5 kn``, about the affine 2D bulk modulus ``Nc phi kn / (2 pi)`` of a dense
-        packing; a larger value is slower and safer).
     skin : neighbour skin (default 0.2 mean radius). dt : time step (default ``0.8 dt_crit`` of
         :func:`dem.integrate.critical_dt`, the same as :mod:`dem.packing`).
     """
@@ -99,8 +111,9 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
     for name, val, ok in (("n", n, int(n) == n and n >= 2), ("kn", kn, kn > 0), ("kt", kt, kt >= 0),
                           ("mu", mu, mu >= 0), ("mu_prep", mu_prep, mu_prep >= 0),
                           ("target pressure", p_target, p_target > 0 and math.isfinite(p_target)),
-                          ("drag", drag, drag >= 0), ("switch_fraction", switch_fraction, 0 < switch_fraction <= 1),
-                          ("pdamp_steps", pdamp_steps, pdamp_steps > 0),
+                          ("drag", drag, drag >= 0), ("drag_compaction", drag_compaction, drag_compaction >= 0),
+                          ("alpha", alpha, 0 < alpha <= 1), ("jam_unbalanced", jam_unbalanced, 0 < jam_unbalanced < 1),
+                          ("jam_p", jam_p, 0 < jam_p < 1), ("jam_z", jam_z, 0 <= jam_z < 6),
                           ("check_every", check_every, int(check_every) == check_every and check_every >= 1),
                           ("max_strain_per_step", max_strain_per_step, 0 < max_strain_per_step < 0.1)):
         if not ok:
@@ -111,7 +124,6 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
     if dt is None:
         dt = 0.8 * critical_dt(st, law)
     m1 = float(st.rho * math.pi * radius ** 2)
-    gamma_drag = drag * math.sqrt(kn * m1)
     gn = 0.0
     if restitution is not None:
         if not (0 < restitution <= 1):
@@ -119,8 +131,12 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
         le = math.log(restitution)
         zeta = -le / math.sqrt(math.pi ** 2 + le ** 2)
         gn = 2.0 * zeta * math.sqrt(kn / (0.5 * m1))
-    modulus = 0.5 * kn if modulus is None else float(modulus)
     skin = 0.2 * radius if skin is None else float(skin)
+    r = st.radius
+    # mean squared branch length of a contact, (r_i + r_j)^2 for independent radii: the affine
+    # isotropic stiffness K = sum_c kn |l_c|^2 / (2A) of dem.cell.PressureServo is then
+    # kn Nc <l^2> / (2A) (overlaps neglected: a relative error ~ p/kn)
+    l2 = float(2.0 * np.mean(r ** 2) + 2.0 * np.mean(r) ** 2)
 
     cfg = io.Configuration(positions=st.x, radii=st.radius, cell=st.h, ids=np.arange(1, st.n + 1),
                            fields={"density": np.full(st.n, st.rho)})
@@ -128,17 +144,28 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
                          title=f"random gas: dem.packing.random_gas(n={n}, seed={seed}, phi0={phi0})")
     prm = dict(n=int(n), p_target=p_target, kn=float(kn), kt=float(kt), mu=float(mu), mu_prep=float(mu_prep),
                radius=float(radius), dispersity=float(dispersity), rho=float(st.rho), seed=seed, phi0=phi0,
-               dt=float(dt), gamma_drag=gamma_drag, gamma_n=gn, modulus=modulus, skin=skin,
-               rate=max_strain_per_step / dt, switch_fraction=switch_fraction, pdamp=pdamp_steps * dt,
+               dt=float(dt), drag=float(drag), drag_compaction=float(drag_compaction),
+               gamma_drag=drag * math.sqrt(kn * m1), gamma_compaction=drag_compaction * math.sqrt(kn * m1),
+               gamma_n=gn, skin=skin, rate=max_strain_per_step / dt, alpha=float(alpha), l2=l2,
+               jam_unbalanced=float(jam_unbalanced), jam_p=float(jam_p), jam_z=float(jam_z),
                tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke, max_steps=int(max_steps),
                check_every=int(check_every), disk_area=float(np.pi * np.sum(st.radius ** 2)))
     (folder / INPUT_NAME).write_text(_input_text(prm))
     return prm
 
 
+def _drag_fix(drag, p) -> str:
+    """Global viscous drag ``drag sqrt(kn m)`` (m: mass of a disk of the mean radius)."""
+    gamma = drag * math.sqrt(p["kn"] * p["rho"] * math.pi * p["radius"] ** 2)
+    return f"fix             drag all viscous {_num(gamma)}"
+
+
 def _input_text(p) -> str:
     N = _num
     fric_switch = p["mu"] != p["mu_prep"]
+    report = ("steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) Zc=$(v_Zc:%.5f) "
+              "pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)")
+    relen = "variable        lx0 equal $(lx)\nvariable        ly0 equal $(ly)"
     lines = f"""\
 # LAMMPS input written by dem.lammps.write_inputs: the dem.packing protocol (docs/scale_out.md).
 #   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
@@ -162,13 +189,15 @@ neighbor        {N(p['skin'])} bin
 neigh_modify    delay 0 every 1 check yes
 fix             nve all nve/sphere disc
 fix             e2d all enforce2d
-fix             drag all viscous {N(p['gamma_drag'])}
 timestep        {N(p['dt'])}
 
-# ---- measurements: pressure without kinetic term, contacts, unbalanced force, kinetic energy ----
+# ---- measurements: pressure without kinetic term (virial only: contact forces), contacts,
+#      unbalanced force, kinetic energy of the disks in contact ----
 compute         pv all pressure NULL virial
 compute         cn all contact/atom
 compute         zsum all reduce sum c_cn
+variable        hasc atom c_cn>0
+compute         nwith all reduce sum v_hasc
 compute         pl all pair/local force
 compute         fsum all reduce sum c_pl
 compute         prop all property/atom radius omegaz
@@ -178,6 +207,7 @@ variable        kea atom (c_cn>0)*(0.5*mass*(vx*vx+vy*vy)+0.25*mass*c_prop[1]*c_
 compute         kec all reduce sum v_kea
 variable        nc equal c_zsum/2
 variable        Z equal c_zsum/atoms
+variable        Zc equal c_zsum/(c_nwith+1.0e-300)
 variable        phi equal {N(p['disk_area'])}/(lx*ly)
 variable        fmean equal c_fsum/(v_nc+1.0e-300)
 variable        unb equal c_fres/(v_fmean+1.0e-300)
@@ -185,58 +215,65 @@ variable        eel equal v_nc*v_fmean*v_fmean/(2.0*{N(p['kn'])})
 variable        kerel equal c_kec/(v_eel+1.0e-300)
 variable        perr equal abs(c_pv-{N(p['p_target'])})/{N(p['p_target'])}
 variable        conv equal (v_perr<{N(p['tol_p'])})*(v_unb<{N(p['tol_unbalanced'])})*(v_kerel<{N(p['tol_ke'])})
-variable        pgo equal c_pv>={N(p['switch_fraction'] * p['p_target'])}
-thermo_style    custom step atoms v_phi v_Z c_pv v_perr v_unb v_kerel cpu
+variable        jammed equal (v_perr<{N(p['jam_p'])})*(v_unb<{N(p['jam_unbalanced'])})*(v_Zc>={N(p['jam_z'])})
+thermo_style    custom step atoms v_phi v_Z v_Zc c_pv v_perr v_unb v_kerel cpu
 thermo_modify   norm no flush yes
-thermo          {max(1000, p['check_every'])}
+thermo          {max(10000, 10 * p['check_every'])}
 
-# ---- 0. push apart the overlaps of the random gas at fixed cell (dem: first servo steps) ----
-fix             h0 all halt 10 v_pgo < 0.5 error continue
-run             {p['max_steps']}
-unfix           h0
-run             0 post no
-print           "PACK_PHASE name=gas steps=$(step) phi=$(v_phi:%.6f) pressure=$(c_pv:%.10g)"
+# ---- pressure servo (dem.cell.PressureServo): isotropic true strain rate
+#      edot = -alpha (p_t - p) / (K dt), K = kn Nc <l^2> / (2 A) the affine stiffness, capped at
+#      +-max_strain_per_step/dt (the cap is the rate while there are no contacts). fix deform
+#      'variable' sets the box length change since the start of the run: lx(t+dt) = lx exp(edot dt)
+#      (lx0, ly0 = the lengths at the start of each run, re-read before every run); fix ave/time
+#      every step makes LAMMPS tally the virial on every step (fix deform does not ask for it) ----
+variable        Kaff equal {N(p['kn'] * p['l2'] / 2.0)}*v_nc/(lx*ly)
+variable        eraw equal -{N(p['alpha'])}*({N(p['p_target'])}-c_pv)/((v_Kaff+{N(1e-12 * p['kn'])})*{N(p['dt'])})
+variable        edot equal (v_eraw<{N(-p['rate'])})*{N(-p['rate'])}+(v_eraw>{N(p['rate'])})*{N(p['rate'])}+(v_eraw>={N(-p['rate'])})*(v_eraw<={N(p['rate'])})*v_eraw
+variable        dlx equal lx*exp(v_edot*{N(p['dt'])})-v_lx0
+variable        dly equal ly*exp(v_edot*{N(p['dt'])})-v_ly0
+variable        vlx equal v_edot*lx
+variable        vly equal v_edot*ly
+{relen}
+fix             ptally all ave/time 1 1 1 c_pv
+fix             servo all deform 1 x variable v_dlx v_vlx y variable v_dly v_vly remap x
 
-# ---- 1.+2. cycles of: fast isotropic compression (dem: servo at its max strain rate while
-#      unloaded) until p >= switch_fraction * p_target, then the Berendsen servo to the target
-#      with the stop criteria at mu_prep; a cycle whose pressure falls back below 0.1 of the
-#      switch level (the load was collisional, the packing not jammed yet) compresses again ----
-variable        low equal c_pv<{N(0.1 * p['switch_fraction'] * p['p_target'])}
-variable        stop2 equal (v_conv+v_low)>0.5
-variable        cycle loop 100000
-label           cloop
-fix             comp all deform 1 x trate {N(-p['rate'])} y trate {N(-p['rate'])} remap x
-fix             h1 all halt 1 v_pgo > 0.5 error continue
+# ---- 1. compaction (dem: phase 'compact'): servo from the gas (overlaps pushed apart, the cell
+#      may grow first) with a light drag, until the packing has jammed ----
+{_drag_fix(p['drag_compaction'], p)}
+fix             h1 all halt {p['check_every']} v_jammed > 0.5 error continue
 run             {p['max_steps']}
-unfix           comp
 unfix           h1
 run             0 post no
-print           "PACK_PHASE name=compress cycle=${{cycle}} steps=$(step) phi=$(v_phi:%.6f) pressure=$(c_pv:%.10g)"
-fix             pb all press/berendsen iso {N(p['p_target'])} {N(p['p_target'])} {N(p['pdamp'])} modulus {N(p['modulus'])} dilate all
-fix_modify      pb press pv
-fix             h2 all halt {p['check_every']} v_stop2 > 0.5 error continue
+print           "PACK_PHASE name=compact {report}"
+
+# ---- 2. equilibrium at mu_prep with the equilibrium drag; stop criteria (dem: phase 'prep') ----
+unfix           drag
+{_drag_fix(p['drag'], p)}
+set             group all omega 0.0 0.0 0.0
+{relen}
+fix             h2 all halt {p['check_every']} v_conv > 0.5 error continue
 run             {p['max_steps']}
 unfix           h2
 run             0 post no
-if "$(v_low) > 0.5" then "unfix pb" "next cycle" "jump SELF cloop"
-fix             pb all press/berendsen iso {N(p['p_target'])} {N(p['p_target'])} {N(p['pdamp'])} modulus {N(p['modulus'])} dilate all
-fix_modify      pb press pv
-print           "PACK_PHASE name=prep steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)"
+print           "PACK_PHASE name=prep {report}"
 """
     if fric_switch:
         lines += f"""
 # ---- 3. switch to the test friction mu and equilibrate again (pair history is kept) ----
 pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {N(p['gamma_n'])} {N(p['mu'])} 1
 pair_coeff      * *
+set             group all omega 0.0 0.0 0.0
+{relen}
 fix             h3 all halt {p['check_every']} v_conv > 0.5 error continue
 run             {p['max_steps']}
 unfix           h3
 run             0 post no
-print           "PACK_PHASE name=test steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)"
+print           "PACK_PHASE name=test {report}"
 """
     lines += f"""
 variable        convf equal $(v_conv)
-unfix           pb
+unfix           servo
+unfix           ptally
 unfix           drag
 
 # ---- 4. final state: velocities zeroed (no dashpot force; run 0 does not advance the history),
