@@ -27,12 +27,34 @@ INTACT, TENSION, SHEAR = 0, 1, 2
 
 
 @njit(cache=True, inline="always")
+def _broken_law(sn_tr, tau_tr, pg, kn, tanphi_r, vent_open):
+    """The broken interface: no tension, gas on the faces (vented once the crack opens more than
+    ``vent_open``), Coulomb friction by return mapping. Returns (sn, tau, pg, is_open, vented)."""
+    spb = sn_tr + pg
+    is_open = spb > 0.0
+    vented = False
+    if is_open:
+        spb = 0.0
+        if pg > 0.0 and (sn_tr + pg) / kn > vent_open:
+            vented = True
+            pg = 0.0
+    sn = spb - pg
+    limr = -spb * tanphi_r
+    tau = tau_tr
+    if tau > limr:
+        tau = limr
+    elif tau < -limr:
+        tau = -limr
+    return sn, tau, pg, is_open, vented
+
+
+@njit(cache=True, inline="always")
 def mc_update(jn, djt, sn0, tau_old, broken, pg, kn, kt, ft, coh, tanphi, tanphi_r, vent_open):
     """One update of the interface law. Returns (sn, tau, broken, pg, d_break, d_fric, is_open)
-    with energies per unit length [J/m^2 -> J/m per m of edge]."""
+    with energies per unit length [J/m^2 -> J/m per m of edge]. For an interface that was already
+    broken, the fifth value is the energy of the vented gas instead of a break."""
     sn_tr = sn0 + kn * jn
     tau_tr = tau_old + kt * djt
-    d_break = 0.0
     if broken == 0:
         sp = sn_tr + pg
         lim = coh - sp * tanphi
@@ -44,37 +66,12 @@ def mc_update(jn, djt, sn0, tau_old, broken, pg, kn, kt, ft, coh, tanphi, tanphi
             return sn_tr, tau_tr, 0, pg, 0.0, 0.0, False
         e_before = 0.5 * sn_tr * sn_tr / kn + 0.5 * tau_tr * tau_tr / kt
         # broken law below; energy drop charged to d_break
-        spb = sn_tr + pg
-        is_open = spb > 0.0
-        if is_open:
-            spb = 0.0
-        if is_open and pg > 0.0 and (sn_tr + pg) / kn > vent_open:
-            pg = 0.0
-        sn = spb - pg
-        limr = -spb * tanphi_r
-        tau = tau_tr
-        if tau > limr:
-            tau = limr
-        elif tau < -limr:
-            tau = -limr
+        sn, tau, pg, is_open, _ = _broken_law(sn_tr, tau_tr, pg, kn, tanphi_r, vent_open)
         e_after = 0.5 * sn * sn / kn + 0.5 * tau * tau / kt
-        d_break = e_before - e_after
-        return sn, tau, broken, pg, d_break, 0.0, is_open
-    spb = sn_tr + pg
-    is_open = spb > 0.0
-    d_vent = 0.0
-    if is_open:
-        spb = 0.0
-        if pg > 0.0 and (sn_tr + pg) / kn > vent_open:
-            d_vent = 0.5 * pg * pg / kn
-            pg = 0.0
-    sn = spb - pg
-    limr = -spb * tanphi_r
-    tau = tau_tr
-    if tau > limr:
-        tau = limr
-    elif tau < -limr:
-        tau = -limr
+        return sn, tau, broken, pg, e_before - e_after, 0.0, is_open
+    pg_old = pg
+    sn, tau, pg, is_open, vented = _broken_law(sn_tr, tau_tr, pg, kn, tanphi_r, vent_open)
+    d_vent = 0.5 * pg_old * pg_old / kn if vented else 0.0
     d_fric = abs(tau) * abs(tau_tr - tau) / kt     # plastic work tau * slip (backward Euler)
     return sn, tau, broken, pg, d_vent, d_fric, is_open
 
