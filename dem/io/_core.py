@@ -328,6 +328,17 @@ def check_positive(values, name, path, block, first_line, comment=None):
                           f"{what} value {values[k]!r} (must be > 0)")
 
 
+def parse_number(tok, path, lineno, fieldname, kind=float):
+    """One numeric token of a header line; FormatError naming file, line and field otherwise."""
+    try:
+        v = kind(tok)
+    except ValueError:
+        raise FormatError(path, lineno, fieldname, f"non-numeric value {tok!r}") from None
+    if kind is float and not np.isfinite(v):
+        raise FormatError(path, lineno, fieldname, f"non-finite value {tok!r}")
+    return v
+
+
 def open_bytes(path) -> bytes:
     """The whole file as bytes (transparently gunzipped for ``.gz``)."""
     path = os.fspath(path)

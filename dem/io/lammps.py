@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from ._core import (Configuration, FormatError, check_positive, open_bytes, parse_table,
+from ._core import (Configuration, FormatError, check_positive, open_bytes, parse_number, parse_table,
                     row_line)
 
 
@@ -78,14 +78,6 @@ def _check_inside(positions, cell, origin, dims, path, line_of_row, names=("x", 
                               f"the non-periodic box")
 
 
-def _num(tok, path, lineno, fieldname, kind=float):
-    try:
-        v = kind(tok)
-    except ValueError:
-        raise FormatError(path, lineno, fieldname, f"non-numeric value {tok!r}") from None
-    if kind is float and not np.isfinite(v):
-        raise FormatError(path, lineno, fieldname, f"non-finite value {tok!r}")
-    return v
 
 
 # ---- data files -------------------------------------------------------------------------------
@@ -137,16 +129,16 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
         toks = text.split()
         lineno = k + 1
         if toks[-1] == "atoms" and len(toks) == 2:
-            natoms = _num(toks[0], path, lineno, "atoms", int)
+            natoms = parse_number(toks[0], path, lineno, "atoms", int)
         elif toks[-2:] in (["xlo", "xhi"], ["ylo", "yhi"], ["zlo", "zhi"]) and len(toks) == 4:
-            lo_hi[toks[-2][0]] = (_num(toks[0], path, lineno, toks[2]),
-                                  _num(toks[1], path, lineno, toks[3]))
+            lo_hi[toks[-2][0]] = (parse_number(toks[0], path, lineno, toks[2]),
+                                  parse_number(toks[1], path, lineno, toks[3]))
         elif toks[-3:] == ["xy", "xz", "yz"] and len(toks) == 6:
-            tilt = tuple(_num(t, path, lineno, n) for t, n in zip(toks[:3], toks[3:]))
+            tilt = tuple(parse_number(t, path, lineno, n) for t, n in zip(toks[:3], toks[3:]))
         elif toks[-1] in ("avec", "bvec", "cvec") and len(toks) == 4:
-            gen[toks[-1]] = [_num(t, path, lineno, toks[-1]) for t in toks[:3]]
+            gen[toks[-1]] = [parse_number(t, path, lineno, toks[-1]) for t in toks[:3]]
         elif toks[-2:] == ["abc", "origin"] and len(toks) == 5:
-            gen["origin"] = [_num(t, path, lineno, "abc origin") for t in toks[:3]]
+            gen["origin"] = [parse_number(t, path, lineno, "abc origin") for t in toks[:3]]
         else:
             meta.setdefault("header", []).append(text)
             try:
@@ -376,15 +368,15 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
         item = text[5:].strip()
         if item == "TIMESTEP":
             t, l2 = next_line()
-            meta["timestep"] = _num(t.split()[0] if t else "", path, l2, "TIMESTEP", int)
+            meta["timestep"] = parse_number(t.split()[0] if t else "", path, l2, "TIMESTEP", int)
         elif item == "TIME":
             t, l2 = next_line()
-            meta["time"] = _num(t, path, l2, "TIME")
+            meta["time"] = parse_number(t, path, l2, "TIME")
         elif item == "UNITS":
             meta["units"] = next_line()[0]
         elif item == "NUMBER OF ATOMS":
             t, l2 = next_line()
-            natoms = _num(t, path, l2, "NUMBER OF ATOMS", int)
+            natoms = parse_number(t, path, l2, "NUMBER OF ATOMS", int)
         elif item.startswith("BOX BOUNDS"):
             words = item.split()[2:]
             rows = []
@@ -469,7 +461,7 @@ def _dump_box(box, path, meta):
         if len(toks) != want:
             raise FormatError(path, ln, "BOX BOUNDS",
                               f"expected {want} numbers on the {nm} bounds line, found {len(toks)}")
-        vals.append([_num(t, path, ln, f"BOX BOUNDS {nm}") for t in toks])
+        vals.append([parse_number(t, path, ln, f"BOX BOUNDS {nm}") for t in toks])
     if not flags:
         flags = ["pp", "pp", "pp"]
         meta["boundary_assumed"] = True

@@ -28,7 +28,7 @@ import warnings
 
 import numpy as np
 
-from ._core import Configuration, FormatError, check_positive, open_bytes, parse_table
+from ._core import Configuration, FormatError, check_positive, open_bytes, parse_number, parse_table
 
 
 def _f(x):
@@ -41,14 +41,6 @@ __all__ = ["read_oval", "write_oval"]
 _FORTRAN_EXP = re.compile(rb"(?<=[0-9.])[dD](?=[+-]?[0-9])")  # 1.5D-03 -> 1.5e-03
 
 
-def _fnum(tok, path, lineno, name, kind=float):
-    try:
-        v = kind(tok)
-    except ValueError:
-        raise FormatError(path, lineno, name, f"non-numeric value {tok!r}") from None
-    if kind is float and not np.isfinite(v):
-        raise FormatError(path, lineno, name, f"non-finite value {tok!r}")
-    return v
 
 
 def read_oval(path, *, shear="x") -> Configuration:
@@ -81,7 +73,7 @@ def read_oval(path, *, shear="x") -> Configuration:
     (t1, l1), (t2, l2), (t3, l3) = header
     if len(t1) < 1:
         raise FormatError(path, l1, "shape code", "missing")
-    code_f = _fnum(t1[0], path, l1, "shape code")
+    code_f = parse_number(t1[0], path, l1, "shape code")
     if code_f != 1:
         raise FormatError(path, l1, "shape code",
                           f"unknown shape code {t1[0]!r}: only 1 (circular disks) is supported "
@@ -89,22 +81,22 @@ def read_oval(path, *, shear="x") -> Configuration:
     if len(t2) != 4:
         raise FormatError(path, l2, None,
                           f"expected 4 numbers (N Lx Ly extra), found {len(t2)}")
-    n_f = _fnum(t2[0], path, l2, "N")
+    n_f = parse_number(t2[0], path, l2, "N")
     if n_f != int(n_f) or n_f < 0:
         raise FormatError(path, l2, "N",
                           f"particle count must be a non-negative integer: {t2[0]!r}")
     n = int(n_f)
-    lx = _fnum(t2[1], path, l2, "Lx")
-    ly = _fnum(t2[2], path, l2, "Ly")
-    extra = _fnum(t2[3], path, l2, "extra")
+    lx = parse_number(t2[1], path, l2, "Lx")
+    ly = parse_number(t2[2], path, l2, "Ly")
+    extra = parse_number(t2[3], path, l2, "extra")
     if lx <= 0:
         raise FormatError(path, l2, "Lx", f"cell length must be > 0, got {lx!r}")
     if ly <= 0:
         raise FormatError(path, l2, "Ly", f"cell length must be > 0, got {ly!r}")
     if len(t3) != 2:
         raise FormatError(path, l3, None, f"expected 2 shear offsets, found {len(t3)}")
-    sx = _fnum(t3[0], path, l3, "shear offset 1")
-    s2 = _fnum(t3[1], path, l3, "shear offset 2")
+    sx = parse_number(t3[0], path, l3, "shear offset 1")
+    s2 = parse_number(t3[1], path, l3, "shear offset 2")
     first = k + 1
     block = b"\n".join(raw[k:])
     arr = parse_table(block, ("radius", "x", "y"), path, first, nrows=n)
