@@ -41,7 +41,7 @@ from numba import njit
 from . import neighbors
 from .contact_laws import law_from_meta
 
-__all__ = ["Simulation", "InstabilityError", "critical_dt", "possible_contacts", "RunReport"]
+__all__ = ["Simulation", "InstabilityError", "critical_dt", "possible_contacts", "RunReport", "run_report"]
 
 
 class InstabilityError(RuntimeError):
@@ -162,6 +162,19 @@ def _norm2_2x2(a, b, c, d):
     s = a * a + b * b + c * c + d * d
     det = a * d - b * c
     return math.sqrt(max(0.0, 0.5 * (s + math.sqrt(max(0.0, s * s - 4 * det * det)))))
+
+
+def run_report(n, steps, wall, phases, detail, *, unit="particle", what="particles", stopped=False):
+    """The LAMMPS-like end-of-run report shared by every scene: loop time, throughput and a
+    per-phase timing table. ``detail`` is the scene's own parenthesis (time step, rebuilds...)."""
+    ps = n * steps / wall if wall > 0 else float("nan")
+    lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} {what} {detail}",
+             f"Performance: {ps:.4g} {unit}-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
+             "Section     |  time (s) |   %"]
+    for k, v in phases.items():
+        lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
+    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
+                     table="\n".join(lines))
 
 
 class RunReport(dict):
@@ -385,17 +398,9 @@ class Simulation:
         return self._report(steps, wall, phases, stopped)
 
     def _report(self, steps, wall, phases, stopped=False):
-        n = self.state.n
-        ps = n * steps / wall if wall > 0 else float("nan")
-        lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} particles "
-                 f"(dt = {self.dt:.4g}, dt/dt_crit = {self.dt / self.dt_crit:.3f}, "
-                 f"{self.n_rebuilds} neighbour builds so far)",
-                 f"Performance: {ps:.4g} particle-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
-                 "Section     |  time (s) |   %"]
-        for k, v in phases.items():
-            lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
-        return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
-                         table="\n".join(lines))
+        return run_report(self.state.n, steps, wall, phases,
+                          f"(dt = {self.dt:.4g}, dt/dt_crit = {self.dt / self.dt_crit:.3f}, "
+                          f"{self.n_rebuilds} neighbour builds so far)", stopped=stopped)
 
     def timing_report(self):
         """Timing table of all steps run by this Simulation so far."""

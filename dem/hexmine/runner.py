@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..integrate import InstabilityError, RunReport      # shared with the disk engine
+from ..integrate import InstabilityError, RunReport, run_report  # shared with the disk engine
 from ..state import atomic_write                          # the one atomic checkpoint writer
 from .dynamics import ACC, advance, cell_stress, energies, gershgorin_dt, ramp_value
 from .scene import MineParams, Scene, build_scene
@@ -280,15 +280,6 @@ def run_scene(p: MineParams | Scene, out_dir=None, progress: bool = False, resum
 
 
 def _report(m, steps, wall, phases, dt, dtg, stopped):
-    """Per-phase timing table in the format of the engine's ``Simulation.run`` (LAMMPS-like),
-    returned as the engine's :class:`dem.integrate.RunReport`."""
-    n = m.n_cells
-    ps = n * steps / wall if wall > 0 else float("nan")
-    lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} hexagons "
-             f"(dt = {dt:.4g}, dt/dt_bound = {dt / dtg:.3f})",
-             f"Performance: {ps:.4g} cell-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
-             "Section     |  time (s) |   %"]
-    for k, v in phases.items():
-        lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
-    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
-                     table="\n".join(lines))
+    """Per-phase timing table in the format of the engine's ``Simulation.run`` (LAMMPS-like)."""
+    return run_report(m.n_cells, steps, wall, phases, f"(dt = {dt:.4g}, dt/dt_bound = {dt / dtg:.3f})",
+                      unit="cell", what="hexagons", stopped=stopped)
