@@ -40,19 +40,9 @@ from numba import njit
 
 from . import neighbors
 from .contact_laws import law_from_meta
+from .runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
 
-__all__ = ["Simulation", "InstabilityError", "critical_dt", "possible_contacts", "RunReport", "run_report"]
-
-
-class InstabilityError(RuntimeError):
-    """The run became unstable; ``state`` is the last good state, ``step`` the failing step."""
-
-    def __init__(self, reason, state, step):
-        super().__init__(f"unstable run stopped at step {step}: {reason} "
-                         f"(last good state kept at step {state.step if state is not None else '?'})")
-        self.reason = reason
-        self.state = state
-        self.step = step
+__all__ = ["Simulation", "critical_dt", "possible_contacts"]
 
 
 def possible_contacts(radius) -> np.ndarray:
@@ -162,26 +152,6 @@ def _norm2_2x2(a, b, c, d):
     s = a * a + b * b + c * c + d * d
     det = a * d - b * c
     return math.sqrt(max(0.0, 0.5 * (s + math.sqrt(max(0.0, s * s - 4 * det * det)))))
-
-
-def run_report(n, steps, wall, phases, detail, *, unit="particle", what="particles", stopped=False):
-    """The LAMMPS-like end-of-run report shared by every scene: loop time, throughput and a
-    per-phase timing table. ``detail`` is the scene's own parenthesis (time step, rebuilds...)."""
-    ps = n * steps / wall if wall > 0 else float("nan")
-    lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} {what} {detail}",
-             f"Performance: {ps:.4g} {unit}-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
-             "Section     |  time (s) |   %"]
-    for k, v in phases.items():
-        lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
-    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
-                     table="\n".join(lines))
-
-
-class RunReport(dict):
-    """Summary of one ``Simulation.run`` call (dict) with a LAMMPS-like ``table`` string."""
-
-    def __str__(self):
-        return self["table"]
 
 
 class Simulation:

@@ -91,7 +91,7 @@ def strain_probes(state, law, *, amplitude=1e-8, ramp_steps=200, tol_unbalanced=
     max_steps : cap on the relaxation steps of one probe (the result is then ``converged=False``).
     damping : Cundall local damping during the relaxation.
     """
-    from .stiffness import isotropic_moduli
+    from microhom.tensors import isotropic_moduli
 
     if not (np.isfinite(amplitude) and 0 < amplitude < 0.01):
         raise ValueError(f"amplitude must be in (0, 0.01), got {amplitude}")

@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+
+from .runtime import atomic_write
 
 __all__ = ["State", "disk_mass"]
 
@@ -37,25 +38,6 @@ _ARRAYS = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids", "h", 
            "nl_i", "nl_j", "nl_shift", "nl_ft", "x_ref", "h_ref")
 
 
-
-
-def atomic_write(path, write, binary=True):
-    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
-    fsync, then ``os.replace``; the temporary file is removed if writing fails. Every checkpoint of
-    the project (disk states, hexagon models) goes through here."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
-    try:
-        with os.fdopen(fd, "wb" if binary else "w") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 @dataclass(eq=False)

@@ -46,80 +46,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from microhom.structural_sums import rattlers
+from microhom.kinematics import affine_tensor, assemble, stress0
+from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
+                              prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
+                              voigt_to_mandel, voigt_to_tensor)
 
-__all__ = [
-    "StiffnessResult", "stiffness", "affine_stiffness", "assemble",
-    "mandel_to_tensor", "tensor_to_mandel", "mandel_to_voigt", "voigt_to_mandel",
-    "voigt_to_tensor", "tensor_to_voigt", "strain_to_mandel", "mandel_to_strain",
-    "isotropic_moduli", "stress_increment",
-]
+__all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment"]
+# the tensor-notation helpers (mandel_to_tensor, isotropic_moduli, ...) live in microhom.tensors and
+# the assembly in microhom.kinematics; they are imported here for the solver, not re-exported.
 
-_SQ2 = np.sqrt(2.0)
-_W = np.array([1.0, 1.0, _SQ2])          # Mandel weights for [11, 22, 12]
-_IDX = ((0, 0), (1, 1), (0, 1))
-
-
-# ---- tensor notation helpers -----------------------------------------------------------------
-def mandel_to_tensor(m) -> np.ndarray:
-    """(3, 3) Mandel matrix over [xx, yy, sqrt2 xy] -> (2, 2, 2, 2) tensor with minor symmetries."""
-    m = np.asarray(m, dtype=float)
-    c = np.zeros((2, 2, 2, 2))
-    for a, (i, j) in enumerate(_IDX):
-        for b, (k, l) in enumerate(_IDX):
-            v = m[a, b] / (_W[a] * _W[b])
-            c[i, j, k, l] = c[j, i, k, l] = c[i, j, l, k] = c[j, i, l, k] = v
-    return c
-
-
-def tensor_to_mandel(c) -> np.ndarray:
-    """(2, 2, 2, 2) tensor -> (3, 3) Mandel matrix (minor-symmetrised)."""
-    c = np.asarray(c, dtype=float)
-    c = 0.25 * (c + c.transpose(1, 0, 2, 3) + c.transpose(0, 1, 3, 2) + c.transpose(1, 0, 3, 2))
-    m = np.empty((3, 3))
-    for a, (i, j) in enumerate(_IDX):
-        for b, (k, l) in enumerate(_IDX):
-            m[a, b] = c[i, j, k, l] * _W[a] * _W[b]
-    return m
-
-
-def mandel_to_voigt(m) -> np.ndarray:
-    """Mandel stiffness -> Voigt stiffness ([s11, s22, s12] = Cv [e11, e22, 2 e12])."""
-    return np.asarray(m, dtype=float) / np.outer(_W, _W)
-
-
-def voigt_to_mandel(cv) -> np.ndarray:
-    """Voigt stiffness ([s11, s22, s12] = Cv [e11, e22, 2 e12]) -> Mandel stiffness."""
-    return np.asarray(cv, dtype=float) * np.outer(_W, _W)
-
-
-def voigt_to_tensor(cv) -> np.ndarray:
-    return mandel_to_tensor(voigt_to_mandel(cv))
-
-
-def tensor_to_voigt(c) -> np.ndarray:
-    return mandel_to_voigt(tensor_to_mandel(c))
-
-
-def strain_to_mandel(e) -> np.ndarray:
-    """Symmetric (2, 2) strain or stress -> Mandel vector [e11, e22, sqrt2 e12]."""
-    e = np.asarray(e, dtype=float)
-    return np.array([e[0, 0], e[1, 1], _SQ2 * 0.5 * (e[0, 1] + e[1, 0])])
-
-
-def mandel_to_strain(v) -> np.ndarray:
-    """Mandel vector [e11, e22, sqrt2 e12] -> symmetric (2, 2) tensor."""
-    v = np.asarray(v, dtype=float)
-    return np.array([[v[0], v[2] / _SQ2], [v[2] / _SQ2, v[1]]])
-
-
-def isotropic_moduli(m) -> tuple[float, float]:
-    """Isotropic projection (K, G) of a 2D Mandel stiffness (docs: THEORY.md conventions)."""
-    m = np.asarray(m, dtype=float)
-    c1111, c2222, c1122, c1212 = m[0, 0], m[1, 1], 0.5 * (m[0, 1] + m[1, 0]), 0.5 * m[2, 2]
-    k = (c1111 + c2222 + 2.0 * c1122) / 4.0
-    g = ((c1111 + c2222 - 2.0 * c1122) / 4.0 + c1212) / 2.0
-    return float(k), float(g)
 
 
 # ---- result ----------------------------------------------------------------------------------
@@ -197,63 +132,13 @@ def _ratio(a, b):
     return f"{a / b:.6f}" if b != 0 else "n/a"
 
 
-# ---- assembly --------------------------------------------------------------------------------
-def _contact_arrays(net, prestress):
-    c = net.branch
-    L = net.lengths
-    n = c / L[:, None]
-    t = np.stack([-n[:, 1], n[:, 0]], axis=1)
-    ri, rj = net.radii[net.pairs[:, 0]], net.radii[net.pairs[:, 1]]
-    ai, aj = L * ri / (ri + rj), L * rj / (ri + rj)
-    kt = net.effective_kt
-    nn = n[:, :, None] * n[:, None, :]
-    eye = np.eye(2)
-    K = (net.kn - kt)[:, None, None] * nn + kt[:, None, None] * eye
-    nc = c.shape[0]
-    B = np.zeros((nc, 2, 6))
-    B[:, 0, 0] = B[:, 1, 1] = -1.0
-    B[:, 0, 3] = B[:, 1, 4] = 1.0
-    B[:, :, 2] = -ai[:, None] * t
-    B[:, :, 5] = -aj[:, None] * t
-    D = np.zeros((nc, 2, 3))              # E c for Mandel unit strains [E11, E22, sqrt2 E12]
-    D[:, 0, 0] = c[:, 0]
-    D[:, 1, 1] = c[:, 1]
-    D[:, 0, 2] = c[:, 1] / _SQ2
-    D[:, 1, 2] = c[:, 0] / _SQ2
-    Kg = None
-    if prestress:
-        Kg = (-(net.fn / L))[:, None, None] * (eye - nn)
-    return B, D, K, Kg
-
-
-def _prestress_correction(sigma0):
-    """Mandel matrix of dE -> sym(sigma0 dE) - sigma0 tr(dE)."""
-    m = np.empty((3, 3))
-    for b in range(3):
-        e = mandel_to_strain(np.eye(3)[b])
-        s = 0.5 * (sigma0 @ e + e @ sigma0) - sigma0 * np.trace(e)
-        m[:, b] = strain_to_mandel(s)
-    return m
-
-
-def _stress0(net):
-    """Pre-stress sigma0 = -(1/A) sum sym((fn n + ft t) (x) c) (tension positive)."""
-    n = net.normals
-    f = net.fn[:, None] * n
-    if net.ft is not None:
-        f = f + net.ft[:, None] * np.stack([-n[:, 1], n[:, 0]], axis=1)
-    s = -(f[:, :, None] * net.branch[:, None, :]).sum(axis=0) / net.area
-    return 0.5 * (s + s.T)
-
-
+# ---- assembly (shared with the relaxation hierarchy: microhom.kinematics) -------------------
 def affine_stiffness(network, prestress=False) -> np.ndarray:
     """(3, 3) Mandel affine (no relaxation) stiffness of all contacts of ``network``."""
     _check(network, prestress)
-    B, D, K, Kg = _contact_arrays(network, prestress)
-    KK = K if Kg is None else K + Kg
-    c = D.reshape(-1, 3).T @ (KK @ D).reshape(-1, 3) / network.area
+    c = affine_tensor(network, prestress)
     if prestress:
-        c = c + _prestress_correction(_stress0(network))
+        c = c + prestress_correction(stress0(network))
     return 0.5 * (c + c.T) if not prestress else c
 
 
@@ -262,81 +147,6 @@ def _check(network, prestress):
         raise ValueError("stiffness needs a periodic network (cell is None)")
     if prestress and network.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network")
-
-
-def assemble(network, *, prestress=False, min_contacts=None):
-    """Assemble the reduced Hessian ``H`` (CSC) and load matrix ``F`` (n_dof, 3).
-
-    Returns a dict with H, F and the bookkeeping (per-contact element arrays, local-to-reduced dof
-    map, rattler mask, counts). Particles' translations are dofs ``2p, 2p+1``, spins ``2N + p``.
-    """
-    _check(network, prestress)
-    N = network.n_particles
-    ratt, keep_c = rattlers(network, min_contacts)
-    net = network.select_contacts(keep_c)
-    B, D, K, Kg = _contact_arrays(net, prestress)
-    i, j = net.pairs[:, 0], net.pairs[:, 1]
-    nc = i.shape[0]
-
-    # which dofs exist: translations of non-rattlers, spins of particles with a kt_eff > 0 contact
-    has_t = ~ratt & (np.bincount(net.pairs.ravel(), minlength=N) > 0)
-    fric = (net.effective_kt > 0).astype(np.int64)
-    has_s = (np.bincount(i, weights=fric, minlength=N) + np.bincount(j, weights=fric, minlength=N)) > 0
-    active = np.zeros(3 * N, dtype=bool)
-    active[0:2 * N:2] = has_t
-    active[1:2 * N:2] = has_t
-    active[2 * N:] = has_s & has_t
-    pinned = -1
-    if has_t.any():    # pin the global translation: the best-connected particle's u
-        cnt = np.bincount(net.pairs.ravel(), minlength=N)
-        pinned = int(np.argmax(np.where(has_t, cnt, -1)))
-        active[2 * pinned] = active[2 * pinned + 1] = False
-    dof = np.full(3 * N, -1, dtype=np.int64)
-    dof[active] = np.arange(int(active.sum()))
-    ndof = int(active.sum())
-    gl = np.stack([2 * i, 2 * i + 1, 2 * N + i, 2 * j, 2 * j + 1, 2 * N + j], axis=1)
-    ldof = dof[gl]                                              # (C, 6), -1 = fixed/absent
-
-    # sparse compatibility B (2C x ndof), block-diagonal contact stiffness, H = B^T K B
-    Bs = _sparse_rows(B, ldof, ndof)
-    Ks = _block_diag(K)
-    KB = Ks @ Bs
-    H = (Bs.T @ KB).tocsc()
-    Df = D.reshape(-1, 3)
-    KDf = Ks @ Df
-    F = np.asarray(Bs.T @ KDf)
-    # load scale: norm of the per-contact element loads before they cancel in the assembly
-    rown2 = np.asarray(Bs.multiply(Bs).sum(axis=1)).ravel()
-    F_scale = float(np.sqrt(rown2 @ (KDf ** 2)).max()) if nc else 0.0
-    Bcs = Kgs = None
-    if Kg is not None:
-        Bc = B.copy()
-        Bc[:, :, 2] = Bc[:, :, 5] = 0.0
-        Bcs = _sparse_rows(Bc, ldof, ndof)
-        Kgs = _block_diag(Kg)
-        H = (H + Bcs.T @ (Kgs @ Bcs)).tocsc()
-        F = F + np.asarray(Bcs.T @ (Kgs @ Df))
-    H.sum_duplicates()
-    return dict(H=H, F=F, F_scale=F_scale, Bs=Bs, Ks=Ks, Bcs=Bcs, Kgs=Kgs, Df=Df, B=B, D=D, K=K, Kg=Kg, ldof=ldof, net=net, rattlers=ratt,
-                n_spins=int((has_s & has_t).sum()), pinned=pinned, ndof=ndof, dof_map=dof)
-
-
-def _sparse_rows(B, ldof, ndof):
-    """(C, 2, 6) element rows on local dofs -> CSR (2C, ndof); dofs < 0 are dropped."""
-    nc = B.shape[0]
-    r = np.repeat(np.arange(2 * nc), 6)
-    c = np.broadcast_to(ldof[:, None, :], (nc, 2, 6)).ravel()
-    m = c >= 0
-    return sp.csr_matrix((B.ravel()[m], (r[m], c[m])), shape=(2 * nc, ndof))
-
-
-def _block_diag(K):
-    """(C, 2, 2) -> block-diagonal CSR (2C, 2C)."""
-    nc = K.shape[0]
-    ind = np.arange(2 * nc).reshape(nc, 2)
-    r = np.broadcast_to(ind[:, :, None], (nc, 2, 2)).ravel()
-    c = np.broadcast_to(ind[:, None, :], (nc, 2, 2)).ravel()
-    return sp.csr_matrix((K.ravel(), (r, c)), shape=(2 * nc, 2 * nc))
 
 
 # ---- solvers ---------------------------------------------------------------------------------
@@ -444,20 +254,21 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
         regularised factorisation).
     """
     t0 = time.perf_counter()
+    _check(network, prestress)
     asm = assemble(network, prestress=prestress, min_contacts=min_contacts)
-    H, F = asm["H"], asm["F"]
+    H, F = asm.H, asm.F
     area = network.area
     c_aff = affine_stiffness(network, prestress=prestress)
-    sigma0 = _stress0(network) if prestress else None
+    sigma0 = stress0(network) if prestress else None
     t_asm = time.perf_counter() - t0
 
     t1 = time.perf_counter()
     n_floppy = n_unstable = n_ref = 0
     resid = 0.0
     gap = (np.nan, np.nan)
-    Q = np.zeros((asm["ndof"], 3))
+    Q = np.zeros((asm.ndof, 3))
     used = solver
-    if asm["ndof"] > 0:
+    if asm.ndof > 0:
         d = H.diagonal()
         rown = np.asarray(abs(H).sum(axis=1)).ravel()
         zero = rown <= 1e-300 + 1e-15 * (np.abs(d).max() if d.size else 0.0)
@@ -499,7 +310,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
             Xr = slv.solve(-Fr)
             # residual relative to the contact-level load (the norm of the per-contact affine
             # forces before they cancel in the assembly: an affine load has F ~ round-off)
-            fn_ = asm["F_scale"] if asm["F_scale"] > 0 else 1.0
+            fn_ = asm.F_scale if asm.F_scale > 0 else 1.0
             for n_ref in range(1, max_refine + 1):
                 R = -Fr - Hr @ Xr
                 resid = float((np.linalg.norm(R, axis=0) / fn_).max())
@@ -520,14 +331,14 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
                       RuntimeWarning, stacklevel=2)
 
     # contact displacements for the three unit strains, energy form of the tensor
-    Df = asm["Df"]
-    delta = asm["Bs"] @ Q + Df                                  # (2C, 3) contact displacements
-    Kd = asm["Ks"] @ delta
+    Df = asm.Df
+    delta = asm.Bs @ Q + Df                                  # (2C, 3) contact displacements
+    Kd = asm.Ks @ delta
     c_rel = delta.T @ Kd
     c_str = Df.T @ Kd
-    if asm["Kgs"] is not None:
-        dc = asm["Bcs"] @ Q + Df
-        Kgd = asm["Kgs"] @ dc
+    if asm.Kgs is not None:
+        dc = asm.Bcs @ Q + Df
+        Kgd = asm.Kgs @ dc
         c_rel = c_rel + dc.T @ Kgd
         c_str = c_str + Df.T @ Kgd
     c_rel = 0.5 * (c_rel + c_rel.T) / area
@@ -535,23 +346,23 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
     scale = max(np.abs(c_aff).max(), 1e-300)
     consistency = float(np.abs(c_str - c_rel).max() / scale)
     if prestress:
-        c_rel = c_rel + _prestress_correction(sigma0)
+        c_rel = c_rel + prestress_correction(sigma0)
     N = network.n_particles
     full = np.zeros((3 * N + 1, 3))
-    full[np.flatnonzero(asm["dof_map"] >= 0)] = Q[asm["dof_map"][asm["dof_map"] >= 0]]
+    full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
     u_f = np.stack([full[0:2 * N, b].reshape(N, 2) for b in range(3)])
     w_f = np.stack([full[2 * N:3 * N, b] for b in range(3)])
     K_, G_ = isotropic_moduli(c_rel)
     Ka, Ga = isotropic_moduli(c_aff)
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
-        n_rattlers=int(asm["rattlers"].sum()), n_floppy=int(n_floppy), n_dof=int(asm["ndof"]),
+        n_rattlers=int(asm.rattlers.sum()), n_floppy=int(n_floppy), n_dof=int(asm.ndof),
         solve_time=t_solve, assembly_time=t_asm, n_particles=network.n_particles,
-        n_contacts=asm["net"].n_contacts, n_spins=asm["n_spins"], n_unstable=int(n_unstable),
+        n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(n_unstable),
         prestress=bool(prestress), solver=used, residual=resid, consistency=consistency,
         n_refine=n_ref, pivot_gap=gap,
         stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0),
-        u=u_f, omega=w_f, rattler_mask=asm["rattlers"])
+        u=u_f, omega=w_f, rattler_mask=asm.rattlers)
 
 
 def stress_increment(network, grad, u=None, omega=None) -> np.ndarray:

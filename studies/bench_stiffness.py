@@ -22,8 +22,8 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
-from dem.stiffness import _prestress_correction, isotropic_moduli, mandel_to_strain, stiffness, \
-    tensor_to_mandel
+from dem.stiffness import stiffness
+from microhom.tensors import isotropic_moduli, mandel_to_strain, prestress_correction, tensor_to_mandel
 from microhom import lattices
 from microhom.network import ContactNetwork, from_overlaps
 
@@ -174,7 +174,7 @@ def main(argv=None):
             p = -0.5 * np.trace(sig0)
             Bj, Gj = isotropic_moduli(tensor_to_mandel(Cj))
             Kc, Gc = Bj + p / 2, Gj - p / 2
-            Cc = tensor_to_mandel(Cj) + _prestress_correction(sig0)
+            Cc = tensor_to_mandel(Cj) + prestress_correction(sig0)
             dC = np.abs(Cc - r.C_mandel).max() / np.abs(r.C_mandel).max()
             print(f"{n:>6} {r.K:>12.9f} {r.G:>12.9f} {abs(Kc - r.K) / r.K:>9.1e} "
                   f"{abs(Gc - r.G) / r.G:>9.1e} {dC:>9.1e} {t_ours:>8.3f} {tj:>8.3f} {t1:>9.3f} "

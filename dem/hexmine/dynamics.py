@@ -21,7 +21,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import njit
 
-from ..integrate import InstabilityError          # shared with the disk engine (dem.integrate)
+from ..runtime import InstabilityError          # shared with the disk engine
 from .interface import mc_update
 
 __all__ = ["Model", "step", "advance", "model_forces", "assemble_stiffness", "gershgorin_dt",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .dynamics import cell_stress
-from ..state import atomic_write
+from ..runtime import atomic_write
 from .runner import cell_flags, seam_profile
 
 __all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk"]

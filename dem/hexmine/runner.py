@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..integrate import InstabilityError, RunReport, run_report  # shared with the disk engine
-from ..state import atomic_write                          # the one atomic checkpoint writer
+from ..runtime import InstabilityError, RunReport, run_report  # shared with the disk engine
+from ..runtime import atomic_write                          # the one atomic checkpoint writer
 from .dynamics import ACC, advance, cell_stress, energies, gershgorin_dt, ramp_value
 from .scene import MineParams, Scene, build_scene
 

@@ -1,0 +1,61 @@
+"""What the two discrete methods share: the instability error, the run report and the atomic writer.
+
+The disk engine (``dem.integrate``, ``dem.packing``) and the free-hexagon method both use these; this
+module depends on nothing else in the project.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+__all__ = ["InstabilityError", "RunReport", "run_report", "atomic_write"]
+
+
+class InstabilityError(RuntimeError):
+    """The run became unstable; ``state`` is the last good state, ``step`` the failing step."""
+
+    def __init__(self, reason, state, step):
+        super().__init__(f"unstable run stopped at step {step}: {reason} "
+                         f"(last good state kept at step {state.step if state is not None else '?'})")
+        self.reason = reason
+        self.state = state
+        self.step = step
+
+
+def run_report(n, steps, wall, phases, detail, *, unit="particle", what="particles", stopped=False):
+    """The LAMMPS-like end-of-run report shared by every scene: loop time, throughput and a
+    per-phase timing table. ``detail`` is the scene's own parenthesis (time step, rebuilds...)."""
+    ps = n * steps / wall if wall > 0 else float("nan")
+    lines = [f"Loop time of {wall:.4g} s for {steps} steps with {n} {what} {detail}",
+             f"Performance: {ps:.4g} {unit}-steps/s, {steps / wall if wall > 0 else float('nan'):.4g} steps/s",
+             "Section     |  time (s) |   %"]
+    for k, v in phases.items():
+        lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
+    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
+                     table="\n".join(lines))
+
+
+class RunReport(dict):
+    """Summary of one ``Simulation.run`` call (dict) with a LAMMPS-like ``table`` string."""
+
+    def __str__(self):
+        return self["table"]
+
+
+def atomic_write(path, write, binary=True):
+    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
+    fsync, then ``os.replace``; the temporary file is removed if writing fails. Every checkpoint of
+    the project (disk states, hexagon models) goes through here."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
+    try:
+        with os.fdopen(fd, "wb" if binary else "w") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
