@@ -27,7 +27,8 @@ PHI_MIN_NBAR = np.pi / 4  # below this phi the Nbar(phi) relation has no solutio
 
 _REASONS = (
     (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
-    (2, "first-order correction larger than max_correction of the mean field: outside the theory's range"),
+    (2, "first-order correction (softening or stiffening) larger than max_correction of the mean field: "
+        "outside the theory's range"),
 )
 
 
@@ -187,7 +188,8 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     G = G_mf * (1.0 - drop_G)
     drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
     big = np.maximum(drop_K, drop_G)
-    flags = np.where(big >= 1.0, 1, 0) | np.where(big > max_correction, 2, 0)
+    size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
+    flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
     flags = flags.astype(np.int8)
     valid = flags == 0
     if warn and not np.all(valid):
