@@ -1,5 +1,8 @@
-"""python -m microhom analyse: LAMMPS dump, OVAL D-file, dem packing npz; numbers against closed
-forms and against the library called directly; clear errors."""
+"""python -m dem analyse: LAMMPS dump, OVAL D-file (the manual's layout, and a real DEMPLA file),
+dem packing npz; numbers against closed forms and against the library called directly; the typed
+result and the unchanged JSON/CSV layout; the notes that state every assumption; clear errors."""
+import csv
+import io
 import json
 import subprocess
 import sys
@@ -12,7 +15,7 @@ DATA = Path(__file__).parent / "data"
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "microhom", "analyse", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "dem", "analyse", *map(str, args)],
                           capture_output=True, text=True)
 
 
@@ -97,8 +100,8 @@ def test_table_and_csv_outputs(packing_npz):
         assert text in p.stdout, text
     p = run(path, "--csv", "--no-exact")
     assert p.returncode == 0, p.stderr
-    head, row = p.stdout.strip().splitlines()
-    assert "coordination.z" in head.split(",") and len(head.split(",")) == len(row.split(","))
+    head, row = csv.reader(io.StringIO(p.stdout))
+    assert "coordination.z" in head and len(head) == len(row)
 
 
 def test_dem_io_npz_and_branch_length(tmp_path, packing_npz):
@@ -125,7 +128,7 @@ def test_errors_name_file_line_field(tmp_path):
     p = run(tmp_path / "missing.dump")
     assert p.returncode == 2 and "missing.dump" in p.stderr
     p = run(bad, "--format", "nonsense")
-    assert p.returncode == 2 and "unknown format" in p.stderr
+    assert p.returncode == 2 and "--format" in p.stderr and "invalid choice" in p.stderr
     p = run(DATA / "radius.dump", "--kn", "-1")
     assert p.returncode == 2 and "kn" in p.stderr
 

@@ -80,7 +80,7 @@ def test_analyse_reads_the_run_folder(run):
     import json
     import subprocess
     import sys
-    p = subprocess.run([sys.executable, "-m", "microhom", "analyse", run.folder, "--prestress", "--json"],
+    p = subprocess.run([sys.executable, "-m", "dem", "analyse", run.folder, "--prestress", "--json"],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
