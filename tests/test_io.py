@@ -1,6 +1,7 @@
 """dem.io: every format round-trips, the hand-written example files read as documented, and each
 malformed case raises a FormatError naming the file, the line and the field."""
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -457,3 +458,35 @@ def test_write_accepts_network_and_rejects_others(tmp_path):
     assert io.read(tmp_path / "sq.npz").n_particles == 16
     with pytest.raises(TypeError):
         io.write(tmp_path / "sq.csv", {"positions": 1})
+
+
+def test_real_dempla_startfile_head(tmp_path):
+    """The first 23 lines, verbatim, of DEMPLA's own sample StartFile Dcircls_1002_2 (public GitHub
+    repository mrkuhn53/dempla; see tests/data/README.md). The header is read as the manual
+    defines it (the old reader refused every real file at line 3); the particle table stops after
+    20 of the announced 1002 disks, which must be reported as a truncation at the file's end."""
+    src = DATA / "Dcircls_1002_2.head"
+    with pytest.raises(FormatError, match="truncated: expected 1002 rows, found 20") as err:
+        io.read(src)
+    assert err.value.line == 23
+    # the same lines with np = 20 (the only edit): every number exactly as written in the file
+    text = src.read_text().replace("  1002  ", "    20  ", 1)
+    p = tmp_path / "Dcircls_20"
+    p.write_text(text)
+    cfg = io.read(p)
+    L = 2.97703143874021730e+01
+    np.testing.assert_array_equal(cfg.cell, [[L, 0.0], [0.0, L]])
+    assert cfg.meta["oval_xcell33"] == 1.0
+    rows = [line.split() for line in text.splitlines()[3:]]
+    np.testing.assert_array_equal(cfg.radii, [float(r[0]) for r in rows])
+    np.testing.assert_array_equal(cfg.positions, [[float(r[1]), float(r[2])] for r in rows])
+    assert cfg.radii[0] == 3.13454063710418570e-01 and cfg.positions[-1, 1] == 1.72715442442558780e+01
+    # written back by the manual's fixed-column writer: DEMPLA's own layout, column for column,
+    # and the same numbers (the last printed digit may differ: 17 significant digits suffice)
+    out = tmp_path / "Dback"
+    io.write_oval(out, cfg)
+    back, orig = out.read_text().splitlines(), text.splitlines()
+    assert [len(x) for x in back] == [len(x) for x in orig]
+    for b, o in zip(back, orig):
+        assert [m.start() for m in re.finditer("E", b)] == [m.start() for m in re.finditer("E", o)]
+        assert [float(t) for t in b.split()] == [float(t) for t in o.split()]

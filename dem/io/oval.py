@@ -116,9 +116,13 @@ def read_oval(path) -> Configuration:
 
 
 def _d(x) -> str:
-    """One ``1pd25.17`` field (written with an ``E`` exponent, as DEMPLA's own sample files are;
-    18 significant digits, so the float64 reads back exactly)."""
-    return f"{float(x):{_COL}.17E}"
+    """One ``1pd25.17`` field as DEMPLA's own files have it: 17 significant digits (enough for the
+    float64 to read back exactly), an 18th digit 0 (gfortran's padding) and an ``E`` exponent."""
+    mant, exp = f"{float(x):.16E}".split("E")
+    text = f"{mant}0E{exp}"
+    if len(text) >= _COL:  # a negative value with a 3-digit exponent would touch its neighbour
+        raise ValueError(f"{float(x)!r} does not fit a 1pd25.17 field with a blank before it")
+    return text.rjust(_COL)
 
 
 def write_oval(path, config, *, xcell33=None):
@@ -149,4 +153,4 @@ def write_oval(path, config, *, xcell33=None):
              f"{'':6s}{_d(h[0, 1])}{_d(s13)}{_d(s23)}\n"]
     with open(path, "w") as f:
         f.writelines(lines)
-        np.savetxt(f, np.column_stack([config.radii, x]), fmt=f"%{_COL}.17E", delimiter="")
+        f.writelines(f"{_d(r)}{_d(a)}{_d(b)}\n" for r, (a, b) in zip(config.radii, x))
