@@ -13,7 +13,7 @@ import pandas as pd
 #: exit code of a study whose --out folder cannot be written (sysexits' EX_CANTCREAT)
 EXIT_NO_OUTPUT = 73
 _CACHE_ENV = "MICROHOM_CACHE"
-_cache_set_here = [False]
+_cache_set_here = [None]  # the value this module put in MICROHOM_CACHE, if any
 
 
 def out_dir(path) -> Path:
@@ -38,9 +38,9 @@ def cli_out_dir(path, *, cache=True) -> Path:
             pass
         if cache:
             cache_dir = p / "cache" / "packings"
-            if _CACHE_ENV not in os.environ or _cache_set_here[0]:
+            if os.environ.get(_CACHE_ENV) in (None, _cache_set_here[0]):  # not the user's
                 os.environ[_CACHE_ENV] = str(cache_dir)
-                _cache_set_here[0] = True
+                _cache_set_here[0] = str(cache_dir)
             c = Path(os.environ[_CACHE_ENV])
             c.mkdir(parents=True, exist_ok=True)
             with tempfile.NamedTemporaryFile(dir=c, prefix=".probe_"):

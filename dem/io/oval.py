@@ -37,7 +37,7 @@ import warnings
 
 import numpy as np
 
-from ._core import (Configuration, FormatError, check_positive, open_bytes, parse_number,
+from ._core import (Configuration, FormatError, build, check_positive, open_bytes, parse_number,
                     parse_table, require_particles)
 
 __all__ = ["read_oval", "write_oval"]
@@ -111,8 +111,8 @@ def read_oval(path) -> Configuration:
                       "as meta['oval_xcell13'], meta['oval_xcell23'] and not used", stacklevel=2)
     meta = {"oval_shape_code": 1, "oval_xcell33": l3d, "oval_xcell13": s13, "oval_xcell23": s23,
             "kn_convention_hint": "oval"}
-    return Configuration(positions=arr[:, 1:3], radii=arr[:, 0], cell=[[lx, sx], [0.0, ly]],
-                         origin=(0.0, 0.0), meta=meta, source=path, source_format="oval")
+    return build(path, positions=arr[:, 1:3], radii=arr[:, 0], cell=[[lx, sx], [0.0, ly]],
+                 origin=(0.0, 0.0), meta=meta, source=path, source_format="oval")
 
 
 def _d(x) -> str:
