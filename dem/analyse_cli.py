@@ -18,15 +18,6 @@ from . import analyse as dan
 __all__ = ["add_parser", "run"]
 
 
-def _number(name):
-    def conv(text):
-        try:
-            return float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-    return conv
-
-
 def add_parser(sub):
     """Add the ``analyse`` sub-parser to ``sub`` (the sub-parsers of ``python -m dem``)."""
     a = sub.add_parser(
@@ -48,14 +39,14 @@ def add_parser(sub):
     a.add_argument("--format", default=None, choices=dan.FORMATS, metavar="FORMAT",
                    help="one of " + ", ".join(dan.FORMATS) + " (packing = dem.packing npz, "
                         "lammps-run = folder); default from the name/extension")
-    a.add_argument("--kn", type=_number("--kn"), default=None,
+    a.add_argument("--kn", type=float, default=None,
                    help="normal contact stiffness [N/m] (force per unit overlap), > 0; default 1 "
                         "(moduli in units of kn). Ignored for files that carry their contact law "
                         "(packing npz, LAMMPS run folder)")
     kt = a.add_mutually_exclusive_group()
-    kt.add_argument("--kt", type=_number("--kt"), default=None,
+    kt.add_argument("--kt", type=float, default=None,
                     help="tangential stiffness [N/m], >= 0; default kt = kn (said in the notes)")
-    kt.add_argument("--kt-ratio", type=_number("--kt-ratio"), default=None, metavar="KT_OVER_KN",
+    kt.add_argument("--kt-ratio", type=float, default=None, metavar="KT_OVER_KN",
                     help="kt = KT_OVER_KN * kn, >= 0; LAMMPS gran/hooke/history's default is 2/7 "
                          "= 0.2857")
     a.add_argument("--kn-convention", choices=("standard", "oval"), default=None,
@@ -64,7 +55,7 @@ def add_parser(sub):
     a.add_argument("--branch-length", choices=("distance", "radii"), default="distance",
                    help="branch vectors: centre distance, or direction kept with length r_i + r_j "
                         "(paper's |c| = D)")
-    a.add_argument("--alpha", type=_number("--alpha"), default=None,
+    a.add_argument("--alpha", type=float, default=None,
                    help="alignment width of the model-rho prediction (54), in [0, 2]; default "
                         "2(1 - 1/Nbar)")
     a.add_argument("--prestress", action="store_true",
@@ -75,7 +66,7 @@ def add_parser(sub):
     a.add_argument("--frame", type=int, default=-1,
                    help="frame of a LAMMPS dump: 1 = first, -1 = last (the notes say which was "
                         "read)")
-    a.add_argument("--radius", type=_number("--radius"), default=None,
+    a.add_argument("--radius", type=float, default=None,
                    help="constant disk radius [m] for LAMMPS dumps without a radius or diameter "
                         "column")
     a.add_argument("--no-exact", action="store_true",
