@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
 from dem.runtime import atomic_write
 from microhom.moduli import predict_from_network
@@ -101,7 +102,6 @@ def run_cases(fn: Callable[[dict], dict], cases: list[dict], out_csv, *, schedul
     todo = [c for c, k in zip(cases, ids) if k not in rows]
     bar = None
     if progress and todo:
-        from tqdm.auto import tqdm
         bar = tqdm(total=len(todo), desc=f"cases ({len(cases) - len(todo)} already done)", unit="case")
     if scheduler is None:
         for c in todo:
