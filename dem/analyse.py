@@ -138,10 +138,8 @@ def _section(fn, *args, **kwargs):
 
 def _coordination(net, min_contacts):
     from dem.measure import coordination
-    c = coordination(net, min_contacts)
-    return {"z_all": c["z_all"], "z": c["z"], "n_rattlers": c["n_rattlers"],
-            "rattler_fraction": c["rattler_fraction"], "hist_all": c["hist_all"].tolist(),
-            "hist": c["hist"].tolist()}
+    c = coordination(net, min_contacts).as_dict()
+    return {k: c[k] for k in ("z_all", "z", "n_rattlers", "rattler_fraction", "hist_all", "hist")}
 
 
 def _statistics(net, min_contacts):
