@@ -90,7 +90,7 @@ def load_network(path, format=None, *, kn=None, kt=None, kn_convention=None, bra
         law = res.law.to_meta() if hasattr(res.law, "to_meta") else {}
         if kn is not None or kt is not None:
             notes.append("--kn/--kt ignored: a packing file carries its own contact law "
-                         f"({law.get('kind', type(res.law).__name__)})")
+                         f"({law.get('law', type(res.law).__name__)})")
     elif format == "lammps-run":
         from dem.lammps import read_run
         run = read_run(path)
