@@ -146,7 +146,7 @@ def _coordination(net, min_contacts):
 
 def _statistics(net, min_contacts):
     from microhom.structural_sums import network_statistics
-    st = network_statistics(net, min_contacts)
+    st = network_statistics(net, min_contacts).as_dict()
     keys = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi", "nbar_phi",
             "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory", "ebar_theory", "odd_norm")
     return {k: st.get(k) for k in keys}

@@ -179,7 +179,7 @@ def hexatic_order(net: ContactNetwork, neighbours=None) -> dict:
 def summary(net: ContactNetwork, min_contacts=None, near_gap_fraction=0.1) -> dict:
     """All packing measurements in one flat dict of scalars (for tables and CSV)."""
     out = {}
-    st = network_statistics(net, min_contacts)
+    st = network_statistics(net, min_contacts).as_dict()
     out.update({k: v for k, v in st.items() if np.isscalar(v) or v is None})
     if net.fn is not None and net.cell is not None:
         s = stress(net)

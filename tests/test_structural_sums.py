@@ -56,7 +56,7 @@ def test_square_lattice_sums():
     assert C[0, 0, 0, 0] == pytest.approx(2.0) and C[0, 0, 1, 1] == pytest.approx(0.0, abs=1e-15)
     assert C[0, 1, 0, 1] == pytest.approx(0.5 / 2)  # C1212 = kt/2 (affine = exact for this lattice)
     st = network_statistics(net)
-    assert st["nc"] == 4 and st["r"] == 0 and st["n_rattlers"] == 0
+    assert st.nc == 4 and st.r == 0 and st.n_rattlers == 0
 
 
 def test_one_sided_particle_by_hand():
@@ -129,8 +129,8 @@ def test_rattlers_iterative():
     assert list(rat) == [True, True, True, True, False, False, False]  # peeled one by one
     assert list(active) == [False, False, False, False, True, True, True]
     st = network_statistics(net, min_contacts=2)
-    assert st["n_rattlers"] == 4 and st["nc"] == 2.0 and st["r"] == 0.0
-    assert st["nc_all"] == pytest.approx(2 * 7 / 7)
+    assert st.n_rattlers == 4 and st.nc == 2.0 and st.r == 0.0
+    assert st.nc_all == pytest.approx(2 * 7 / 7)
 
 
 def test_periodic_wrap_and_sheared_cell():
@@ -156,7 +156,7 @@ def test_translation_by_cell_vector_changes_nothing():
     assert np.allclose(a.branch, b.branch)
     sa, sb = network_statistics(a), network_statistics(b)
     for k in ("nc", "r", "rho", "vbar", "ebar"):
-        assert sa[k] == pytest.approx(sb[k], rel=1e-12, abs=1e-15)
+        assert getattr(sa, k) == pytest.approx(getattr(sb, k), rel=1e-12, abs=1e-15)
 
 
 def test_polydisperse_uses_own_branch_vectors():
