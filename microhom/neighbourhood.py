@@ -22,6 +22,7 @@ This module imports numpy only at the top (sympy inside :func:`derive_phi_of_nba
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -66,6 +67,7 @@ def phi_from_nbar(nbar):
     return 0.25 * np.pi / np.sin(2.0 * np.pi / n)
 
 
+@lru_cache(maxsize=None)
 def derive_phi_of_nbar():
     """Derive φ(N̄) with sympy from the polygon and its sectors (section 6); no relation typed in.
 

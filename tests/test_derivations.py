@@ -1,17 +1,70 @@
-"""Every sympy derivation check is a test (python -m microhom.derivations prints the same list)."""
-import pytest
+"""Every sympy derivation check is a test (python -m microhom.derivations prints the same list),
+and the circularity guard can fail."""
+import ast
+import dataclasses
+from pathlib import Path
 
-from microhom import derivations
+import pytest
+import sympy as sp
+
+from microhom import derivations, printed, symbolic
 
 
 @pytest.mark.parametrize("fn", derivations.CHECKS, ids=lambda f: f.__name__)
 def test_derivation(fn):
     c = fn()
     assert c.ok, f"{c.ref} {c.name}: {c.detail}"
+    assert derivations.circularity(c) == "", f"{c.name}: {derivations.circularity(c)}"
 
 
-def test_cli_prints_every_check(capsys):
+def test_cli_prints_every_check_with_both_sides(capsys):
     assert derivations.main([]) == 0
     out = capsys.readouterr().out
-    assert out.count("[PASS]") == len(derivations.CHECKS)
-    assert f"{len(derivations.CHECKS)} passed, 0 failed" in out
+    n = len(derivations.CHECKS)
+    assert out.count("[PASS]") == n
+    assert out.count("derived : ") == n and out.count("compared: ") == n
+    assert out.count("  lhs   : ") == n and out.count("  rhs   : ") == n
+    assert f"{n} passed, 0 failed" in out and "none circular" in out
+
+
+def test_symbolic_never_imports_the_printed_forms():
+    """The derived side cannot lean on the typed-in paper: symbolic.py imports no 'printed'."""
+    tree = ast.parse(Path(symbolic.__file__).read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            names |= {node.module or ""} | {a.name for a in node.names}
+    assert not any("printed" in n for n in names), names
+
+
+def test_guard_rejects_a_circular_check():
+    good = derivations.mean_sum_vbar_ebar()
+    assert derivations.circularity(good) == ""
+    circ = dataclasses.replace(good, inputs=good.inputs + ("(37)",))
+    assert "(37)" in derivations.circularity(circ)
+    assert derivations.circularity(dataclasses.replace(good, rhs="")) != ""
+    assert derivations.circularity(dataclasses.replace(good, targets=())) != ""
+    assert derivations.circularity(dataclasses.replace(good, kind="typed")) != ""
+    out = []
+
+    class Sink:
+        def write(self, t):
+            out.append(t)
+
+    orig = list(derivations.CHECKS)
+    try:
+        derivations.CHECKS[:] = [lambda: circ]
+        res = derivations.run(verbose=False, out=Sink())
+    finally:
+        derivations.CHECKS[:] = orig
+    assert not res[0].ok and "CIRCULAR" in res[0].detail and "1 circular" in "".join(out)
+
+
+def test_sign_of_27_is_minus_the_printed_one():
+    """The derived Fourier solution of (26) is minus the printed (27) (docs/theory.md)."""
+    ker = symbolic.kroner_kernel()
+    pr = printed.kernel_27(symbolic.vbar_s, symbolic.ebar_s, symbolic.k_vec)
+    k = (1, 1, 0, 1)
+    assert sp.simplify(ker[k] + pr[k]) == 0 and sp.simplify(pr[k]) != 0
