@@ -60,43 +60,60 @@ def side_by_side(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+PSI6_MAX = 0.5  # as studies.kuhn: a packing with psi6 above is a polycrystal, excluded from the means
+
+
+def report(n, seeds, mu_prep=DEFAULTS["mu_prep"], out="out/rho", n_null=20) -> pd.DataFrame:
+    """Measure every packing (built or taken from the cache), print and write the side-by-side table.
+
+    Returns the table (one row per definition of V). ``studies.kuhn`` calls this on its packings.
+    """
+    out = out_dir(out)
+    rows = []
+    for seed in seeds:
+        case = {**DEFAULTS, "n": n, "seed": seed, "mu_prep": mu_prep}
+        res, t_pack, built = get_packing(case)
+        net = res.to_network()
+        t0 = time.perf_counter()
+        row = {"seed": seed, "n": n, "phi": net.solid_fraction, "psi6": float(res.report.get("psi6", float("nan"))),
+               **measure(net, n_null=n_null, seed=seed)}
+        row["measure_s"] = time.perf_counter() - t0
+        rows.append(row)
+        print(f"seed {seed}: N = {n}, phi = {row['phi']:.4f}, psi6 = {row['psi6']:.3f}, Nbar(phi) = {row['nbar']:.3f}, "
+              f"Nc = {row['nc']:.3f}, r = {row['r']:.3f}; rho contacts {row['rho_contacts']:.3f} "
+              f"(null {row['null_contacts']:.3f}), near {row['rho_near']:.3f} (null {row['null_near']:.3f}), "
+              f"delaunay {row['rho_delaunay']:.3f} (null {row['null_delaunay']:.3f}); packing "
+              f"{'built' if built else 'cached'} {t_pack:.1f} s, measured {row['measure_s']:.1f} s", flush=True)
+    df = pd.DataFrame(rows)
+    df.to_csv(out / "cases.csv", index=False)
+    amorphous = df[~(df.psi6 > PSI6_MAX)]
+    excluded = f"{len(df) - len(amorphous)} of {len(df)} packings excluded as crystalline (psi6 > {PSI6_MAX})"
+    if amorphous.empty:
+        raise SystemExit("every packing crystallised: raise --mu-prep or add seeds")
+    table = side_by_side(amorphous)
+    pd.set_option("display.width", 220)
+    print(f"\nrho = Nc sum V.W / sum V^2 (non-rattlers), mean over packings ({excluded}):")
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    notes = (f"Packings: N = {n}, seeds {list(seeds)}, p/kn = {DEFAULTS['p_over_kn']}, kt = kn, mu = {DEFAULTS['mu']}, "
+             f"mu_prep = {mu_prep}; {excluded}; {n_null} shuffles per packing; load average "
+             f"{os.getloadavg()[0]:.2f} (machine shared).\n\nPer packing:\n\n" + markdown_table(df.drop(columns=["n"])))
+    md = write_table(table, out, "table", "rho under each definition of V, with the shuffled-Nc null model", notes)
+    print(f"\nwritten: {md}, {out / 'cases.csv'}")
+    return table
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="one packing of N = 1000 (for CI)")
     ap.add_argument("--n", type=int, default=None, help="disks per packing (default 3000; quick 1000)")
     ap.add_argument("--seeds", type=int, nargs="+", default=None, help="packing seeds (default 1 2 3)")
+    ap.add_argument("--mu-prep", type=float, default=DEFAULTS["mu_prep"], help="preparation friction")
     ap.add_argument("--null", type=int, default=20, help="shuffles of the null model per packing")
     ap.add_argument("--out", default="out/rho", help="output folder (CSV, markdown)")
     args = ap.parse_args(argv)
     n = args.n or (1000 if args.quick else 3000)
     seeds = args.seeds or ([1] if args.quick else [1, 2, 3])
-    out = out_dir(args.out)
-    rows = []
-    for seed in seeds:
-        case = {**DEFAULTS, "n": n, "seed": seed}
-        res, t_pack, built = get_packing(case)
-        t0 = time.perf_counter()
-        row = {"seed": seed, "n": n, "phi": res.to_network().solid_fraction,
-               **measure(res.to_network(), n_null=args.null, seed=seed)}
-        row["measure_s"] = time.perf_counter() - t0
-        rows.append(row)
-        print(f"seed {seed}: N = {n}, phi = {row['phi']:.4f}, Nbar(phi) = {row['nbar']:.3f}, Nc = {row['nc']:.3f}, "
-              f"r = {row['r']:.3f}; rho contacts {row['rho_contacts']:.3f} (null {row['null_contacts']:.3f}), "
-              f"near {row['rho_near']:.3f} (null {row['null_near']:.3f}), delaunay {row['rho_delaunay']:.3f} "
-              f"(null {row['null_delaunay']:.3f}); packing {'built' if built else 'cached'} {t_pack:.1f} s, "
-              f"measured {row['measure_s']:.1f} s", flush=True)
-    df = pd.DataFrame(rows)
-    df.to_csv(out / "cases.csv", index=False)
-    table = side_by_side(df)
-    pd.set_option("display.width", 200)
-    print("\nrho = Nc sum V.W / sum V^2 (non-rattlers), mean over packings:")
-    print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-    notes = (f"Packings: N = {n}, seeds {seeds}, p/kn = {DEFAULTS['p_over_kn']}, kt = kn, mu = {DEFAULTS['mu']}, "
-             f"mu_prep = {DEFAULTS['mu_prep']}; {args.null} shuffles per packing; load average "
-             f"{os.getloadavg()[0]:.2f}.\n\nPer packing:\n\n" + markdown_table(df.drop(columns=["n"])))
-    md = write_table(table, out, "table", "rho under each definition of V, with the shuffled-Nc null model", notes)
-    print(f"\nwritten: {md}, {out / 'cases.csv'}")
-    return table
+    return report(n, seeds, args.mu_prep, args.out, args.null)
 
 
 if __name__ == "__main__":
