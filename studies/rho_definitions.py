@@ -24,6 +24,7 @@ import time
 import pandas as pd
 
 from dem.measure import delaunay_neighbours
+from microhom.moduli import predict_moduli
 from microhom.structural_sums import rho_definitions
 from studies.cases import DEFAULTS, get_packing
 from studies.common import markdown_table, out_dir, write_table
@@ -46,8 +47,10 @@ def measure(net, n_null=20, seed=0) -> dict:
 
 
 def side_by_side(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean over packings, one row per definition: rho, null baseline, correlation part, share."""
+    """Mean over packings, one row per definition: rho, null baseline, correlation part, share, and
+    the fraction changes the theory predicts with that rho at the packings' mean Nc, r, phi, N̄ (kt = kn)."""
     rows = []
+    m = df.mean(numeric_only=True)
     for name, label in LABELS.items():
         if f"rho_{name}" not in df:
             continue
@@ -57,6 +60,8 @@ def side_by_side(df: pd.DataFrame) -> pd.DataFrame:
                      "null model (shuffled Nc)": null, "null spread (shuffles)": df[f"null_std_{name}"].mean(),
                      "correlation part rho - null": rho - null,
                      "share from the definition null/rho": null / rho if rho else float("nan")})
+        p = predict_moduli(1.0, 1.0, m["nc"], m["phi"], m["r"], rho=rho, nbar=m["nbar"], warn=False)
+        rows[-1].update({"theory drop K": float(p.drop_K), "theory drop G": float(p.drop_G)})
     return pd.DataFrame(rows)
 
 
@@ -83,7 +88,7 @@ def report(n, seeds, mu_prep=DEFAULTS["mu_prep"], out="out/rho", n_null=20) -> p
               f"Nc = {row['nc']:.3f}, r = {row['r']:.3f}; rho contacts {row['rho_contacts']:.3f} "
               f"(null {row['null_contacts']:.3f}), near {row['rho_near']:.3f} (null {row['null_near']:.3f}), "
               f"delaunay {row['rho_delaunay']:.3f} (null {row['null_delaunay']:.3f}); packing "
-              f"{'built' if built else 'cached'} {t_pack:.1f} s, measured {row['measure_s']:.1f} s", flush=True)
+              f"{'built' if built else 'from the cache'} ({t_pack:.1f} s to build), measured {row['measure_s']:.1f} s", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(out / "cases.csv", index=False)
     amorphous = df[~(df.psi6 > PSI6_MAX)]

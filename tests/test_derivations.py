@@ -68,3 +68,27 @@ def test_sign_of_27_is_minus_the_printed_one():
     pr = printed.kernel_27(symbolic.vbar_s, symbolic.ebar_s, symbolic.k_vec)
     k = (1, 1, 0, 1)
     assert sp.simplify(ker[k] + pr[k]) == 0 and sp.simplify(pr[k]) != 0
+
+
+def test_default_call_figures_in_the_docs():
+    """docs/theory.md §6 'Defaults': what predict_moduli gives at the seed's statistics."""
+    import math
+
+    from microhom.moduli import predict_moduli
+    from microhom.neighbourhood import derive_phi_of_nbar
+
+    g = derive_phi_of_nbar()
+    nbar = float(sp.nsolve(g["phi"] - sp.Rational(82, 100), g["N"], 5))  # N̄ from the derived geometry
+    assert round(nbar, 4) == 4.9116
+
+    def drops(nb, a):  # kt = kn: drop_K = x, drop_G = 3x/2 (55), x = r (N̄/Nc) cos(pi a/2)/(1 - a^2)
+        x = 0.35 * nb / 4.1 * math.cos(math.pi * a / 2) / (1 - a * a)
+        return round(x, 3), round(1.5 * x, 3)
+
+    for kw, nb, a, want in ((dict(alpha=1.76, nbar=5.0), 5.0, 1.76, (0.189, 0.284)),
+                            (dict(alpha=1.76), nbar, 1.76, (0.186, 0.279)),
+                            (dict(), nbar, 2 * (1 - 1 / nbar), (0.219, 0.328))):
+        p = predict_moduli(5e7, 5e7, 4.1, 0.82, 0.35, **kw)
+        assert drops(nb, a) == want
+        assert (round(float(p.drop_K), 3), round(float(p.drop_G), 3)) == want
+        assert float(p.nbar) == pytest.approx(nb, rel=1e-12)
