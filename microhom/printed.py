@@ -45,7 +45,8 @@ def T_isotropic_after_32():
 
 
 def operator_26(vb, eb, k):
-    """(26) in Fourier space: the operator acting on -u_hat, ``1/2 (vbar + ebar) k^2 d_pr + 1/2 (vbar + 3 ebar) k_p k_r``.
+    """(26) in Fourier space: the operator acting on -u_hat,
+    ``1/2 (vbar + ebar) k^2 d_pr + 1/2 (vbar + 3 ebar) k_p k_r``.
 
     (26): ``1/2 (vbar + ebar) d^2 u_p/dx_q^2 + 1/2 (vbar + 3 ebar) d^2 u_q/dx_p dx_q + dS'_pijq/dx_q E_ij = 0``.
     """
@@ -54,7 +55,8 @@ def operator_26(vb, eb, k):
 
 
 def kernel_27(vb, eb, k):
-    """(27) as printed: i k_s u_hat_p = 2 k_q k_s [d_pr/(k^2 (e + v)) - k_p k_r (3e + v)/(2 k^4 (e + v)(2e + v))] S_hat_rijq E_ij.
+    """(27) as printed (e = ebar, v = vbar):
+    ``i k_s u_hat_p = 2 k_q k_s [d_pr/(k^2 (e + v)) - k_p k_r (3e + v)/(2 k^4 (e + v)(2e + v))] S_hat_rijq E_ij``.
 
     Returned as a dict (p, s, r, q) -> the kernel multiplying S_hat_rijq E_ij.
     """
@@ -65,7 +67,8 @@ def kernel_27(vb, eb, k):
 
 
 def local_30(vb, eb):
-    """(30) as printed: du'_a/dx_b = -1/2 S'_pijq E_ij (2 d_ap d_qb/(e + v) - 1/4 (3e + v)(d_ap d_qb + d_aq d_pb + d_ab d_pq)/((e + v)(2e + v))).
+    """(30) as printed (e = ebar, v = vbar): ``du'_a/dx_b = -1/2 S'_pijq E_ij
+    (2 d_ap d_qb/(e + v) - 1/4 (3e + v)(d_ap d_qb + d_aq d_pb + d_ab d_pq)/((e + v)(2e + v)))``.
 
     The converted text has ``S'_piqq``; read as ``S'_pijq`` (the only index placement that
     contracts with E_ij and leaves a, b free). Returned as a dict (a, b, p, q) -> expr.

@@ -15,10 +15,12 @@ Per particle (arrays with the particle index first):
 * ``W[mu] = (1/pi) sum_nu n^{mu nu}``                  odd part of mu's contact density, so that
   the model (43) ``A_ijk = pi D W_p [...]`` is exact for a particle with first-harmonic density
 * ``V[mu] = (1/pi) sum_nu Nc^nu n^{mu nu}``            odd angular distribution of the contact
-  numbers of mu's contacting neighbours (41); ``V = Nc W`` when all neighbours have Nc contacts,
-  so that ``rho = Nc sum V.W / sum V^2`` is 1 for perfect correlation, the paper's alpha -> 0 limit.
+  numbers of mu's neighbours (41). ``ParticleSums.V`` sums over the contacting neighbours;
+  :func:`neighbour_vector` over any neighbour set, e.g. the paper's N̄ near neighbours of (39)
+  (:func:`microhom.neighbourhood.near_neighbours`); ``network_statistics(rho_neighbours=...)``
+  chooses, and :func:`rho_definitions` compares both with a shuffled-Nc null model.
 
-The choices for V and W (contacting neighbours, full ``Nc^nu``) are explained in docs/theory.md.
+The choices for V and W are explained in docs/theory.md §7, the measurements in docs/results/rho.md.
 """
 from __future__ import annotations
 
@@ -202,8 +204,8 @@ class NetworkStatistics(Result):
     """The statistics of a contact network that the theory takes as input (:func:`network_statistics`).
 
     Suffix ``_all``: all particles, rattlers included; no suffix: rattlers removed (iteratively,
-    see :func:`rattlers`). Lengths in the unit of the positions [m]; ``vbar``... in [N/m m^2]
-    (stiffness times length squared). Fields that need non-rattlers are NaN when every particle is
+    see :func:`rattlers`). Lengths in the unit of the positions [m]; ``vbar``, ``ebar`` and their
+    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless. Fields that need non-rattlers are NaN when every particle is
     a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
     returned before it was typed (NaN -> None).
     """

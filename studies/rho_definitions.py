@@ -88,7 +88,8 @@ def report(n, seeds, mu_prep=DEFAULTS["mu_prep"], out="out/rho", n_null=20) -> p
               f"Nc = {row['nc']:.3f}, r = {row['r']:.3f}; rho contacts {row['rho_contacts']:.3f} "
               f"(null {row['null_contacts']:.3f}), near {row['rho_near']:.3f} (null {row['null_near']:.3f}), "
               f"delaunay {row['rho_delaunay']:.3f} (null {row['null_delaunay']:.3f}); packing "
-              f"{'built' if built else 'from the cache'} ({t_pack:.1f} s to build), measured {row['measure_s']:.1f} s", flush=True)
+              f"{'built' if built else 'from the cache'} ({t_pack:.1f} s to build), "
+              f"measured {row['measure_s']:.1f} s", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(out / "cases.csv", index=False)
     amorphous = df[~(df.psi6 > PSI6_MAX)]
