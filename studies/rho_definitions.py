@@ -36,7 +36,7 @@ LABELS = {"contacts": "contacting neighbours (before issue 16)", "near": "N̄ ne
 def measure(net, n_null=20, seed=0) -> dict:
     """One packing: a flat dict rho_<name>, null_<name>, null_std_<name>, degree_<name>, nc, r, nbar."""
     dl = delaunay_neighbours(net)
-    res = rho_definitions(net, extra={"delaunay": (dl["pairs"], dl["branch"])}, n_null=n_null, seed=seed)
+    res = rho_definitions(net, extra={"delaunay": (dl.pairs, dl.branch)}, n_null=n_null, seed=seed)
     row = {"nc": res.nc, "r": res.r, "nbar": res.nbar}
     for name in res.rho:
         row[f"rho_{name}"] = res.rho[name]
