@@ -16,7 +16,14 @@ Conventions (see ``docs/theory.md``):
 * ``fn`` is the normal force magnitude, compression positive; ``ft`` the tangential force on ``j``
   along ``t = (-n_y, n_x)``. Both optional (needed for stress and for geometric stiffness terms).
 * ``cell`` is the 2x2 shape matrix ``h`` whose *columns* are the periodic cell vectors; the cell
-  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^2. ``None`` means no periodicity.
+  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^2. ``None`` means no periodicity
+  (periodic geometry: :mod:`microhom.periodic`).
+
+Builders: :func:`from_overlaps` (contacts found from positions and radii) and :func:`from_pairs`
+(the caller's contact list, in the caller's order). Both take ``kn``, ``kt`` per contact as
+scalars, (C,) arrays or functions ``f(i, j, r_i, r_j, overlap)``, or a normal contact ``law`` of
+:mod:`microhom.laws` that sets ``kn`` and consistent forces ``fn``; peers' conventions are in
+:mod:`microhom.conventions`.
 """
 from __future__ import annotations
 
