@@ -406,7 +406,7 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
     pairs : (C, 2) int particle indices ``(i, j)``, ``i != j``; the branch vector is
         ``x_j - x_i``.
     shifts : (C, 2) int image counts ``k`` with branch ``x_j + h k - x_i``; default: the minimum
-        image (requires both cell heights to exceed twice the longest branch).
+        image (requires both cell heights to exceed twice the largest ``r_i + r_j``).
     kn, kt, sliding, law : as :func:`from_overlaps` (arrays of length C in the order of ``pairs``,
         or functions of ``(i, j, r_i, r_j, overlap)``).
     fn, ft : normal (compression positive) and tangential forces [N/m], scalars, (C,) arrays or
@@ -431,10 +431,11 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
             raise ValueError(f"shifts must have the shape of pairs {pairs.shape}, got {shifts.shape}")
         d = d + shifts @ cell_arr.T
     elif cell_arr is not None:
-        d = periodic.minimum_image(d, cell_arr)
-        longest = np.hypot(d[:, 0], d[:, 1]).max(initial=0.0)
-        if np.any(periodic.heights(cell_arr) <= 2 * longest):
+        reach = float((radii[i] + radii[j]).max(initial=0.0))
+        if np.any(periodic.heights(cell_arr) <= 2 * reach):
             raise ValueError(f"the minimum image is ambiguous: the cell heights {periodic.heights(cell_arr)} "
-                             f"must exceed twice the longest branch {longest:.6g}; pass shifts")
+                             f"must exceed twice the largest contact distance r_i + r_j = {reach:.6g} "
+                             f"(a particle could touch two images of one neighbour); pass shifts")
+        d = periodic.minimum_image(d, cell_arr)
     return _finish(positions, radii, cell_arr, origin, i, j, d, kn=kn, kt=kt, sliding=sliding,
                    law=law, fn=fn, ft=ft)
