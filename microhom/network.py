@@ -289,7 +289,7 @@ def _candidate_pairs(positions, cell, origin, cutoff):
         pairs = tree.query_pairs(cutoff, output_type="ndarray")
         i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
         d = local[j] - local[i]
-        d -= box * np.rint(d / box)
+        d = periodic.minimum_image(d, cell)
     else:
         # sheared cell: the particles plus the images of those within `cutoff` of an edge
         images, owner = periodic.boundary_images(positions, cell, origin, cutoff)
