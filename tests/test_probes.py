@@ -98,11 +98,10 @@ def test_rigid_rotation_of_a_frictionless_packing():
 
 @pytest.mark.xfail(strict=True, reason=(
     "dem.contact_laws.LinearFriction takes the spin arms as the radii r_i, r_j, not the distances "
-    "to the contact point |c| r_i/(r_i+r_j): under a rigid rotation w of an overlapping frictional "
-    "polydisperse packing the spins cannot cancel every tangential slip, leaving forces "
+    "to the contact point |c| r_i/(r_i+r_j): under a rigid rotation w of a frictional packing whose "
+    "contacts overlap by different amounts the spins cannot cancel every tangential slip, leaving forces "
     "O(kt w overlap) - the stress error is 0.08 w p here (0.16 w p at N = 300) instead of "
-    "O(w^2) (LAMMPS gran/* uses "
-    "the same arms; microhom.kinematics uses the contact point)"))
+    "O(w^2) (LAMMPS gran/* uses the same arms; microhom.kinematics uses the contact point)"))
 def test_rigid_rotation_of_a_frictional_packing():
     res = pack(200, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.5, mu_prep=0.02, seed=5)
     w = 1e-5
