@@ -26,7 +26,6 @@ whole analysis or reporting a 0/0 as a number.
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
