@@ -230,6 +230,19 @@ def test_closed_pipe_is_silent(cmd):
     assert err == "" and rc == 141, (rc, err)
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (a device that is "
+                    "always full) to play the full disk")
+@pytest.mark.parametrize("cmd", [["microhom", "predict", "--json"],
+                                 ["dem", "analyse", str(DATA / "D0001"), "--no-exact"]])
+def test_full_disk_output_is_one_line(cmd):
+    """Output to a full device: one line naming the cause, exit 1, no traceback."""
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", *cmd], stdout=full, stderr=subprocess.PIPE,
+                           text=True, timeout=120)
+    assert p.returncode == 1, p.stderr
+    assert "No space left on device" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
 # ---- degenerate networks ------------------------------------------------------------------
 
 def gas(tmp_path):
