@@ -490,3 +490,10 @@ def test_real_dempla_startfile_head(tmp_path):
     for b, o in zip(back, orig):
         assert [m.start() for m in re.finditer("E", b)] == [m.start() for m in re.finditer("E", o)]
         assert [float(t) for t in b.split()] == [float(t) for t in o.split()]
+
+
+def test_real_dempla_oval_startfile_refused_by_its_kshape():
+    """DEMPLA's sample of ovals (kshape 2, verbatim head; tests/data/README.md): refused on line 1,
+    naming the shape code, not misread as disks."""
+    with pytest.raises(FormatError, match="line 1, field 'kshape': unknown shape code '2'"):
+        io.read(DATA / "Dovals_1002_1d.head")
