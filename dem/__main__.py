@@ -219,7 +219,7 @@ def _summary_rows(res, net):
             v = rep[k]
             rows.append(("packing", k, v.item() if hasattr(v, "item") else v))
     rows.append(("packing", "phase_steps", json.dumps(rep.get("phase_steps", []))))
-    for k, v in measure.summary(net).items():
+    for k, v in measure.summary(net).table().items():
         if hasattr(v, "item"):
             v = v.item()
         rows.append(("measure", k, v))

@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from microhom.moduli import predict_moduli
+from studies import rho_definitions
 from studies.cases import DEFAULTS, packing_case
 from studies.common import cli_out_dir, markdown_table, write_table
 
@@ -179,6 +180,7 @@ def main(argv=None):
              f"The r the theory would need to match the DEM: {r_need_K:.3f} (bulk), {r_need_G:.3f} (shear). "
              f"Total wall time {time.perf_counter() - t_all:.0f} s.")
     md = write_table(table, out, "table", "Seed conditions: theory against DEM", notes)
+    rho_definitions.report(n, seeds, args.mu_prep, out / "rho")  # rho per definition of V, with its null model
     plot(table, out / "moduli.png")
     print(f"\nwritten: {md}, {out / 'cases.csv'}, {out / 'moduli.png'} "
           f"(total {time.perf_counter() - t_all:.0f} s)")

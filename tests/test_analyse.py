@@ -79,8 +79,8 @@ def test_packing_npz_matches_library(packing_npz):
     r = json.loads(p.stdout)
     assert r["file"]["format"] == "packing" and r["network"]["forces"]
     st = network_statistics(net)
-    assert r["coordination"]["z"] == pytest.approx(st["nc"], rel=1e-14)
-    assert r["structural"]["rho"] == pytest.approx(st["rho"], rel=1e-12)
+    assert r["coordination"]["z"] == pytest.approx(st.nc, rel=1e-14)
+    assert r["structural"]["rho"] == pytest.approx(st.rho, rel=1e-12)
     assert r["stress"]["pressure"] == pytest.approx(pressure(net), rel=1e-12)
     assert r["stress"]["pressure"] == pytest.approx(1e-3, rel=2e-3)   # the packing's target
     pr = predict_from_network(net, warn=False)

@@ -99,7 +99,7 @@ def test_packing_matches_dem_packing(run):
     from microhom.structural_sums import network_statistics
     ref = pack(N, **PARAMS)
     assert ref.report["converged"]
-    z_l = network_statistics(run.network)["nc"]
-    z_d = network_statistics(ref.to_network())["nc"]
+    z_l = network_statistics(run.network).nc
+    z_d = network_statistics(ref.to_network()).nc
     assert abs(run.lammps["phi"] - ref.report["phi"]) < 0.012
     assert abs(z_l - z_d) < 0.15
