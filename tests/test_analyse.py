@@ -264,3 +264,21 @@ def test_analyse_moved_and_console_scripts():
     h = subprocess.run([sys.executable, "-m", "dem", "analyse", "--help"], capture_output=True,
                        text=True)
     assert "exit codes" in h.stdout and "141" in h.stdout
+
+
+def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path):
+    """The same packing written as a LAMMPS dump (kn = 1) and as an OVAL D-file (kn_OVAL = 2, which
+    multiplies half the overlap) gives the same network and moduli with kt = 2/7 kn."""
+    from dem import io as dio
+    from dem.analyse import load_network
+    from microhom import lattices
+
+    net = lattices.triangular(6, 6, diameter=1.0)
+    cfg = dio.Configuration.from_network(net)
+    dio.write(tmp_path / "p.dump", cfg)
+    dio.write(tmp_path / "D0001", cfg, format="oval")
+    a, _ = load_network(tmp_path / "p.dump", kn=1.0, kt_ratio=2 / 7)
+    b, _ = load_network(tmp_path / "D0001", format="oval", kn=2.0, kt_ratio=2 / 7, kn_convention="oval")
+    assert a.n_contacts == b.n_contacts > 0
+    assert np.allclose(a.kn, 1.0) and np.allclose(b.kn, 1.0)
+    assert np.allclose(a.kt, 2 / 7) and np.allclose(b.kt, 2 / 7)
