@@ -26,7 +26,6 @@ whole analysis or reporting a 0/0 as a number.
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -194,7 +193,9 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
         if kt_ratio is not None:
             if not (math.isfinite(kt_ratio) and kt_ratio >= 0):
                 raise ValueError(f"--kt-ratio must be finite and >= 0, got {kt_ratio!r}")
-            kt = kt_ratio * kn
+            # the ratio is of the physical stiffnesses: OVAL's kn multiplies half the overlap, its
+            # force per unit overlap (the network's kn) is kn/2, and kt is never converted
+            kt = kt_ratio * (kn / 2.0 if kn_convention == "oval" else kn)
         elif kt is None:
             notes.append("kt not given: kt = kn assumed (LAMMPS gran/hooke/history defaults to "
                          "kt = 2/7 kn: give --kt or --kt-ratio 0.2857 for such a run)")

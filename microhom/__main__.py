@@ -11,7 +11,8 @@ Measuring a packing file moved to the DEM package, where its engine lives:
 
 Exit codes: 0 every result valid; 3 at least one result flagged outside the theory's range (the
 table, JSON and CSV say which and why); 2 bad input (the message names the option and its
-range); 141 the output pipe was closed (``| head``): silent, as Unix tools are.
+range); 1 the machine's state (the output cannot be written, e.g. a full disk); 141 the output
+pipe was closed (``| head``): silent, as Unix tools are.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from .moduli import predict_moduli
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_BROKEN_PIPE = 0, 2, 3, 141
+EXIT_OK, EXIT_MACHINE, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_BROKEN_PIPE = 0, 1, 2, 3, 141
 
 #: library wording -> the command line's own flags (the messages are shared with the Python API)
 _CLI_WORDS = (("Pass nbar explicitly", "Give --nbar"), ("pass nbar", "give --nbar"),
@@ -47,7 +48,7 @@ def build_parser():
         description="Micromechanical homogenisation of dense random disk packings. (To measure a "
                     "packing file: python -m dem analyse FILE.)",
         epilog="exit codes: 0 valid, 3 a result flagged outside the theory's range, 2 bad input, "
-               "141 output pipe closed")
+               "1 output cannot be written (full disk), 141 output pipe closed")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser(
         "predict", help="mean-field and fluctuation-corrected 2D bulk and shear moduli",
@@ -56,7 +57,8 @@ def build_parser():
                     "broadcast (one row per combination). Defaults: the seed paper's case.",
         epilog="exit codes: 0 every result valid, 3 at least one flagged outside the theory's range "
                "(in either direction: a correction that softens or stiffens by more than "
-               "--max-correction), 2 bad input, 141 output pipe closed (silent)",
+               "--max-correction), 2 bad input, 1 output cannot be written (full disk), 141 output "
+               "pipe closed (silent)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--kn", nargs="+", type=_floats("kn"), default=[SEED_CASE["kn"]],
                    help="normal contact stiffness [N/m], > 0 (2D: force per unit thickness per unit overlap)")
@@ -160,6 +162,9 @@ def main(argv=None):
     except ValueError as exc:
         print(f"error: {_cli_words(str(exc))}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as exc:  # the machine's state, e.g. a full disk under a redirected output
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_MACHINE
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from microhom import lattices
 from microhom.moduli import predict_from_network, predict_moduli, rho_from_alpha
 from microhom.structural_sums import particle_sums
 from studies.cases import DEFAULTS, get_packing
-from studies.common import write_table
+from studies.common import EXIT_NO_OUTPUT, cli_out_dir, write_table
 
 ROWS = []
 
@@ -134,10 +134,15 @@ def packing_cases(n):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"exit codes: 0 every case right (ok, flagged or a clear error), 1 a case WRONG, "
+               f"{EXIT_NO_OUTPUT} --out cannot be written (checked before computing), 2 usage")
     ap.add_argument("--quick", action="store_true", help="skip the DEM packing cases (near jamming, rattlers)")
-    ap.add_argument("--out", default="out/stability")
+    ap.add_argument("--out", default="out/stability",
+                    help="output folder (CSV, markdown); the packing cache follows it")
     args = ap.parse_args(argv)
+    cli_out_dir(args.out)
     ROWS.clear()
     theory_cases()
     stiffness_cases()

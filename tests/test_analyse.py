@@ -171,17 +171,17 @@ def run_in(capsys, *args):
 OLD_CSV_HEADER = "file.source,file.format,file.forces,file.kn,file.kt,file.branch_length,file.read_s,file.analyse_s,network.n_particles,network.n_contacts,network.periodic,network.kn_mean,network.kt_mean,network.forces,coordination.z_all,coordination.z,coordination.n_rattlers,coordination.rattler_fraction,coordination.hist_all,coordination.hist,structural.n_particles,structural.n_contacts,structural.nc_all,structural.nc,structural.r_all,structural.r,structural.rho_all,structural.rho,structural.phi,structural.nbar_phi,structural.diameter,structural.sliding_fraction,structural.vbar,structural.ebar,structural.vbar_theory,structural.ebar_theory,structural.odd_norm,stress.error,theory.error,stiffness.K,stiffness.G,stiffness.K_affine,stiffness.G_affine,stiffness.C_mandel,stiffness.prestress,stiffness.n_rattlers,stiffness.n_floppy,stiffness.n_unstable,stiffness.n_dof,stiffness.residual,stiffness.time_s,notes"
 
 
-def test_json_and_csv_layout_unchanged_and_typed_result():
+def test_json_and_csv_layout_unchanged_and_typed_result(capsys):
     from dem.analyse import AnalysisResult, analyse_file
     from microhom.results import Result
     import dataclasses
 
-    p = run(DATA / "radius.dump", "--kn", "2", "--json")
+    p = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--json")
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
     assert list(r) == list(OLD_JSON_KEYS)
     assert {k: (list(v) if isinstance(v, dict) else "list") for k, v in r.items()} == OLD_JSON_KEYS
-    c = run(DATA / "radius.dump", "--kn", "2", "--csv")
+    c = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--csv")
     assert c.stdout.splitlines()[0] == OLD_CSV_HEADER
     res = analyse_file(DATA / "radius.dump", kn=2.0)
     assert isinstance(res, AnalysisResult) and isinstance(res, Result)
@@ -264,3 +264,21 @@ def test_analyse_moved_and_console_scripts():
     h = subprocess.run([sys.executable, "-m", "dem", "analyse", "--help"], capture_output=True,
                        text=True)
     assert "exit codes" in h.stdout and "141" in h.stdout
+
+
+def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path):
+    """The same packing written as a LAMMPS dump (kn = 1) and as an OVAL D-file (kn_OVAL = 2, which
+    multiplies half the overlap) gives the same network and moduli with kt = 2/7 kn."""
+    from dem import io as dio
+    from dem.analyse import load_network
+    from microhom import lattices
+
+    net = lattices.triangular(6, 6, diameter=1.0)
+    cfg = dio.Configuration.from_network(net)
+    dio.write(tmp_path / "p.dump", cfg)
+    dio.write(tmp_path / "D0001", cfg, format="oval")
+    a, _ = load_network(tmp_path / "p.dump", kn=1.0, kt_ratio=2 / 7)
+    b, _ = load_network(tmp_path / "D0001", format="oval", kn=2.0, kt_ratio=2 / 7, kn_convention="oval")
+    assert a.n_contacts == b.n_contacts > 0
+    assert np.allclose(a.kn, 1.0) and np.allclose(b.kn, 1.0)
+    assert np.allclose(a.kt, 2 / 7) and np.allclose(b.kt, 2 / 7)

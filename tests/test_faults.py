@@ -230,6 +230,19 @@ def test_closed_pipe_is_silent(cmd):
     assert err == "" and rc == 141, (rc, err)
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (a device that is "
+                    "always full) to play the full disk")
+@pytest.mark.parametrize("cmd", [["microhom", "predict", "--json"],
+                                 ["dem", "analyse", str(DATA / "D0001"), "--no-exact"]])
+def test_full_disk_output_is_one_line(cmd):
+    """Output to a full device: one line naming the cause, exit 1, no traceback."""
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", *cmd], stdout=full, stderr=subprocess.PIPE,
+                           text=True, timeout=120)
+    assert p.returncode == 1, p.stderr
+    assert "No space left on device" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
 # ---- degenerate networks ------------------------------------------------------------------
 
 def gas(tmp_path):
@@ -273,3 +286,14 @@ def test_stiffening_correction_flagged(capsys):
     assert mh_main(["predict", "--rho", "-5"]) == 3
     out = capsys.readouterr().out
     assert "FLAGGED" in out and "stiffening" in out
+
+
+def test_open_packing_sections_say_why(tmp_path, capsys):
+    """An open packing (a plain CSV from another code) has no periodic stiffness: the section says
+    why, the rest is computed, nothing is a traceback or a NaN."""
+    p = tmp_path / "open.csv"
+    p.write_text("x,y,radius\n" + "".join(f"{x},{y},0.5\n" for x in range(4) for y in range(4)))
+    assert dem_main(["analyse", str(p), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"bare {c}"))
+    assert r["network"]["periodic"] is False and r["coordination"]["z_all"] > 0
+    assert "error" in r["stiffness"] and r["stiffness"]["error"]

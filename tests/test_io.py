@@ -156,7 +156,7 @@ def test_gzip_dump(tmp_path):
     src = (DATA / "radius.dump").read_bytes()
     p = tmp_path / "radius.dump.gz"
     p.write_bytes(gzip.compress(src))
-    assert io.read(p).n_particles == 4
+    assert io.read(p, frame=0).n_particles == 4
 
 
 def test_vtk_contents(tmp_path):
@@ -205,7 +205,8 @@ def test_example_sheared_data():
 
 
 def test_example_dump_radius_frames():
-    cfg = io.read(DATA / "radius.dump")
+    with pytest.warns(UserWarning, match=r"holds 2 frames: read the first \(timestep 1000\)"):
+        cfg = io.read(DATA / "radius.dump")
     assert cfg.meta["timestep"] == 1000
     np.testing.assert_array_equal(cfg.ids, [3, 1, 2, 4])  # file order kept
     s = cfg.sorted_by_id()
@@ -490,3 +491,10 @@ def test_real_dempla_startfile_head(tmp_path):
     for b, o in zip(back, orig):
         assert [m.start() for m in re.finditer("E", b)] == [m.start() for m in re.finditer("E", o)]
         assert [float(t) for t in b.split()] == [float(t) for t in o.split()]
+
+
+def test_real_dempla_oval_startfile_refused_by_its_kshape():
+    """DEMPLA's sample of ovals (kshape 2, verbatim head; tests/data/README.md): refused on line 1,
+    naming the shape code, not misread as disks."""
+    with pytest.raises(FormatError, match="line 1, field 'kshape': unknown shape code '2'"):
+        io.read(DATA / "Dovals_1002_1d.head")

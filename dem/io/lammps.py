@@ -495,7 +495,7 @@ def _dump_box(box, path, meta):
     return cell, origin, pbc
 
 
-def read_lammps_dump(path, frame=0, *, radius=None) -> Configuration:
+def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     """Read one frame of a LAMMPS text dump (``dump custom``/``atom``; ``.gz`` allowed).
 
     Needs ``ITEM: ATOMS`` columns for positions (``x y``, else ``xu yu``, ``xs ys`` or
@@ -509,14 +509,18 @@ def read_lammps_dump(path, frame=0, *, radius=None) -> Configuration:
     :func:`box_from_dump_bounds`) or ``abc origin pp pp pp`` (general triclinic). ``cell`` is set
     when x and y are both periodic (``pp``); otherwise ``cell=None``, ``meta['box']`` holds the
     box and particles outside its non-periodic directions raise :class:`FormatError`.
-    ``frame`` indexes the frames (negative from the end); see :func:`iter_lammps_dump`.
-    ``meta['frame']`` (0-based) and ``meta['n_frames']`` say which frame was read.
+    ``frame`` indexes the frames (negative from the end); see :func:`iter_lammps_dump`. Not given,
+    the first frame is read, with a warning naming the frame count when the file has several (a
+    trajectory's first frame is usually its initial gas). ``meta['frame']`` (0-based) and
+    ``meta['n_frames']`` say which frame was read.
     """
     path = os.fspath(path)
     data = open_bytes(path)
     offs = _frame_offsets(data)
     if not offs:
         raise FormatError(path, 1, "TIMESTEP", "not a LAMMPS dump: no 'ITEM: TIMESTEP' line")
+    unsaid = frame is None
+    frame = 0 if unsaid else frame
     try:
         start = offs[frame]
     except IndexError:
@@ -525,6 +529,10 @@ def read_lammps_dump(path, frame=0, *, radius=None) -> Configuration:
     end = offs[k + 1] if k + 1 < len(offs) else len(data)
     cfg = _parse_dump_frame(data, start, end, path, radius, k)
     cfg.meta["n_frames"] = len(offs)
+    if unsaid and len(offs) > 1:
+        warnings.warn(f"{path} holds {len(offs)} frames: read the first (timestep "
+                      f"{cfg.meta.get('timestep', '?')}); say frame=-1 for the last (--frame -1 "
+                      "on the command line)", stacklevel=2)
     return cfg
 
 

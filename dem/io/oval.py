@@ -38,7 +38,7 @@ import warnings
 import numpy as np
 
 from ._core import (Configuration, FormatError, build, check_positive, open_bytes, parse_number,
-                    parse_table, require_particles)
+                    parse_table, require_particles, show)
 
 __all__ = ["read_oval", "write_oval"]
 
@@ -77,7 +77,7 @@ def read_oval(path) -> Configuration:
     code_f = parse_number(t1[0], path, l1, "kshape")
     if code_f != 1 or len(t1) != 1:
         raise FormatError(path, l1, "kshape",
-                          f"unknown shape code {' '.join(t1)[:40]!r}: only 1 (circular disks) is "
+                          f"unknown shape code {show(' '.join(t1))}: only 1 (circular disks) is "
                           "supported (ovals, ellipses, nobbies and 3D shapes are not)")
     if len(t2) != 4:
         raise FormatError(path, l2, None, f"expected 4 numbers (np xcell(1,1) xcell(2,2) "
@@ -85,7 +85,7 @@ def read_oval(path) -> Configuration:
     n_f = parse_number(t2[0], path, l2, "np")
     if n_f != int(n_f) or n_f < 0:
         raise FormatError(path, l2, "np", f"particle count must be a non-negative integer: "
-                          f"{t2[0][:40]!r}")
+                          f"{show(t2[0])}")
     n = int(n_f)
     lx = parse_number(t2[1], path, l2, "xcell(1,1)")
     ly = parse_number(t2[2], path, l2, "xcell(2,2)")
