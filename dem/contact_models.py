@@ -36,9 +36,9 @@ is one new sub-model: see :class:`RollingResistance` (Hertz with rolling resista
 :class:`dem.contact_laws.HertzRolling`).
 
 Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can also integrate
-(``kick``): with :class:`FusedKick` every particle is kicked and drifted as soon as its force is
+(``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
 complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
-reaches the first pair with ``i > k``), which saves a pass over the particle arrays. The
+reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
 arithmetic per particle is that of :func:`kick_drift` and :func:`kick_spin`, in the same order,
 so fused and separate integration give bit-identical trajectories.
 """
@@ -54,7 +54,7 @@ from numba.extending import overload
 
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
-           "RollingResistance", "NoKick", "FusedKick", "Cell", "pair_forces", "make_pair_constants",
+           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "make_pair_constants",
            "kick_drift", "kick_spin", "SUBMODELS"]
 
 
@@ -83,8 +83,8 @@ pair_constant = _hook("pair_constant")
 normal_damping = _hook("normal_damping")
 tangential_force = _hook("tangential_force")
 rolling_torque = _hook("rolling_torque")
-advance = _hook("advance")
 force_magnitude = _hook("force_magnitude")
+history_slots = _hook("history_slots")
 
 
 def _implements(hook, *classes):
@@ -317,9 +317,10 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j,
+#   tangential_force(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j,
 #                    fn, kn, ct, dt, torque) -> (ftx, fty, elastic energy)
-#   adds the torques of the tangential force itself; ``hist`` is the (P, HISTORY) history.
+#   adds the torques of the tangential force itself; ``hist`` is the flat (P * nh,) history, the
+#   pair's slots start at nh * p.
 # --------------------------------------------------------------------------------------------------
 class NoTangential(NamedTuple):
     """No tangential force (no spins needed)."""
@@ -344,9 +345,9 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+def _notang(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
             torque):
-    def impl(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         return 0.0, 0.0, 0.0
     return impl
@@ -417,12 +418,12 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
                        kn, ct, dt, torque):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         tx = -ny
         ty = nx
@@ -433,8 +434,9 @@ def _scalar_tangential(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri,
             kt = model.kt
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu * fc
-        fs, ftot = _coulomb_scalar(hist[p, 0] - kt * vt * dt, lim, ct, vt, tdamp)
-        hist[p, 0] = fs
+        q = nh * p
+        fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, ct, vt, tdamp)
+        hist[q] = fs
         U = 0.0
         if kt > 0.0:
             U = 0.5 * fs * fs / kt
@@ -474,14 +476,15 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
                        kn, ct, dt, torque):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the exact negative of LAMMPS's (del = x_i - x_j, v_i - v_j), so the arithmetic is
     # LAMMPS's up to signs. hist[p] = -LAMMPS's shear.
-    def impl(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         kt = model.kt
+        q = nh * p
         rsq = lx * lx + ly * ly
         rsqinv = 1.0 / rsq
         rinv = 1.0 / d
@@ -491,8 +494,8 @@ def _lammps_tangential(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri,
         wr3 = (ri * omega[i] + rj * omega[j]) * rinv
         vtr1 = vt1 + ly * wr3
         vtr2 = vt2 - lx * wr3
-        s1 = hist[p, 0]
-        s2 = hist[p, 1]
+        s1 = hist[q]
+        s2 = hist[q + 1]
         if dt > 0.0:
             s1 += vtr1 * dt
             s2 += vtr2 * dt
@@ -515,8 +518,8 @@ def _lammps_tangential(model, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri,
             else:
                 fs1 = 0.0
                 fs2 = 0.0
-        hist[p, 0] = s1
-        hist[p, 1] = s2
+        hist[q] = s1
+        hist[q + 1] = s2
         tor = rinv * (lx * fs2 - ly * fs1)
         torque[i] -= ri * tor
         torque[j] -= rj * tor
@@ -528,8 +531,19 @@ _implements(tangential_force, LinearHistory, Mindlin)(_scalar_tangential)
 _implements(force_magnitude, LinearHistory, Mindlin, LammpsHistory)(_frictional_mag)
 
 
+def _history_slots(model, rolling):
+    n = int(_cls(model).HISTORY + _cls(rolling).HISTORY)
+
+    def impl(model, rolling):
+        return n
+    return impl
+
+
+_implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_history_slots)
+
+
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque)
+# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque)
 #   h0 = the first history slot of this sub-model; returns its elastic energy.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
@@ -547,8 +561,8 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+def _noroll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
         return 0.0
     return impl
 
@@ -575,16 +589,17 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+def _roll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+        q = nh * p + h0
         reff = ri * rj / (ri + rj)
         kr = model.kr_ratio * kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu_r * reff * fc
-        m = hist[p, h0] - kr * (omega[j] - omega[i]) * dt
+        m = hist[q] - kr * (omega[j] - omega[i]) * dt
         if abs(m) > lim:
             m = lim if m > 0.0 else -lim
-        hist[p, h0] = m
+        hist[q] = m
         torque[j] += m
         torque[i] -= m
         U = 0.0
@@ -651,14 +666,11 @@ def kick_spin(k, omega, theta, torque, inertia, dtk, dt, damping, acc):
     theta[k] += dt * wn
 
 
-class NoKick(NamedTuple):
-    """The loop computes forces only (the integrator makes its own pass)."""
-    zero: float = 0.0
-
-
-class FusedKick(NamedTuple):
-    """Kick and drift inside the force loop. ``dtk`` kick step, ``dt`` drift step, Cundall
-    ``damping``, the cell's ``L`` and the deformation ``F = h_{n+1} h_ref^{-1}`` of the rebuild test."""
+class Kick(NamedTuple):
+    """Integration inside the force loop (``fused``): kick step ``dtk``, drift step ``dt``, Cundall
+    ``damping``, the cell's ``L`` and the deformation ``F = h_{n+1} h_ref^{-1}`` of the rebuild
+    test. ``fused = False``: the loop computes forces only."""
+    fused: bool
     dtk: float
     dt: float
     damping: float
@@ -672,26 +684,7 @@ class FusedKick(NamedTuple):
     F11: float
 
 
-@_implements(advance, NoKick)
-def _nokick(kick, done, upto, xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc):
-    def impl(kick, done, upto, xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc):
-        return done
-    return impl
-
-
-@_implements(advance, FusedKick)
-def _fusedkick(kick, done, upto, xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc):
-    def impl(kick, done, upto, xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc):
-        if upto <= done:
-            return done
-        for k in range(done, upto):
-            kick_drift(k, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
-                       kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
-        if omega.shape[0] > 0:
-            for k in range(done, upto):
-                kick_spin(k, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
-        return upto
-    return impl
+NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
 
 
 class Cell(NamedTuple):
@@ -710,15 +703,16 @@ class Cell(NamedTuple):
 # the pair loop
 # --------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hist, pc, cell, normal,
-                damping, tangential, rolling, hroll, kick, dt, f, torque, out, acc):
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, first, pj, ps, hist, pc, cell, normal,
+                damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, pj (P,), ps (P, 2) the Verlet list;
-    hist (P, H) the history (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
+    x, v (N, 2); omega, theta, inertia (N,) or empty; the Verlet list: pairs ``first[i]`` to
+    ``first[i + 1] - 1`` have i as first particle, pj (P,) their second, ps (P, 2) their image shift;
+    hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
-    not advanced). Fills f (N, 2), torque (N,),
-    ``out`` (8,) (see :mod:`dem.contact_laws`) and, with a fused kick, ``acc`` (5,) =
+    not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
+    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) =
     (max non-affine displacement^2, translational KE, translational damping work, rotational KE,
     rotational damping work).
     """
@@ -733,7 +727,6 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     ff = f.reshape(-1)
     psf = ps.reshape(-1)
     rf = x_ref.reshape(-1)
-    nh = hist.shape[1]
     s00 = 0.0
     s01 = 0.0
     s10 = 0.0
@@ -742,51 +735,61 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     fsum = 0.0
     U = 0.0
     kl2 = 0.0
-    done = 0
-    for p in range(pi.shape[0]):
-        i = pi[p]
-        j = pj[p]
-        done = advance(kick, done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc)
-        sa = psf[2 * p]
-        sb = psf[2 * p + 1]
-        lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
-        ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
-        ri = radius[i]
-        rj = radius[j]
-        rs = ri + rj
-        d2 = lx * lx + ly * ly
-        if d2 >= rs * rs:
-            for k in range(nh):
-                hist[p, k] = 0.0
-            continue
-        d = math.sqrt(d2)
-        nx = lx / d
-        ny = ly / d
-        delta = rs - d
-        dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
-        dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
-        fn, kn, Un = normal_force(normal, delta)
-        U += Un
-        vn = dvx * nx + dvy * ny
-        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-        ftx, fty, Ut = tangential_force(tangential, damping, hist, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj,
-                                        omega, i, j, fn, kn, ct, dt, torque)
-        U += Ut
-        U += rolling_torque(rolling, hist, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
-        fx = fn * nx + ftx
-        fy = fn * ny + fty
-        ff[2 * j] += fx
-        ff[2 * j + 1] += fy
-        ff[2 * i] -= fx
-        ff[2 * i + 1] -= fy
-        s00 += fx * lx
-        s01 += fx * ly
-        s10 += fy * lx
-        s11 += fy * ly
-        nc += 1.0
-        fsum += force_magnitude(tangential, fn, fx, fy)
-        kl2 += kn * d2
-    advance(kick, done, x.shape[0], xf, vf, ff, rf, mass, omega, theta, torque, inertia, acc)
+    fused = kick.fused
+    spin = omega.shape[0] > 0
+    nh = history_slots(tangential, rolling)
+    for i in range(x.shape[0]):
+        for p in range(first[i], first[i + 1]):
+            j = pj[p]
+            sa = psf[2 * p]
+            sb = psf[2 * p + 1]
+            lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
+            ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
+            ri = radius[i]
+            rj = radius[j]
+            rs = ri + rj
+            d2 = lx * lx + ly * ly
+            if d2 >= rs * rs:
+                for k in range(nh * p, nh * p + nh):
+                    hist[k] = 0.0
+                continue
+            d = math.sqrt(d2)
+            nx = lx / d
+            ny = ly / d
+            delta = rs - d
+            dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
+            dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
+            fn, kn, Un = normal_force(normal, delta)
+            vn = dvx * nx + dvy * ny
+            fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
+            ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri,
+                                            rj, omega, i, j, fn, kn, ct, dt, torque)
+            Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
+            fx = fn * nx + ftx
+            fy = fn * ny + fty
+            ff[2 * j] += fx
+            ff[2 * j + 1] += fy
+            ff[2 * i] -= fx
+            ff[2 * i + 1] -= fy
+            if tally:
+                U += Un
+                U += Ut
+                U += Ur
+                s00 += fx * lx
+                s01 += fx * ly
+                s10 += fy * lx
+                s11 += fy * ly
+                nc += 1.0
+                fsum += force_magnitude(tangential, fn, fx, fy)
+                kl2 += kn * d2
+        if fused:
+            # every pair touching i is done (pairs are ordered by i, with j > i): kick and drift i
+            kick_drift(i, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
+                       kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
+            if spin:
+                kick_spin(i, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+    if not tally:
+        return
     out[0] = s00
     out[1] = s01
     out[2] = s10

@@ -190,7 +190,6 @@ class Simulation:
         self.out = np.zeros(8)
         self.acc = np.zeros(5)
         self._empty = np.zeros(0)
-        self._empty2 = np.zeros((0, 0))
         self._pc = None          # per-pair law constants, valid for (self._pc_list, self._pc_mass)
         self._pc_list = None
         self._pc_mass = None
@@ -215,7 +214,7 @@ class Simulation:
         self.need_rebuild = False
         self._href_inv = np.linalg.inv(self.state.h_ref)
 
-    def _pair_loop(self, kick, dt_history):
+    def _pair_loop(self, kick, dt_history, tally=True):
         st = self.state
         if self.need_rebuild or st.nl_i is None:
             self.rebuild()
@@ -224,21 +223,22 @@ class Simulation:
         spin = law.needs_spin
         if self._pc is None or self._pc_list is not st.nl_i or self._pc_mass is not st.mass:
             self._pc = law.pair_constants(st.mass, st.nl_i, st.nl_j)
+            self._first = np.searchsorted(st.nl_i, np.arange(st.n + 1)).astype(np.int64)
             self._pc_list = st.nl_i
             self._pc_mass = st.mass
-        hist = st.nl_ft.reshape(st.nl_i.shape[0], -1) if law.needs_history else self._empty2
+        hist = st.nl_ft.reshape(-1) if law.needs_history else self._empty
         normal, damping, tangential, rolling = law.models
         cm.pair_forces(st.x, st.v, st.omega if spin else self._empty, st.theta if spin else self._empty,
                        st.radius, st.mass, st.inertia if spin else self._empty, st.x_ref,
-                       st.nl_i, st.nl_j, st.nl_shift, hist, self._pc,
+                       self._first, st.nl_j, st.nl_shift, hist, self._pc,
                        cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
-                       normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history,
+                       normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
                        self.f, self.torque, self.out, self.acc)
 
     def compute_forces(self):
         """Contact forces at the current positions (advances the tangential history: call it only
         as part of a step; use :meth:`measure` for read-only quantities)."""
-        self._pair_loop(cm.NoKick(), self.dt)
+        self._pair_loop(cm.NO_KICK, self.dt)
 
     def _deformation(self, L, dt):
         """h_{n+1} = (I + dt L) h_n and F = h_{n+1} h_ref^{-1} by entries."""
@@ -254,8 +254,12 @@ class Simulation:
         F11 = h10 * r[0, 1] + h11 * r[1, 1]
         return (h00, h01, h10, h11), (F00, F01, F10, F11)
 
-    def step(self):
+    def step(self, tally=True):
+        """One time step. ``tally=False`` skips the stress, energy and contact sums of ``out`` (as
+        LAMMPS skips energy and virial on steps without output); a cell control always tallies,
+        and :meth:`measure`, ``energy_n`` refer to the last tallied step."""
         st = self.state
+        tally = tally or self.control is not None
         dt = self.dt
         dtk, dth = dt, dt
         if self.startup_pending:  # LAMMPS start-up: setup force call, half kick
@@ -268,10 +272,11 @@ class Simulation:
         if self.fuse and self.control is None:
             L = st.L
             hn, Fd = self._deformation(L, dt)
-            self._pair_loop(cm.FusedKick(dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd), dth)
+            self._pair_loop(cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd), dth,
+                            tally)
             t2 = t3 = t4 = _time.perf_counter()
         else:
-            self._pair_loop(cm.NoKick(), dth)
+            self._pair_loop(cm.NO_KICK, dth, tally)
             t2 = _time.perf_counter()
             A = st.h[0, 0] * st.h[1, 1] - st.h[0, 1] * st.h[1, 0]
             if self.control is not None:
@@ -294,7 +299,7 @@ class Simulation:
         self.startup_pending = False
         self.damping_work += wd
         self.ke_n = ke
-        self.energy_n = ke + self.out[6]
+        self.energy_n = ke + self.out[6] if tally else float("nan")
         dF = _norm2_2x2(Fd[0] - 1.0, Fd[1], Fd[2], Fd[3] - 1.0)
         if 2.0 * math.sqrt(d2) + dF * self.rc > self.skin:
             self.need_rebuild = True
@@ -352,9 +357,11 @@ class Simulation:
         s0 = self.steps_timed
         w0 = _time.perf_counter()
         stopped = False
+        cb = callback is not None and every > 0
         for k in range(nsteps):
-            self.step()
-            if callback is not None and every > 0 and (k + 1) % every == 0:
+            # tally the stress and energy sums only where they are read: callbacks and the last step
+            self.step(tally=k == nsteps - 1 or (cb and (k + 1) % every == 0))
+            if cb and (k + 1) % every == 0:
                 if callback(self):
                     stopped = True
                     break
@@ -401,7 +408,7 @@ class Simulation:
         st = self.state
         keep = None if st.nl_ft is None else st.nl_ft.copy()
         try:
-            self._pair_loop(cm.NoKick(), 0.0)  # no history increment
+            self._pair_loop(cm.NO_KICK, 0.0)  # no history increment
         finally:
             if keep is not None and st.nl_ft is not None and keep.shape == st.nl_ft.shape:
                 st.nl_ft[:] = keep
