@@ -99,7 +99,7 @@ def _implements(hook, *classes):
         def guarded(*args):
             return typer(*args) if _cls(args[0]) in classes else None
 
-        overload(hook, jit_options={"cache": True})(guarded)
+        overload(hook, jit_options={"cache": True}, inline="always")(guarded)
         return typer
     return deco
 
@@ -317,7 +317,7 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j,
+#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j,
 #                    fn, kn, ct, dt, torque) -> (ftx, fty, elastic energy)
 #   adds the torques of the tangential force itself; ``hist`` is the flat (P * nh,) history, the
 #   pair's slots start at nh * p.
@@ -345,9 +345,9 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
             torque):
-    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         return 0.0, 0.0, 0.0
     return impl
@@ -418,12 +418,12 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
                        kn, ct, dt, torque):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         tx = -ny
         ty = nx
@@ -476,43 +476,46 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
                        kn, ct, dt, torque):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
-    # quantity is the exact negative of LAMMPS's (del = x_i - x_j, v_i - v_j), so the arithmetic is
-    # LAMMPS's up to signs. hist[p] = -LAMMPS's shear.
-    def impl(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+    # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
+    # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
+    # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
+    # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
+    # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
              torque):
         kt = model.kt
         q = nh * p
-        rsq = lx * lx + ly * ly
-        rsqinv = 1.0 / rsq
-        rinv = 1.0 / d
-        vnnr = dvx * lx + dvy * ly
-        vt1 = dvx - lx * vnnr * rsqinv
-        vt2 = dvy - ly * vnnr * rsqinv
-        wr3 = (ri * omega[i] + rj * omega[j]) * rinv
-        vtr1 = vt1 + ly * wr3
-        vtr2 = vt2 - lx * wr3
+        # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
+        vt1 = dvx - nx * vn
+        vt2 = dvy - ny * vn
+        ws = ri * omega[i] + rj * omega[j]
+        vtr1 = vt1 + ny * ws
+        vtr2 = vt2 - nx * ws
         s1 = hist[q]
         s2 = hist[q + 1]
         if dt > 0.0:
             s1 += vtr1 * dt
             s2 += vtr2 * dt
-        shrmag = math.sqrt(s1 * s1 + s2 * s2)
+        shr2 = s1 * s1 + s2 * s2
         if dt > 0.0:
-            rsht = (s1 * lx + s2 * ly) * rsqinv
-            s1 -= rsht * lx
-            s2 -= rsht * ly
+            rsht = s1 * nx + s2 * ny
+            s1 -= rsht * nx
+            s2 -= rsht * ny
         fs1 = -(kt * s1 + ct * vtr1)
         fs2 = -(kt * s2 + ct * vtr2)
-        fs = math.sqrt(fs1 * fs1 + fs2 * fs2)
+        fs2sum = fs1 * fs1 + fs2 * fs2
         lim = model.mu * abs(fn)
-        if fs > lim:
-            if shrmag != 0.0:
-                r = lim / fs
-                s1 = r * (s1 + ct * vtr1 / kt) - ct * vtr1 / kt
-                s2 = r * (s2 + ct * vtr2 / kt) - ct * vtr2 / kt
+        if fs2sum > lim * lim:
+            # (LAMMPS compares |fs| > lim and tests the shear magnitude before the projection)
+            if shr2 != 0.0:
+                r = lim / math.sqrt(fs2sum)
+                a1 = ct * vtr1 / kt
+                a2 = ct * vtr2 / kt
+                s1 = r * (s1 + a1) - a1
+                s2 = r * (s2 + a2) - a2
                 fs1 *= r
                 fs2 *= r
             else:
@@ -520,7 +523,7 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny,
                 fs2 = 0.0
         hist[q] = s1
         hist[q + 1] = s2
-        tor = rinv * (lx * fs2 - ly * fs1)
+        tor = nx * fs2 - ny * fs1
         torque[i] -= ri * tor
         torque[j] -= rj * tor
         return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2)
@@ -687,6 +690,20 @@ class Kick(NamedTuple):
 NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
 
 
+KICK_BLOCK = 64
+
+
+@njit(cache=True)
+def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc):
+    """Kick and drift particles lo..hi-1 (translation, then spin if the state has spins)."""
+    for k in range(lo, hi):
+        kick_drift(k, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
+                   kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
+    if omega.shape[0] > 0:
+        for k in range(lo, hi):
+            kick_spin(k, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+
+
 class Cell(NamedTuple):
     """Velocity gradient L and shape matrix h of the cell, by entries."""
     L00: float
@@ -703,12 +720,12 @@ class Cell(NamedTuple):
 # the pair loop
 # --------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, first, pj, ps, hist, pc, cell, normal,
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hist, pc, cell, normal,
                 damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; the Verlet list: pairs ``first[i]`` to
-    ``first[i + 1] - 1`` have i as first particle, pj (P,) their second, ps (P, 2) their image shift;
+    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, pj (P,), ps (P, 2) the Verlet list
+    (ordered by pi, pj > pi);
     hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
@@ -736,58 +753,58 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, first, pj, ps,
     U = 0.0
     kl2 = 0.0
     fused = kick.fused
-    spin = omega.shape[0] > 0
     nh = history_slots(tangential, rolling)
-    for i in range(x.shape[0]):
-        for p in range(first[i], first[i + 1]):
-            j = pj[p]
-            sa = psf[2 * p]
-            sb = psf[2 * p + 1]
-            lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
-            ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
-            ri = radius[i]
-            rj = radius[j]
-            rs = ri + rj
-            d2 = lx * lx + ly * ly
-            if d2 >= rs * rs:
-                for k in range(nh * p, nh * p + nh):
-                    hist[k] = 0.0
-                continue
-            d = math.sqrt(d2)
-            nx = lx / d
-            ny = ly / d
-            delta = rs - d
-            dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
-            dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
-            fn, kn, Un = normal_force(normal, delta)
-            vn = dvx * nx + dvy * ny
-            fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-            ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, lx, ly, d, nx, ny, ri,
-                                            rj, omega, i, j, fn, kn, ct, dt, torque)
-            Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
-            fx = fn * nx + ftx
-            fy = fn * ny + fty
-            ff[2 * j] += fx
-            ff[2 * j + 1] += fy
-            ff[2 * i] -= fx
-            ff[2 * i + 1] -= fy
-            if tally:
-                U += Un
-                U += Ut
-                U += Ur
-                s00 += fx * lx
-                s01 += fx * ly
-                s10 += fy * lx
-                s11 += fy * ly
-                nc += 1.0
-                fsum += force_magnitude(tangential, fn, fx, fy)
-                kl2 += kn * d2
-        if fused:
-            # every pair touching i is done (pairs are ordered by i, with j > i): kick and drift i
-            kick_drift(i, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
-                       kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
-            if spin:
-                kick_spin(i, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+    done = 0
+    for p in range(pj.shape[0]):
+        i = pi[p]
+        if fused and i >= done + KICK_BLOCK:
+            # particles below i have all their forces (pairs are ordered by i, j > i)
+            kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+            done = i
+        j = pj[p]
+        sa = psf[2 * p]
+        sb = psf[2 * p + 1]
+        lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
+        ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
+        ri = radius[i]
+        rj = radius[j]
+        rs = ri + rj
+        d2 = lx * lx + ly * ly
+        if d2 >= rs * rs:
+            for k in range(nh * p, nh * p + nh):
+                hist[k] = 0.0
+            continue
+        d = math.sqrt(d2)
+        nx = lx / d
+        ny = ly / d
+        delta = rs - d
+        dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
+        dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
+        fn, kn, Un = normal_force(normal, delta)
+        vn = dvx * nx + dvy * ny
+        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
+        ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri,
+                                        rj, omega, i, j, fn, kn, ct, dt, torque)
+        Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
+        fx = fn * nx + ftx
+        fy = fn * ny + fty
+        ff[2 * j] += fx
+        ff[2 * j + 1] += fy
+        ff[2 * i] -= fx
+        ff[2 * i + 1] -= fy
+        if tally:
+            U += Un
+            U += Ut
+            U += Ur
+            s00 += fx * lx
+            s01 += fx * ly
+            s10 += fy * lx
+            s11 += fy * ly
+            nc += 1.0
+            fsum += force_magnitude(tangential, fn, fx, fy)
+            kl2 += kn * d2
+    if fused:
+        kick_range(done, x.shape[0], xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
     if not tally:
         return
     out[0] = s00

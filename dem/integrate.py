@@ -132,12 +132,13 @@ class Simulation:
         the forces with them without advancing the contact history (LAMMPS' setup force call) and
         kicks by dt/2, after which the two schemes coincide.
     fuse : kick and drift inside the force loop when the cell has no control (bit-identical to
-        the separate pass, one pass over the particle arrays fewer).
+        the separate pass, one pass over the particle arrays fewer; measured no faster on the
+        benchmark scene, see ``docs/dem.md``, hence off by default).
     """
 
     def __init__(self, state, law, *, dt=None, damping=0.7, skin=None, control=None, sort_every=20,
                  check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None, startup="leapfrog",
-                 fuse=True):
+                 fuse=False):
         self.state = state
         self.law = law
         if not (0 <= damping < 1):
@@ -223,14 +224,13 @@ class Simulation:
         spin = law.needs_spin
         if self._pc is None or self._pc_list is not st.nl_i or self._pc_mass is not st.mass:
             self._pc = law.pair_constants(st.mass, st.nl_i, st.nl_j)
-            self._first = np.searchsorted(st.nl_i, np.arange(st.n + 1)).astype(np.int64)
             self._pc_list = st.nl_i
             self._pc_mass = st.mass
         hist = st.nl_ft.reshape(-1) if law.needs_history else self._empty
         normal, damping, tangential, rolling = law.models
         cm.pair_forces(st.x, st.v, st.omega if spin else self._empty, st.theta if spin else self._empty,
                        st.radius, st.mass, st.inertia if spin else self._empty, st.x_ref,
-                       self._first, st.nl_j, st.nl_shift, hist, self._pc,
+                       st.nl_i, st.nl_j, st.nl_shift, hist, self._pc,
                        cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
                        normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
                        self.f, self.torque, self.out, self.acc)
