@@ -221,6 +221,33 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
                 break
 
 
+@njit(cache=True)
+def _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
+    """As :func:`_carry_history` for an old list still ordered by i (no re-ordering since it was
+    built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
+    written) if the old list is not ordered by i."""
+    for q in range(1, oi.shape[0]):
+        if oi[q] < oi[q - 1]:
+            return False
+    nk = ft.shape[1]
+    q0 = 0
+    nold = oi.shape[0]
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        while q0 < nold and oi[q0] < i:
+            q0 += 1
+        q = q0
+        while q < nold and oi[q] == i:
+            j = oj[q]
+            if j == pj[p] and osh[q, 0] + k[j, 0] - k[i, 0] == ps[p, 0] \
+                    and osh[q, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
+                for c in range(nk):
+                    ft[p, c] = oft[q, c]
+                break
+            q += 1
+    return True
+
+
 _PER_PARTICLE = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids")
 
 
@@ -247,9 +274,8 @@ def rebuild(state, skin, *, sort=False, history=None):
     old = (state.nl_i is not None and nk > 0 and state.nl_ft is not None
            and state.nl_ft.size == nk * state.nl_i.shape[0])
     if old:
-        oi, oj, osh = state.nl_i.copy(), state.nl_j.copy(), state.nl_shift.copy()
-        oft = state.nl_ft.reshape(oi.shape[0], nk).copy()
-        _shift_old_pairs(oi, oj, osh, k)
+        oi, oj, osh = state.nl_i, state.nl_j, state.nl_shift
+        oft = state.nl_ft.reshape(oi.shape[0], nk)
     binof = np.empty(n, np.int64)
     _bin_index(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], nba, nbb, binof)
     if sort:
@@ -259,23 +285,30 @@ def rebuild(state, skin, *, sort=False, history=None):
             if arr is not None:
                 setattr(state, name, np.ascontiguousarray(arr[perm]))
         binof = binof[perm]
-        if old:
+        if old:  # the old list in the new labels (copies: the state's list is not modified)
+            oi, oj, osh, oft = oi.copy(), oj.copy(), osh.copy(), oft.copy()
+            _shift_old_pairs(oi, oj, osh, k)
             inv = np.empty(n, np.int64)
             inv[perm] = np.arange(n)
             _remap_old_pairs(oi, oj, osh, inv, oft, parity)
-    cap = max(16, 2 * (state.nl_i.shape[0] if state.nl_i is not None else 0), 8 * n)
+            k[:] = 0
+    # room for the new list: 25 % above the old one (a second pass if it is exceeded)
+    prev = state.nl_i.shape[0] if state.nl_i is not None else 0
+    cap = max(64, int(1.25 * prev) + n // 8) if prev else max(16, 8 * n)
     while True:
         pi, pj, ps, m = _find_pairs(state.x, state.radius, h[0, 0], h[0, 1], h[1, 0], h[1, 1],
                                     nba, nbb, binof, float(skin), cap)
         if m <= cap:
             break
         cap = m
-    pi, pj, ps = pi[:m].copy(), pj[:m].copy(), ps[:m].copy()
+    pi, pj, ps = pi[:m], pj[:m], ps[:m]  # views: the capacity is at most ~25 % above m
     _sort_pairs(pi, pj, ps, m)
     ft = None
     if nk > 0:
         ft = np.zeros((m, nk))
-        if old:
+        if old and not _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
+            oi, oj, osh = oi.copy(), oj.copy(), osh.copy()
+            _shift_old_pairs(oi, oj, osh, k)
             _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
         if nk == 1:
             ft = ft.reshape(m)
