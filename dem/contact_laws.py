@@ -65,24 +65,16 @@ class _Composed:
         models = (normal, damping, tangential, rolling)
         for m in models:
             m.check()
-        object.__setattr__(self, "models", models)
-
-    @property
-    def needs_spin(self):
-        return bool(self.models[2].SPIN) or not isinstance(self.models[3], cm.NoRolling)
-
-    @property
-    def history_parity(self):
-        """Per history slot: +1 if unchanged when the pair's i and j are swapped, -1 if negated."""
-        return tuple(self.models[2].PARITY) + tuple(self.models[3].PARITY)
-
-    @property
-    def history_size(self):
-        return len(self.history_parity)
-
-    @property
-    def needs_history(self):
-        return self.history_size > 0
+        parity = tuple(tangential.PARITY) + tuple(rolling.PARITY)
+        for name, value in (("models", models),
+                            # spins: a tangential force or a rolling torque
+                            ("needs_spin", bool(tangential.SPIN) or not isinstance(rolling, cm.NoRolling)),
+                            # per history slot: +1 if unchanged when the pair's i and j are swapped,
+                            # -1 if negated
+                            ("history_parity", parity),
+                            ("history_size", len(parity)),
+                            ("needs_history", len(parity) > 0)):
+            object.__setattr__(self, name, value)
 
     def pair_constants(self, mass, pi, pj):
         """Per-pair constants of the damping model (recomputed at each list build)."""

@@ -833,3 +833,4 @@ def make_pair_constants(damping, normal, mass, pi, pj, npc):
 SUBMODELS = {c.__name__: c for c in (Hooke, Hertz, NoDamping, Viscous, ViscousTangential, MassGamma,
                                      NoTangential, LinearHistory, Mindlin, LammpsHistory, NoRolling,
                                      RollingResistance)}
+

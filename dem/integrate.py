@@ -221,16 +221,16 @@ class Simulation:
             self.rebuild()
         h, L = st.h, st.L
         law = self.law
-        spin = law.needs_spin
         if self._pc is None or self._pc_list is not st.nl_i or self._pc_mass is not st.mass:
             self._pc = law.pair_constants(st.mass, st.nl_i, st.nl_j)
             self._pc_list = st.nl_i
             self._pc_mass = st.mass
-        hist = st.nl_ft.reshape(-1) if law.needs_history else self._empty
+        e = self._empty
+        spin = law.needs_spin
         normal, damping, tangential, rolling = law.models
-        cm.pair_forces(st.x, st.v, st.omega if spin else self._empty, st.theta if spin else self._empty,
-                       st.radius, st.mass, st.inertia if spin else self._empty, st.x_ref,
-                       st.nl_i, st.nl_j, st.nl_shift, hist, self._pc,
+        cm.pair_forces(st.x, st.v, st.omega if spin else e, st.theta if spin else e, st.radius, st.mass,
+                       st.inertia if spin else e, st.x_ref, st.nl_i, st.nl_j, st.nl_shift,
+                       st.nl_ft.reshape(-1) if law.needs_history else e, self._pc,
                        cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
                        normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
                        self.f, self.torque, self.out, self.acc)
