@@ -81,7 +81,7 @@ def test_particle_force_balance_agrees_with_dump(run):
 
 
 def test_analyse_reads_the_run_folder(run):
-    p = subprocess.run([sys.executable, "-m", "microhom", "analyse", run.folder, "--prestress", "--json"],
+    p = subprocess.run([sys.executable, "-m", "dem", "analyse", run.folder, "--prestress", "--json"],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
@@ -98,7 +98,7 @@ def test_packing_matches_dem_packing(run):
     # (phi 0.826-0.839); the bounds below are about twice that.
     ref = pack(N, **PARAMS)
     assert ref.report["converged"]
-    z_l = network_statistics(run.network)["nc"]
-    z_d = network_statistics(ref.to_network())["nc"]
+    z_l = network_statistics(run.network).nc
+    z_d = network_statistics(ref.to_network()).nc
     assert abs(run.lammps["phi"] - ref.report["phi"]) < 0.012
     assert abs(z_l - z_d) < 0.15
