@@ -15,7 +15,10 @@ from dem.measure import contact_forces, stress
 from dem.packing import pack, random_gas
 from microhom.structural_sums import network_statistics
 
-pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")
+# slow: the module's fixture prepares a LAMMPS packing (10-35 s on 2 cores); the LAMMPS
+# conventions of the contact law are in the default suite through tests/test_lammps_equivalence.py
+pytestmark = [pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH"),
+              pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
