@@ -754,18 +754,24 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     kl2 = 0.0
     fused = kick.fused
     nh = history_slots(tangential, rolling)
-    done = 0
+    done = np.uint64(0)
+    one = np.uint64(1)
+    block = np.uint64(KICK_BLOCK)
     for p in range(pj.shape[0]):
-        i = pi[p]
-        if fused and i >= done + KICK_BLOCK:
+        # unsigned indices: numba then skips its negative-index wraparound on every access
+        i = np.uint64(pi[p])
+        if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
             kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
             done = i
-        j = pj[p]
-        sa = psf[2 * p]
-        sb = psf[2 * p + 1]
-        lx = xf[2 * j] + h00 * sa + h01 * sb - xf[2 * i]
-        ly = xf[2 * j + 1] + h10 * sa + h11 * sb - xf[2 * i + 1]
+        j = np.uint64(pj[p])
+        i2 = i + i
+        j2 = j + j
+        pp = np.uint64(p)
+        sa = psf[pp + pp]
+        sb = psf[pp + pp + one]
+        lx = xf[j2] + h00 * sa + h01 * sb - xf[i2]
+        ly = xf[j2 + one] + h10 * sa + h11 * sb - xf[i2 + one]
         ri = radius[i]
         rj = radius[j]
         rs = ri + rj
@@ -778,8 +784,8 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
         nx = lx / d
         ny = ly / d
         delta = rs - d
-        dvx = vf[2 * j] - vf[2 * i] + L00 * lx + L01 * ly
-        dvy = vf[2 * j + 1] - vf[2 * i + 1] + L10 * lx + L11 * ly
+        dvx = vf[j2] - vf[i2] + L00 * lx + L01 * ly
+        dvy = vf[j2 + one] - vf[i2 + one] + L10 * lx + L11 * ly
         fn, kn, Un = normal_force(normal, delta)
         vn = dvx * nx + dvy * ny
         fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
@@ -788,10 +794,10 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
         Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
         fx = fn * nx + ftx
         fy = fn * ny + fty
-        ff[2 * j] += fx
-        ff[2 * j + 1] += fy
-        ff[2 * i] -= fx
-        ff[2 * i + 1] -= fy
+        ff[j2] += fx
+        ff[j2 + one] += fy
+        ff[i2] -= fx
+        ff[i2 + one] -= fy
         if tally:
             U += Un
             U += Ut
@@ -804,7 +810,7 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
             fsum += force_magnitude(tangential, fn, fx, fy)
             kl2 += kn * d2
     if fused:
-        kick_range(done, x.shape[0], xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+        kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
     if not tally:
         return
     out[0] = s00
