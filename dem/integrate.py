@@ -8,6 +8,10 @@ Scheme (leapfrog / velocity Verlet in kick-drift form, as in PFC and Yade)::
     h_{n+1}   = h_n + dt L h_n                             (same operator: images stay consistent)
 
 with spins ``w`` and rotations integrated the same way with torques and ``I = m r^2 / 2``.
+``Simulation(startup="lammps")`` takes the initial velocities as v(0) instead (LAMMPS' velocity
+Verlet): the first force call does not advance the contact history and the first kick is dt/2,
+after which the sequence is the same. With ``fuse=True`` and no cell control, each particle is
+kicked and drifted inside the force loop once its force is complete (same arithmetic).
 
 Cundall local non-viscous damping, per component: ``F_damp,k = -lambda |F_k| sign(v_k)`` (first
 order, ``v = v_{n-1/2}``); default ``lambda = 0.7`` for quasi-static work, 0 for dynamics. The work
@@ -16,8 +20,9 @@ done by it is accumulated in ``Simulation.damping_work`` [J/m].
 Critical time step (stated formula): ``dt_crit = min_i sqrt(m_i / K_i)`` with
 ``K_i = z_i * k_law`` the sum over the *possible* contacts of particle i of the law's stiffness,
 ``z_i = floor(pi / asin(r_min / (r_i + r_min)))`` the largest number of disks of the smallest radius
-that can touch disk i (6 for identical disks) and ``k_law`` = ``kn`` (frictionless) or
-``max(kn, 2 kt)`` (with friction and spins, covering the rotational modes of disks). Since the
+that can touch disk i (6 for identical disks) and ``k_law`` = ``law.dt_stiffness()``: ``kn``
+(frictionless), ``max(kn, 2 kt)`` with friction and spins (covering the rotational modes of
+disks), ``max(kn, 2 kt + 2 kr_ratio kn)`` with rolling resistance. Since the
 largest eigenfrequency of the assembly obeys ``omega_max^2 <= 2 K_i / m_i`` (Gershgorin), the
 leapfrog limit ``2 / omega_max`` is at least ``sqrt(2) dt_crit``. Default ``dt = 0.8 dt_crit``; a
 larger user ``dt`` than ``dt_crit`` raises ``ValueError``.
@@ -28,7 +33,10 @@ full-diameter overlap); a failure raises :class:`InstabilityError` carrying the 
 saves it to ``failure_path`` if set).
 
 Timing: every run ends with a per-phase table (neighbours, forces, integration, other) and the
-particle-steps per second, like LAMMPS (``Simulation.timing_report()``).
+particle-steps per second, like LAMMPS (``Simulation.timing_report()``). The stress, energy and
+contact tallies of the force loop (``Simulation.out``) are computed on the steps that read them
+only: every step under a cell control, on callback steps and on the last step of :meth:`run`, and
+on every :meth:`step` called directly.
 """
 from __future__ import annotations
 
