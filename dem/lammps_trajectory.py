@@ -31,15 +31,51 @@ from pathlib import Path
 
 import numpy as np
 
+from microhom import lattices
 from microhom.results import Result
 
 from . import io
 from .contact_laws import LammpsHookeHistory
 from .integrate import Simulation
 from .lammps import lammps_available, run_lammps
+from .state import State
 
 __all__ = ["Trajectory", "Divergence", "lammps_trajectory", "engine_trajectory", "divergence",
-           "lammps_masses", "pair_style_line"]
+           "lammps_masses", "pair_style_line", "start_state", "equivalence_laws", "KN", "DT"]
+
+KN = 1e4
+DT = 0.002
+GAMMA = 2 * 0.05 * math.sqrt(KN / 0.5)  # damping ratio 0.05 for a pair of unit masses (benchmark)
+
+
+def equivalence_laws():
+    """The laws of issue 14: the benchmark law, frictionless, kt = 2/7 kn (gamma_t NULL),
+    sliding with mu = 0.05, undamped."""
+    return {
+        "benchmark": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.5),
+        "frictionless": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.0),
+        "kt_2/7_kn_gamma_t_NULL": LammpsHookeHistory(kn=KN, kt=2 / 7 * KN, gamma_n=GAMMA, mu=0.5),
+        "sliding_mu_0.05": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.05),
+        "undamped": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=0.0, gamma_t=0.0, mu=0.5),
+    }
+
+
+def start_state(nside=24, seed=1):
+    """nside^2 polydisperse disks (d = 1 +- 5 %) on a squeezed (0.985), perturbed triangular
+    lattice, random velocities (rms 0.05 d per time unit) and spins (rms 0.1), areal density
+    4/pi, LAMMPS' disk masses."""
+    rng = np.random.default_rng(seed)
+    net = lattices.triangular(nside, nside, diameter=1.0)
+    sq = 0.985
+    x = net.positions * sq + rng.uniform(-0.03, 0.03, net.positions.shape)
+    r = 0.5 * (1 + rng.uniform(-0.05, 0.05, net.n_particles))
+    rho = 4 / math.pi
+    st = State.from_disks(x, r, net.cell * sq, rho=rho, spins=True)
+    st.mass = lammps_masses(r, rho)
+    st.inertia = 0.5 * st.mass * r ** 2
+    st.v[:] = rng.normal(0, 0.05, st.v.shape)
+    st.omega[:] = rng.normal(0, 0.1, st.n)
+    return st
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ import time
 
 from dem.contact_laws import LinearFriction
 from dem.lammps import lammps_available
-from dem.lammps_trajectory import divergence, engine_trajectory, lammps_trajectory
+from dem.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
+                                   start_state)
 
 
 def main(argv=None):
@@ -37,16 +38,12 @@ def main(argv=None):
     if not lammps_available():
         print("lmp (LAMMPS) not on PATH: nothing to compare (Debian: apt-get install -y lammps)")
         return 1
-    # the test module holds the cases of issue 14 and the starting state
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-    from test_lammps_equivalence import DT, KN, LAWS, start_state
-
     st = start_state(a.n_side)
     steps = [s for s in (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000) if s <= a.steps]
     e = math.exp(-0.05 * math.pi / math.sqrt(1 - 0.05 ** 2))
     default = LinearFriction(kn=KN, kt=KN, mu=0.5, restitution=e, tangential_damping=True)
     print(f"N = {st.n}, kn = {KN:g}, dt = {DT:g}; loadavg {os.getloadavg()}")
-    for name, law in LAWS.items():
+    for name, law in equivalence_laws().items():
         t0 = time.perf_counter()
         on = lammps_trajectory(st, law, DT, steps[-1], steps, newton="on", skin=0.1)
         off = lammps_trajectory(st, law, DT, steps[-1], steps, newton="off", skin=0.1)

@@ -13,44 +13,16 @@ import shutil
 import numpy as np
 import pytest
 
-from dem.contact_laws import LammpsHookeHistory, LinearFriction
-from dem.lammps_trajectory import divergence, engine_trajectory, lammps_masses, lammps_trajectory
-from dem.state import State
-from microhom import lattices
+from dem.contact_laws import LinearFriction
+from dem.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
+                                   start_state)
 
 pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")
 
-KN = 1e4
-DT = 0.002
-GN = 2 * 0.05 * math.sqrt(KN / 0.5)  # damping ratio 0.05 for a pair of unit masses (benchmark)
 STEPS = (1, 10, 100)
 FACTOR = 10.0
 FLOOR = 1e-14
-
-LAWS = {
-    "benchmark": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GN, gamma_t=GN, mu=0.5),
-    "frictionless": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GN, gamma_t=GN, mu=0.0),
-    "kt_2/7_kn_gamma_t_NULL": LammpsHookeHistory(kn=KN, kt=2 / 7 * KN, gamma_n=GN, mu=0.5),
-    "sliding_mu_0.05": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GN, gamma_t=GN, mu=0.05),
-    "undamped": LammpsHookeHistory(kn=KN, kt=KN, gamma_n=0.0, gamma_t=0.0, mu=0.5),
-}
-
-
-def start_state(nside=24, seed=1):
-    """Squeezed, perturbed triangular lattice of polydisperse disks (d = 1 +- 5 %), random
-    velocities (rms 0.05 d per time unit) and spins, LAMMPS' disk masses."""
-    rng = np.random.default_rng(seed)
-    net = lattices.triangular(nside, nside, diameter=1.0)
-    sq = 0.985
-    x = net.positions * sq + rng.uniform(-0.03, 0.03, net.positions.shape)
-    r = 0.5 * (1 + rng.uniform(-0.05, 0.05, net.n_particles))
-    rho = 4 / math.pi
-    st = State.from_disks(x, r, net.cell * sq, rho=rho, spins=True)
-    st.mass = lammps_masses(r, rho)
-    st.inertia = 0.5 * st.mass * r ** 2
-    st.v[:] = rng.normal(0, 0.05, st.v.shape)
-    st.omega[:] = rng.normal(0, 0.1, st.n)
-    return st
+LAWS = equivalence_laws()
 
 
 @pytest.fixture(scope="module")
