@@ -39,10 +39,8 @@ The pair loop fills ``f`` (N, 2) (and ``torque`` (N,) if spins) with the contact
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
-import numpy as np
 
 from . import contact_models as cm
 from .contact_models import damping_ratio
