@@ -41,7 +41,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-
 from . import contact_models as cm
 from .contact_models import damping_ratio
 
