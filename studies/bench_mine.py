@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from dem.hexmine import MineParams, build_scene, run_scene
+from dem.scenes.mine import MineParams, build_scene, run_scene
 
 
 def one(p, label):
@@ -30,9 +30,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
     run_scene(MineParams(duration=0.001, ramp_time=0.001))          # numba cache warm-up
     base = one(MineParams(ramp_time=0.01, duration=0.1), "paper scene r_in=0.25")
-    side = one(MineParams(r_in=0.25 * 3 ** 0.5 / 2, ramp_time=0.01, duration=0.1), "side 0.25 (r_in=0.2165)")
+    side = one(MineParams(lattice="side", ramp_time=0.01, duration=0.1), "side 0.25 (r_in=0.2165)")
     if not a.skip_fine:
-        fine = one(MineParams(r_in=0.125, ramp_time=0.01, duration=0.1), "4x finer r_in=0.125")
+        fine = one(MineParams(cell_size=0.125, ramp_time=0.01, duration=0.1), "4x finer r_in=0.125")
         cost = fine.timings["dynamics_s"] / base.timings["dynamics_s"]
         print(f"finer/base dynamics time ratio = {cost:.1f} (expected ~8: 4x cells, 2x steps)")
     print(f"target: paper scene < 30 s -> {'OK' if base.wall_time < 30 else 'MISSED'} ({base.wall_time:.1f} s)")

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dynamics import cell_stress
-from ..runtime import atomic_write
-from .runner import cell_flags, seam_profile
+from ...hexagons.dynamics import cell_stress
+from ...runtime import atomic_write
+from .indicators import cell_flags, seam_profile
 
 __all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk"]
 
@@ -56,7 +56,7 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
         cols.append("tab:red" if m.broken[e] == 1 else ("tab:blue" if m.broken[e] == 2 else "tab:green"))
     if segs:
         ax.add_collection(LineCollection(segs, colors=cols, linewidths=1.6))
-    for seg in (p.dislocation_segments() if p.n_disl > 0 else []):
+    for seg in scene.geometry.dislocations:
         ax.plot(seg[:, 0], seg[:, 1], "g--", lw=0.8)
     if vectors:
         d = (m.u - m.u0).reshape(-1, 6, 2).mean(axis=1)
@@ -66,8 +66,8 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
         sel = mag > 0.02 * mag.max()
         ax.quiver(m.centres[sel, 0], m.centres[sel, 1], d[sel, 0], d[sel, 1], angles="xy",
                   scale_units="xy", scale=1.0 / vec_scale, width=0.0012, color="navy")
-    ax.set_xlim(-0.3, p.width + 0.3)
-    ax.set_ylim(-0.3, p.height + 0.3)
+    ax.set_xlim(-0.3, scene.geometry.W + 0.3)
+    ax.set_ylim(-0.3, scene.geometry.H + 0.3)
     ax.set_aspect("equal")
     ax.set_title(title or f"t = {m.t * 1e3:.1f} ms   red: tension, blue: shear, green: intact dislocation; "
                           f"orange/red cells: detached/free")
