@@ -19,7 +19,7 @@ import scipy.sparse.linalg as spla
 
 from ...hexagons.dynamics import Model, assemble_stiffness, forces_frozen
 
-__all__ = ["virgin_state", "virgin_utilisation", "excavate", "wall_forces"]
+__all__ = ["virgin_state", "virgin_utilisation", "excavate", "wall_forces", "static_excavation"]
 
 
 def virgin_state(full: Model, kn, kt):
@@ -90,3 +90,18 @@ def excavate(full: Model, in_open, ramp_kind, ramp_time, alpha=0.0, v_abort=1e3)
               **kw)
     m.u = full.u[keep].copy()
     return m, keep
+
+
+def static_excavation(m: Model):
+    """Elastic static response of the excavated model to the full removal of the Eshelby forces
+    (linear, every interface intact): (du (N,12) [m], released energy 1/2 sum F_E0 . du [J/m]).
+    The reference of test T7 for an elastic scene run to rest."""
+    K = assemble_stiffness(m)
+    free = m.minv.ravel() > 0
+    rhs = np.zeros(m.u.size)
+    idx = 12 * m.wc + 2 * m.wk
+    np.add.at(rhs, idx, -m.FE0[:, 0])
+    np.add.at(rhs, idx + 1, -m.FE0[:, 1])
+    du = np.zeros(m.u.size)
+    du[free] = spla.spsolve(K[free][:, free].tocsc(), rhs[free])
+    return du.reshape(m.u.shape), float(abs(0.5 * rhs @ du))
