@@ -78,10 +78,9 @@ def cases(quick: bool, out_dir: str):
             ck = json.dumps(_control_reading(r), sort_keys=True)
             parts = controls.setdefault(ck, set())
             parts.update((r["placement"], a, n) for a in ANGLES)
-    for ck, parts in controls.items():
-        runs.append({"role": "control", "reading": json.loads(ck), "partitions": sorted(map(list, parts)),
-                     "duration": dur, "out": out_dir})
-    return runs
+    ctl = [{"role": "control", "reading": json.loads(ck), "partitions": sorted(map(list, parts)), "duration": dur,
+            "out": out_dir} for ck, parts in controls.items()]
+    return ctl + runs
 
 
 def _params(reading, angle=60.0, n=0, duration=0.1, placement=None):
@@ -173,6 +172,21 @@ def verdict_table(all_cases, df) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def summary_by_reading(vt: pd.DataFrame) -> pd.DataFrame:
+    """For each reading axis and value (n = 1 rows): how many readings give each verdict, and the
+    median ratio of the wedge kinetic-energy excesses 120/60."""
+    one = vt[vt.n_disl == 1]
+    rows = []
+    for ax in ("placement", "floor", "loading", "absorbing", "gas", "lattice", "model", "ramp_time"):
+        for val, g in one.groupby(ax):
+            c = g.verdict.value_counts()
+            rows.append({"axis": ax, "value": val, "readings": len(g), "120 worse": int(c.get("120 worse", 0)),
+                         "60 worse": int(c.get("60 worse", 0)),
+                         "no clear difference": int(c.get("no clear difference", 0)),
+                         "median Ek excess ratio 120/60": float(np.nanmedian(g["Ek excess ratio 120/60"]))})
+    return pd.DataFrame(rows)
+
+
 def figures(all_cases, df, out, quick):
     """The paper's figure set from the saved snapshots (base reading)."""
     import matplotlib
@@ -206,7 +220,7 @@ def figures(all_cases, df, out, quick):
             fig.savefig(fn, dpi=110)
             plt.close(fig)
             made.append(fn)
-        fig, axs = plt.subplots(len(ns), 2, figsize=(13, 3.1 * len(ns)), squeeze=False)
+        fig, axs = plt.subplots(len(ns), 2, figsize=(13, 4.0 * len(ns)), squeeze=False)
         for i, n in enumerate(ns):
             for j, a in enumerate(ANGLES):
                 s = snap(reading=base, angle=a, n=n)
@@ -218,7 +232,7 @@ def figures(all_cases, df, out, quick):
         plt.close(fig)
         made.append(fn)
         n = ns[-1]
-        fig, axs = plt.subplots(1, 2, figsize=(13, 3.4), squeeze=False)
+        fig, axs = plt.subplots(1, 2, figsize=(13, 4.0), squeeze=False)
         for j, a in enumerate(ANGLES):
             s = snap(reading=base, angle=a, n=n)
             if s is not None:
@@ -275,8 +289,9 @@ def main(argv=None):
     head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s), scheduler "
             f"{a.scheduler or 'serial'} workers {a.workers or '-'}, load average at start {load0[0]:.2f} / end "
             f"{os.getloadavg()[0]:.2f}. Verdicts: {counts}")
+    summ = summary_by_reading(vt) if len(vt) else pd.DataFrame()
     with open(os.path.join(out, "verdict.md"), "w") as fh:
-        fh.write(head + "\n\n" + _md(show) + "\n")
+        fh.write(head + "\n\n" + _md(show) + "\n\n" + (_md(summ) if len(summ) else "") + "\n")
     print(_md(show))
     print(head)
     made = figures(all_cases, df, out, a.quick)
