@@ -2,7 +2,7 @@
 than a 60 deg one? The 60/120 pair and a control without dislocation, over the readings of the
 paper that matter, on the Dask runner (resumable).
 
-    python -m studies.mine_bumps --quick                     # 3 runs, ~20 s (tests)
+    python -m studies.mine_bumps --quick                     # 3 short runs, a few s (tests)
     python -m studies.mine_bumps --scheduler local --workers 2 --img docs/img
 
 Indicators are those of the wedge between the rib and the first dislocation, each with the control
@@ -49,7 +49,7 @@ def _control_reading(r):
 def readings(quick: bool):
     """(reading dict, n_disl list) of the study."""
     if quick:
-        return [(dict(BASE), [1])]
+        return [(dict(BASE, ramp_time=0.005), [1])]
     out = []
     for pl, fl, (ld, ab), gas in itertools.product(("near", "far"), ("rollers", "no_slip", "rock"),
                                                    (("traction", False), ("rollers", False), ("spring", True)),
@@ -69,7 +69,7 @@ def readings(quick: bool):
 
 
 def cases(quick: bool, out_dir: str):
-    dur = 0.02 if quick else 0.1
+    dur = 0.01 if quick else 0.1
     runs, controls = [], {}
     for r, ns in readings(quick):
         for n in ns:
@@ -203,7 +203,7 @@ def figures(all_cases, df, out, quick):
 
     made = []
     for pl in (("near",) if quick else ("near", "far")):
-        base = dict(BASE, placement=pl)
+        base = dict(BASE, placement=pl, **({"ramp_time": 0.005} if quick else {}))
         ns = [1] if quick else [1, 2, 3]
         s = snap(reading=base, angle=60.0, n=1)
         if s is not None:                                # Fig. 1: sigma_yy along the seam, stages
@@ -255,7 +255,7 @@ def _md(df):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m studies.mine_bumps", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="base reading only, 20 ms of dynamics (3 runs)")
+    ap.add_argument("--quick", action="store_true", help="base reading only, 5 ms ramp + 10 ms (3 runs)")
     ap.add_argument("--out", default="out/mine_bumps")
     ap.add_argument("--scheduler", default=None, help="None (serial), 'local' or a Dask address")
     ap.add_argument("--workers", type=int, default=None)
