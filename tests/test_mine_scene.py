@@ -1,4 +1,4 @@
-"""Verification tests of the free-hexagon mine scene (MINE_SCENE.md §6.2, ids T1-T10 there).
+"""Verification tests of the free-hexagon method and the mine scene (ids T1-T10 as in docs/mine_scene.md §7).
 
 Fast by default (small scenes); longer ones are marked slow.
 """
@@ -159,10 +159,10 @@ def test_T4_time_step_bound_and_stability():
     assert res[1.05] > 1e3
 
 
-def test_T4_bulk_scene_timestep_matches_note():
+def test_T4_bulk_scene_timestep_matches_bloch_analysis():
     sc = build_scene(MineParams())
     dg = gershgorin_dt(sc.model, contact=False)
-    assert 13e-6 < dg < 16.5e-6            # note: 15.7 us for d = 0.5 m, kn d/E = 24
+    assert 13e-6 < dg < 16.5e-6            # periodic Bloch analysis: 15.7 us for d = 0.5 m, kn d/E = 24
     dc = gershgorin_dt(sc.model)           # + proximity contact (Weyl sum): 11.2 us
     assert 10.5e-6 < dc < dg
 
@@ -197,7 +197,7 @@ def _kirsch_case(a):
 
 @pytest.fixture(scope="module")
 def kirsch8():
-    return _kirsch_case(4.0)            # a/d = 8 (the note's T6 scene)
+    return _kirsch_case(4.0)            # a/d = 8 (the T6 scene)
 
 
 def test_T6_kirsch_rim_concentration(kirsch8):

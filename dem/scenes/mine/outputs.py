@@ -145,7 +145,7 @@ def write_vtk(scene, path):
 
 def _vtk_body(fh, m, P, N, s, nbr, free, vc, d, brk, lpts):
     npts = 6 * N + len(lpts)
-    fh.write("# vtk DataFile Version 3.0\nhexmine state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
+    fh.write("# vtk DataFile Version 3.0\nmine scene state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
     fh.write(f"POINTS {npts} double\n")
     for q in P.reshape(-1, 2):
         fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")

@@ -124,7 +124,7 @@ def run_scene(p: MineParams | Scene, out_dir=None, progress: bool = False, resum
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=n_total, initial=m.nstep, unit="step", desc="hexmine", mininterval=0.5)
+        bar = tqdm(total=n_total, initial=m.nstep, unit="step", desc="mine scene", mininterval=0.5)
     t_loop = time.perf_counter()
     n_ck = max(1, int(round(checkpoint_every / dt)))
     stopped = ""
