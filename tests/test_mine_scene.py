@@ -306,7 +306,7 @@ def test_T7_abutment_and_released_energy_against_fe():
     solve of the same half-model (tests/fe_reference.py, h = 0.125 m: W = 299.9 kJ/m, peak -29.88 MPa
     at 2.0-2.5 m from the rib; converged, h = 0.0625 gives the same to 0.3 %). Lattice r_in = 0.25 m:
     peak -30.62 MPa (+2.5 %) at 2.0 m, W = 337.7 kJ/m (+12.6 %: the staircase face within one cell of
-    the opening is too soft, as in T6). The finer lattice (slow test) closes the gap."""
+    the opening is too soft, as in T6). The finer lattice (next test) closes the gap."""
     Wf, pf, df = _fe_static(0.125)
     Wl, pl, dl = _lattice_static()
     assert abs(pl / pf - 1) < 0.05 and abs(dl - df) <= 0.5
@@ -314,7 +314,6 @@ def test_T7_abutment_and_released_energy_against_fe():
     assert pl < -1.15 * 25e6                       # an abutment: 20 % above the virgin stress
 
 
-@pytest.mark.slow
 def test_T7_lattice_converges_to_fe():
     """r_in = 0.125 m (4357 cells): W = 297.9 kJ/m (-0.7 %), peak -30.11 MPa (+0.8 %) at 2.0 m."""
     Wf, pf, df = _fe_static(0.125)
