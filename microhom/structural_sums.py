@@ -205,32 +205,74 @@ class NetworkStatistics(Result):
 
     Suffix ``_all``: all particles, rattlers included; no suffix: rattlers removed (iteratively,
     see :func:`rattlers`). Lengths in the unit of the positions [m]; ``vbar``, ``ebar`` and their
-    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless. Fields that need non-rattlers are NaN when every particle is
-    a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
+    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless.
+    Fields that need non-rattlers are NaN when every particle is a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
     returned before it was typed (NaN -> None).
+
+    Attributes
+    ----------
+    n_particles : int
+        Number of particles N.
+    n_contacts : int
+        Number of contacts C.
+    n_rattlers : int
+        Particles removed as rattlers.
+    rattler_fraction : float
+        ``n_rattlers / N``.
+    nc_all : float
+        Mean contacts per particle, all particles.
+    r_all : float
+        ``var(Nc)/mean(Nc)^2``, all particles (the paper's ``mean(Nc'^2)/Nc^2``).
+    rho_all : float
+        ``Nc sum V.W / sum V^2``, all particles (V over ``rho_neighbours``).
+    nc : float
+        Mean contacts per non-rattler, counting only contacts between non-rattlers.
+    r : float
+        ``var(Nc)/mean(Nc)^2`` over non-rattlers.
+    rho : float
+        ``Nc sum V.W / sum V^2`` over non-rattlers (V over ``rho_neighbours``).
+    phi : float
+        Solid (area) fraction.
+    nbar_phi : float or None
+        N̄ from phi (section 6); None outside ``[pi/4, pi/(2 sqrt 3)]``.
+    diameter : float
+        Mean particle diameter [m].
+    sliding_fraction : float
+        Fraction of contacts at the Coulomb limit.
+    vbar : float
+        ``vbar`` of the isotropic fit (37) of the mean A4 over non-rattlers [N m].
+    ebar : float
+        The ``(d_pr d_qs + d_ps d_qr)`` coefficient of the same fit [N m].
+    vbar_theory : float
+        ``vbar`` of (37) with the measured Nc, mean D^2, kn, kt [N m].
+    ebar_theory : float
+        ``ebar`` of (37) with the measured Nc, mean D^2, kn, kt [N m].
+    odd_norm : float
+        Mean Frobenius norm of A3 over non-rattlers, over ``kn D`` (dimensionless).
+    rho_neighbours : str
+        The neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that
+        ``as_dict()`` keeps the keys the command-line tools have always written.
     """
 
-    n_particles: int  #: number of particles N
-    n_contacts: int  #: number of contacts C
-    n_rattlers: int  #: particles removed as rattlers
-    rattler_fraction: float  #: n_rattlers / N
-    nc_all: float  #: mean contacts per particle, all particles
-    r_all: float  #: var(Nc)/mean(Nc)^2, all particles (the paper's mean(Nc'^2)/Nc^2)
-    rho_all: float  #: Nc sum V.W / sum V^2, all particles (V over ``rho_neighbours``)
-    nc: float  #: mean contacts per non-rattler, counting only contacts between non-rattlers
-    r: float  #: var(Nc)/mean(Nc)^2 over non-rattlers
-    rho: float  #: Nc sum V.W / sum V^2 over non-rattlers (V over ``rho_neighbours``)
-    phi: float  #: solid (area) fraction
-    nbar_phi: float | None  #: N̄ from phi (section 6); None outside [pi/4, pi/(2 sqrt 3)]
-    diameter: float  #: mean particle diameter [m]
-    sliding_fraction: float  #: fraction of contacts at the Coulomb limit
-    vbar: float = float("nan")  #: isotropic fit (37) of the mean A4 over non-rattlers [N m]
-    ebar: float = float("nan")  #: idem, the (d_pr d_qs + d_ps d_qr) coefficient [N m]
-    vbar_theory: float = float("nan")  #: (37) with the measured Nc, mean D^2, kn, kt [N m]
-    ebar_theory: float = float("nan")  #: (37) idem [N m]
-    odd_norm: float = float("nan")  #: mean Frobenius norm of A3 over non-rattlers / (kn D)
-    #: the neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that ``as_dict()``
-    #: keeps the keys the command-line tools have always written
+    n_particles: int
+    n_contacts: int
+    n_rattlers: int
+    rattler_fraction: float
+    nc_all: float
+    r_all: float
+    rho_all: float
+    nc: float
+    r: float
+    rho: float
+    phi: float
+    nbar_phi: float | None
+    diameter: float
+    sliding_fraction: float
+    vbar: float = float("nan")
+    ebar: float = float("nan")
+    vbar_theory: float = float("nan")
+    ebar_theory: float = float("nan")
+    odd_norm: float = float("nan")
     rho_neighbours: str = field(default="contacts", metadata={"export": False})
 
 
@@ -299,6 +341,23 @@ class RhoDefinitions(Result):
     the value the definition gives when the neighbours' contact numbers carry no correlation with
     mu at all. ``mean_degree[name]`` is the mean number of neighbours per particle in that
     neighbourhood. Dimensionless throughout.
+
+    Attributes
+    ----------
+    rho : dict of str to float
+        Measured rho per neighbourhood name.
+    null_mean, null_std : dict of str to float
+        Mean and standard deviation of rho over the ``n_null`` permutations, per name.
+    mean_degree : dict of str to float
+        Mean number of neighbours per non-rattler, per name.
+    nc : float
+        Mean active contacts per non-rattler.
+    r : float
+        ``var(Nc)/mean(Nc)^2`` over non-rattlers.
+    nbar : float
+        N̄ used for the ``"near"`` neighbourhood.
+    n_null : int
+        Number of random permutations of the null model.
     """
 
     rho: dict
