@@ -57,8 +57,15 @@ class StrainRate:
 class PressureServo:
     """Isotropic servo-control of the pressure p = -tr(sigma)/2 [N/m] to ``p_target`` (> 0).
 
-    alpha : fraction of the pressure error corrected per step with the affine stiffness (0, 1].
-    max_rate : cap on |edot| [1/s] (also the rate used while there are no contacts).
+    Parameters
+    ----------
+    p_target : float
+        Target pressure [N/m], > 0 (compression positive).
+    max_rate : float
+        Cap on the isotropic strain rate ``|edot|`` [1/s], > 0 (also the rate used while there are
+        no contacts).
+    alpha : float
+        Fraction of the pressure error corrected per step with the affine stiffness, in (0, 1].
     """
     p_target: float
     max_rate: float

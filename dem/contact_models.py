@@ -24,7 +24,7 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
 * ``HISTORY`` (slots per pair in the contact history) and ``PARITY`` (per slot, +1 if the slot is
   unchanged when the pair's i and j are swapped, -1 if it changes sign; used at list rebuilds);
 * ``dt_stiffness(normal)``: its stiffness for the critical time step (see :mod:`dem.integrate`);
-* its numba implementation, registered with :func:`_implements` for one of the generic hooks
+* its numba implementation, registered with the private decorator ``_implements`` for one of the generic hooks
   below (``normal_force``, ``pair_constants``, ``normal_damping``, ``tangential_force``,
   ``rolling_torque``).
 

@@ -47,11 +47,17 @@ _SQ2 = np.sqrt(2.0)
 class ContactMatrices:
     """Element matrices of every contact of a network (see the module docstring).
 
-    B : (C, 2, 6) compatibility on local unknowns ``(u_i[2], omega_i, u_j[2], omega_j)`` [m for
-        the spin columns, 1 for translations];
-    D : (C, 2, 3) affine contact displacement per Mandel unit strain [m];
-    K : (C, 2, 2) contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m];
-    Kg : (C, 2, 2) geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
+    Attributes
+    ----------
+    B : (C, 2, 6) array
+        Compatibility on the local unknowns ``(u_i[2], omega_i, u_j[2], omega_j)`` [m for the spin
+        columns, 1 for translations].
+    D : (C, 2, 3) array
+        Affine contact displacement per Mandel unit strain [m].
+    K : (C, 2, 2) array
+        Contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m].
+    Kg : (C, 2, 2) array or None
+        Geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
     """
 
     B: np.ndarray

@@ -80,7 +80,7 @@ class ParticleSums:
 
     @property
     def B(self) -> np.ndarray:
-        """(N,) B = eps_3qr eps_ij3 A_rijq (15); equals -sum kt_eff |c|^2, zero without tangent stiffness."""
+        """(N,) ``B = eps_3qr eps_ij3 A_rijq`` (15) [N m]; equals ``-sum kt_eff |c|^2``, zero without tangent stiffness."""
         return np.einsum("qr,ij,nrijq->n", _EPS2, _EPS2, self.A4)
 
     @property
@@ -156,10 +156,19 @@ def isotropic_fit(A4):
 def neighbour_vector(counts, pairs, branch, n=None):
     """V^mu = (1/pi) sum_nu Nc^nu n^{mu nu} over the given neighbour pairs (41): (N, 2).
 
-    counts : (N,) contact numbers Nc^nu of the particles (the summand is the neighbour's own
-        contact number, whether or not the neighbour touches mu).
-    pairs : (E, 2) int neighbour pairs, each once; branch : (E, 2) ``x_j - x_i`` [m].
-    Each pair adds ``Nc^j n`` to V^i and ``-Nc^i n`` to V^j (n = branch/|branch|).
+    Each pair adds ``Nc^j n`` to ``V^i`` and ``-Nc^i n`` to ``V^j`` (``n = branch/|branch|``).
+
+    Parameters
+    ----------
+    counts : (N,) array
+        Contact numbers ``Nc^nu`` of the particles (the summand is the neighbour's own contact
+        number, whether or not the neighbour touches mu).
+    pairs : (E, 2) int array
+        Neighbour pairs, each once.
+    branch : (E, 2) array
+        ``x_j - x_i`` [m] (only its direction is used).
+    n : int, optional
+        Number of particles N (default ``len(counts)``).
     """
     counts = np.asarray(counts, dtype=float)
     n = len(counts) if n is None else n
@@ -280,12 +289,20 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
                        nbar=None) -> NetworkStatistics:
     """The statistics the theory takes as input, with and without rattlers (:class:`NetworkStatistics`).
 
-    rho_neighbours : the neighbourhood the vector V of (41) is summed over.
-        ``"contacts"`` (default; the definition used so far): mu's contacting neighbours only.
-        ``"near"``: the paper's neighbourhood of (39), the N̄ near neighbours of mu whether or not
-        they touch it (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless
-        ``nbar`` is given. ``docs/results/rho.md`` compares the two with a null model.
-    nbar : mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
+    Parameters
+    ----------
+    network : ContactNetwork
+        The packing (positions [m], radii [m], contacts, stiffnesses [N/m]).
+    min_contacts : int, optional
+        Rattler threshold of :func:`rattlers` (None: 2 with tangent stiffness, 3 without).
+    rho_neighbours : str
+        The neighbourhood the vector V of (41) is summed over. ``"contacts"`` (default; the
+        definition used so far): mu's contacting neighbours only. ``"near"``: the paper's
+        neighbourhood of (39), the N̄ near neighbours of mu whether or not they touch it
+        (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless ``nbar`` is
+        given. ``docs/results/rho.md`` compares the two with a null model.
+    nbar : float, optional
+        Mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
     """
     if rho_neighbours not in RHO_NEIGHBOURS:
         raise ValueError(f"rho_neighbours must be one of {RHO_NEIGHBOURS}, got {rho_neighbours!r}")

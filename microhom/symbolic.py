@@ -99,7 +99,7 @@ def circle_integral(expr):
     """int_0^2pi expr dtheta for an expression polynomial in cos(theta), sin(theta).
 
     The expression is expanded into monomials ``cos^a sin^b`` (coefficients free of theta), each
-    integrated once by sympy (:func:`_angular_moment`): the same integral as
+    integrated once by sympy (a cached angular moment): the same integral as
     ``sp.integrate(expr, (theta, 0, 2 pi))``, many times faster.
     """
     c, s_ = sp.cos(theta), sp.sin(theta)
@@ -454,7 +454,7 @@ def least_squares_XY():
     ``odd_ijk - (1/Nbar) Lambda_ijklmn nb_lmn`` ((39) with N^mu -> Nbar).
 
     We check that ``Lambda . nb`` depends on the lambdas only through X, Y (45)-(46), minimise
-    ``sum_mu |residual|^2`` over X and Y (the terms in |W|^2 do not depend on them), and return
+    ``sum_mu |residual|^2`` over X and Y (the terms in ``|W|^2`` do not depend on them), and return
     the normal equations and the solution in terms of ``S = sum V.W / sum V^2``.
     """
     Vv, Wv = Vvec, Wvec
