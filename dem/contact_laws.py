@@ -96,9 +96,11 @@ class _Composed:
         return normal.tangent(delta), tangential.tangent(normal, delta)
 
     def fn_elastic(self, delta):
+        """Elastic normal force [N/m] at overlaps ``delta`` [m] (array of the same shape)."""
         return self.models[0].fn_elastic(delta)
 
     def with_friction(self, mu):
+        """The same law with friction coefficient ``mu``."""
         return replace(self, mu=float(mu))
 
 
@@ -122,18 +124,22 @@ class Frictionless(_Composed):
 
     @property
     def mu(self):
+        """Friction coefficient: 0."""
         return 0.0
 
     @property
     def kt(self):
+        """Tangential stiffness [N/m]: 0."""
         return 0.0
 
     def with_friction(self, mu):
+        """This law (only ``mu = 0`` is allowed; anything else raises ``ValueError``)."""
         if mu != 0:
             raise ValueError("Frictionless law: mu must be 0")
         return self
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "Frictionless", "kn": self.kn, "restitution": self.restitution}
 
 
@@ -167,6 +173,7 @@ class LinearFriction(_Composed):
                       cm.LinearHistory(self.kt, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "LinearFriction", "kn": self.kn, "kt": self.kt, "mu": self.mu,
                 "restitution": self.restitution, "tangential_damping": self.tangential_damping}
 
@@ -200,6 +207,7 @@ class HertzMindlin(_Composed):
                       cm.Mindlin(self.kt_ratio, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzMindlin", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
                 "kt_ratio": self.kt_ratio, "restitution": self.restitution}
 
@@ -232,6 +240,7 @@ class HertzRolling(_Composed):
                       cm.Mindlin(self.kt_ratio, self.mu), cm.RollingResistance(self.kr_ratio, self.mu_r))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzRolling", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
                 "mu_r": self.mu_r, "kr_ratio": self.kr_ratio, "kt_ratio": self.kt_ratio,
                 "restitution": self.restitution}
@@ -278,6 +287,7 @@ class LammpsHookeHistory(_Composed):
                       cm.LammpsHistory(self.kt, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "LammpsHookeHistory", "kn": self.kn, "kt": self.kt, "gamma_n": self.gamma_n,
                 "mu": self.mu, "gamma_t": self.gamma_t, "dampflag": self.dampflag}
 
@@ -316,14 +326,18 @@ class ContactLaw(_Composed):
 
     @property
     def mu(self):
+        """Friction coefficient of the tangential sub-model."""
         return self.tangential.mu
 
     def with_friction(self, mu):
+        """The same law with the tangential sub-model's friction coefficient set to ``mu``."""
         if isinstance(self.tangential, cm.NoTangential):
             return Frictionless.with_friction(self, mu)
         return replace(self, tangential=self.tangential._replace(mu=float(mu)))
 
     def to_meta(self):
+        """JSON-ready dict of the sub-models and their coefficients (:func:`law_from_meta` rebuilds
+        the law)."""
         def d(m):
             return {"model": type(m).__name__, **{k: float(v) for k, v in m._asdict().items()}}
         return {"law": "ContactLaw", "normal": d(self.normal), "damping": d(self.damping),

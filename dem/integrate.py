@@ -217,6 +217,8 @@ class Simulation:
 
     # ---- pieces of a step ------------------------------------------------------------------------
     def rebuild(self):
+        """Rebuild the Verlet neighbour list now (carrying the contact history over); every
+        ``sort_every``-th rebuild also sorts the particles spatially."""
         sort = self.sort_every > 0 and self.n_rebuilds % self.sort_every == 0
         neighbors.rebuild(self.state, self.skin, sort=sort, history=self.law.history_parity)
         self.n_rebuilds += 1
@@ -347,6 +349,8 @@ class Simulation:
         return self.state.copy()
 
     def meta(self):
+        """JSON-ready dict of the run parameters and counters (``dt`` [s], damping, skin [m], law,
+        cell control, ...), stored in checkpoints."""
         return {"dt": self.dt, "damping": self.damping, "skin": self.skin, "sort_every": self.sort_every,
                 "check_every": self.check_every, "ke_limit": self.ke_limit,
                 "n_rebuilds": self.n_rebuilds, "need_rebuild": self.need_rebuild,

@@ -148,14 +148,17 @@ class ContactNetwork:
     # ---- sizes -------------------------------------------------------------------------------
     @property
     def n_particles(self) -> int:
+        """Number of particles N."""
         return self.positions.shape[0]
 
     @property
     def n_contacts(self) -> int:
+        """Number of contacts C."""
         return self.pairs.shape[0]
 
     @property
     def periodic(self) -> bool:
+        """True when the network has a periodic cell."""
         return self.cell is not None
 
     # ---- per-contact geometry ----------------------------------------------------------------
