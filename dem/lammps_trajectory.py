@@ -116,7 +116,8 @@ class Divergence(Result):
 
 
 def lammps_masses(radius, rho):
-    """Disk masses as LAMMPS' ``set density/disc`` computes them: ``(pi r) r rho``."""
+    """(N,) disk masses as LAMMPS' ``set density/disc`` computes them: ``(pi r) r rho``, for radii
+    (N,) [m] and an areal density ``rho`` [kg/m^2] (the rounding order matters for bit equality)."""
     r = np.asarray(radius, dtype=np.float64)
     return math.pi * r * r * rho
 

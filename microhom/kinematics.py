@@ -67,7 +67,8 @@ class ContactMatrices:
 
 
 def contact_matrices(net: ContactNetwork, prestress: bool = False) -> ContactMatrices:
-    """Per-contact ``B``, ``D``, ``K`` (and ``K_g`` if ``prestress``) of ``net``."""
+    """Per-contact ``B`` (C, 2, 6), ``D`` (C, 2, 3) [m], ``K`` (C, 2, 2) [N/m] (and ``K_g``
+    (C, 2, 2) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`)."""
     if prestress and net.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network "
                          "(ContactNetwork.fn, compression positive, N/m)")
@@ -173,8 +174,9 @@ class Assembly:
 
 
 def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None) -> Assembly:
-    """Assemble the reduced Hessian ``H`` and load ``F`` of a periodic network (rattlers removed
-    iteratively with :func:`microhom.structural_sums.rattlers`)."""
+    """Assemble the reduced Hessian ``H`` (ndof, ndof) [N/m] and load ``F`` (ndof, 3) of a periodic
+    network (rattlers removed iteratively with :func:`microhom.structural_sums.rattlers`); see
+    :class:`Assembly`."""
     if network.cell is None:
         raise ValueError("the stiffness problem needs a periodic network (cell is None)")
     N = network.n_particles

@@ -112,7 +112,8 @@ class SoftSphere(_Law):
 
 
 def harmonic(epsilon=1.0) -> SoftSphere:
-    """jax-md's harmonic soft disks: ``kn = epsilon / (r_i + r_j)^2``, ``fn = kn delta``, no friction."""
+    """jax-md's harmonic soft disks: ``kn = epsilon / (r_i + r_j)^2`` [N/m], ``fn = kn delta``, no
+    friction (``epsilon`` [J/m] > 0: :class:`SoftSphere` with ``alpha = 2``)."""
     return SoftSphere(epsilon=epsilon, alpha=2.0)
 
 

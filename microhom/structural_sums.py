@@ -59,7 +59,15 @@ def _scatter(n, pairs, val_i, val_j):
 
 
 class ParticleSums:
-    """Per-particle structural sums of a network (see the module docstring for definitions)."""
+    """Per-particle structural sums of a network (see the module docstring for definitions).
+
+    ``active``: optional (C,) bool mask of the contacts to use (e.g. without rattlers). With N
+    particles, the attributes are ``network`` (the network restricted to the active contacts),
+    ``counts`` (N,) contact numbers, ``A2`` (N, 2, 2) ``sum K`` [N/m], ``A3`` (N, 2, 2, 2)
+    ``sum K c`` [N], ``A4`` (N, 2, 2, 2, 2) ``sum K c c`` [N m] (indices: stiffness, stiffness,
+    branch, branch), ``W`` (N, 2) ``(1/pi) sum n`` and ``V`` (N, 2) :func:`neighbour_vector` over
+    the contacts (both dimensionless); :attr:`B` and :attr:`Z` are the spin elimination (15)-(16).
+    """
 
     def __init__(self, network: ContactNetwork, active=None):
         """active: optional (C,) bool mask of the contacts to use (e.g. without rattlers)."""
@@ -100,7 +108,8 @@ class ParticleSums:
 
 
 def particle_sums(network: ContactNetwork, active=None) -> ParticleSums:
-    """Per-particle structural sums, optionally over a subset of the contacts."""
+    """Per-particle structural sums (:class:`ParticleSums`), optionally over a subset of the contacts
+    (``active``: (C,) bool mask)."""
     return ParticleSums(network, active)
 
 

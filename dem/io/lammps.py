@@ -40,13 +40,14 @@ _REL_TOL = 1e-9  # relative slack of the "inside a non-periodic box" check
 # ---- box helpers ------------------------------------------------------------------------------
 
 def dump_bounds(xlo, xhi, ylo, yhi, xy=0.0, xz=0.0, yz=0.0):
-    """LAMMPS dump bounding box of a restricted triclinic box: (xlo_b, xhi_b, ylo_b, yhi_b)."""
+    """LAMMPS dump bounding box of a restricted triclinic box: (xlo_b, xhi_b, ylo_b, yhi_b), all in
+    the length unit of the box bounds and tilt factors ``xy``, ``xz``, ``yz``."""
     return (xlo + min(0.0, xy, xz, xy + xz), xhi + max(0.0, xy, xz, xy + xz),
             ylo + min(0.0, yz), yhi + max(0.0, yz))
 
 
 def box_from_dump_bounds(xlo_b, xhi_b, ylo_b, yhi_b, xy=0.0, xz=0.0, yz=0.0):
-    """Inverse of :func:`dump_bounds`: (xlo, xhi, ylo, yhi) of the box itself."""
+    """Inverse of :func:`dump_bounds`: (xlo, xhi, ylo, yhi) of the box itself (same length unit)."""
     return (xlo_b - min(0.0, xy, xz, xy + xz), xhi_b - max(0.0, xy, xz, xy + xz),
             ylo_b - min(0.0, yz), yhi_b - max(0.0, yz))
 
