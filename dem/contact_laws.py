@@ -124,12 +124,12 @@ class Frictionless(_Composed):
 
     @property
     def mu(self):
-        """Friction coefficient: 0."""
+        """The friction coefficient (always 0)."""
         return 0.0
 
     @property
     def kt(self):
-        """Tangential stiffness [N/m]: 0."""
+        """The tangential stiffness [N/m] (always 0)."""
         return 0.0
 
     def with_friction(self, mu):
