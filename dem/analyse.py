@@ -60,26 +60,37 @@ class AnalysisResult(Result):
     Every field is one section of the report, a mapping of plain values (``{"error": reason}``
     when the section cannot be computed); ``as_dict()`` is the command line's JSON (NaN -> null).
 
-    file : ``source``, ``format``, ``forces`` ("from file" or None), ``kn``, ``kt`` (mean contact
+    Attributes
+    ----------
+    file : dict
+        ``source``, ``format``, ``forces`` ("from file" or None), ``kn``, ``kt`` (mean contact
         stiffnesses used [N/m]), ``branch_length``, ``read_s``, ``analyse_s`` (wall times [s]).
-    network : ``n_particles``, ``n_contacts``, ``periodic``, ``kn_mean``, ``kt_mean`` [N/m],
-        ``forces`` (bool).
-    coordination : ``z_all``, ``z`` (mean contacts per particle with / without rattlers),
-        ``n_rattlers``, ``rattler_fraction``, ``hist_all``, ``hist`` (contact-count histograms).
-    structural : the statistics of :func:`microhom.structural_sums.network_statistics`
-        (``nc``, ``r``, ``rho`` with and without rattlers, ``phi``, ``nbar_phi``, ``diameter`` [m],
+    network : dict
+        ``n_particles``, ``n_contacts``, ``periodic``, ``kn_mean``, ``kt_mean`` [N/m], ``forces``
+        (bool).
+    coordination : dict
+        ``z_all``, ``z`` (mean contacts per particle with / without rattlers), ``n_rattlers``,
+        ``rattler_fraction``, ``hist_all``, ``hist`` (contact-count histograms).
+    structural : dict
+        The statistics of :func:`microhom.structural_sums.network_statistics` (``nc``, ``r``,
+        ``rho`` with and without rattlers, ``phi``, ``nbar_phi``, ``diameter`` [m],
         ``sliding_fraction``, ``vbar``, ``ebar`` measured and ``*_theory`` (37) [N m],
         ``odd_norm``); ``r``, ``rho`` are ``None`` (not 0) when no particle is left.
-    stress : Love-Weber stress [N/m], tension positive: ``sxx``, ``syy``, ``sxy``, ``pressure``
-        (-tr/2) and ``p_over_kn`` [m].
-    theory : moduli of :mod:`microhom.moduli` [N/m]: mean field ``K_mf``, ``G_mf``; corrected with
-        the measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment
-        model ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
-    stiffness : :func:`dem.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
-        ``C_mandel`` (3x3 [N/m]), ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
+    stress : dict
+        Love-Weber stress [N/m], tension positive: ``sxx``, ``syy``, ``sxy``, ``pressure``
+        (``-tr/2``) and ``p_over_kn`` (pressure over the mean ``kn``, dimensionless).
+    theory : dict
+        Moduli of :mod:`microhom.moduli` [N/m]: mean field ``K_mf``, ``G_mf``; corrected with the
+        measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment model
+        ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
+    stiffness : dict
+        :func:`dem.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
+        ``C_mandel`` (3, 3) [N/m], ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
         ``n_dof``, ``residual``, ``time_s`` [s].
-    comparison : ``{K,G}_{mf,rho,alpha}_over_exact`` ratios.
-    notes : list of text: the assumptions made (kn, kt, frame) and what the reader warned.
+    comparison : dict
+        ``{K,G}_{mf,rho,alpha}_over_exact`` ratios (dimensionless).
+    notes : list of str
+        The assumptions made (kn, kt, frame) and what the reader warned.
     """
 
     file: dict = field(default_factory=dict)
@@ -288,14 +299,27 @@ def _stiffness(net, prestress, min_contacts):
 def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) -> AnalysisResult:
     """All measurements and predictions of one network (see the module docstring).
 
-    alpha : alignment width for the model-rho prediction, in [0, 2] (None: the paper's
-        ``2 (1 - 1/Nbar)``). prestress : include the pre-stress terms in the exact stiffness; the
-        normal forces are the network's ``fn`` or, if it has none, ``kn * overlap``.
-    min_contacts : rattler threshold (None: 2 with friction, 3 without). exact : compute the
-        exact stiffness (one sparse factorisation).
-    Returns an :class:`AnalysisResult` (its ``file`` section empty). A network without a contact
-    between non-rattlers is not jammed: its statistics, theory and stiffness sections hold
-    ``{"error": NOT_JAMMED}`` instead of 0/0 values.
+    Parameters
+    ----------
+    net : microhom.network.ContactNetwork
+        The packing (positions [m], radii [m], contacts, stiffnesses [N/m], forces if any).
+    alpha : float, optional
+        Alignment width for the model-rho prediction, in [0, 2] (None: the paper's
+        ``2 (1 - 1/Nbar)``).
+    prestress : bool
+        Include the pre-stress terms in the exact stiffness; the normal forces are the network's
+        ``fn`` or, if it has none, ``kn * overlap``.
+    min_contacts : int, optional
+        Rattler threshold (None: 2 with friction, 3 without).
+    exact : bool
+        Compute the exact stiffness (one sparse factorisation).
+
+    Returns
+    -------
+    AnalysisResult
+        Its ``file`` section empty. A network without a contact between non-rattlers is not
+        jammed: its statistics, theory and stiffness sections hold ``{"error": NOT_JAMMED}``
+        instead of 0/0 values.
     """
     notes = []
     network = {"n_particles": net.n_particles, "n_contacts": net.n_contacts,

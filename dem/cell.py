@@ -47,9 +47,11 @@ class StrainRate:
             raise ValueError("L must be finite")
 
     def update(self, state, p, K, dt):
+        """The velocity gradient (2, 2) [1/s] for the next step: ``L`` (the arguments are unused)."""
         return self.L
 
     def to_meta(self):
+        """JSON-ready dict of the control (stored in checkpoints)."""
         return {"kind": "strain_rate", "L": self.L.tolist()}
 
 
@@ -57,8 +59,15 @@ class StrainRate:
 class PressureServo:
     """Isotropic servo-control of the pressure p = -tr(sigma)/2 [N/m] to ``p_target`` (> 0).
 
-    alpha : fraction of the pressure error corrected per step with the affine stiffness (0, 1].
-    max_rate : cap on |edot| [1/s] (also the rate used while there are no contacts).
+    Parameters
+    ----------
+    p_target : float
+        Target pressure [N/m], > 0 (compression positive).
+    max_rate : float
+        Cap on the isotropic strain rate ``|edot|`` [1/s], > 0 (also the rate used while there are
+        no contacts).
+    alpha : float
+        Fraction of the pressure error corrected per step with the affine stiffness, in (0, 1].
     """
     p_target: float
     max_rate: float
@@ -73,7 +82,8 @@ class PressureServo:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
 
     def rate(self, p, K, dt) -> float:
-        """Isotropic strain rate (negative = compression) for measured pressure p and stiffness K."""
+        """Isotropic strain rate [1/s] (negative = compression) for measured pressure ``p`` [N/m],
+        affine isotropic stiffness ``K`` [N/m] and time step ``dt`` [s], capped at ``max_rate``."""
         err = self.p_target - p
         if K > 0:
             e = -self.alpha * err / (K * dt)
@@ -82,9 +92,12 @@ class PressureServo:
         return max(-self.max_rate, min(self.max_rate, e))
 
     def update(self, state, p, K, dt):
+        """Velocity gradient (2, 2) [1/s] ``rate(p, K, dt) I`` for measured pressure ``p`` [N/m],
+        affine isotropic stiffness ``K`` [N/m] and time step ``dt`` [s] (``state`` unused)."""
         e = self.rate(p, K, dt)
         return np.array([[e, 0.0], [0.0, e]])
 
     def to_meta(self):
+        """JSON-ready dict of the control (stored in checkpoints)."""
         return {"kind": "pressure_servo", "p_target": self.p_target, "max_rate": self.max_rate,
                 "alpha": self.alpha}

@@ -33,9 +33,15 @@ sub-models the pair loop is compiled for):
 * :class:`ContactLaw` — any other combination of sub-models.
 
 The pair loop fills ``f`` (N, 2) (and ``torque`` (N,) if spins) with the contact resultants and
-``out`` (8,) with: ``S_xx, S_xy, S_yx, S_yy`` (sum of F_a l_b, so that the Love-Weber stress is
-``sigma = -S/A``, tension positive), number of contacts, sum of |F| over contacts, elastic energy,
+``out`` (8,) with: ``S_xx, S_xy, S_yx, S_yy`` (sum of ``F_a l_b``, so that the Love-Weber stress is
+``sigma = -S/A``, tension positive), number of contacts, sum of ``|F|`` over contacts, elastic energy,
 ``sum kn_c |l_c|^2`` (the affine isotropic stiffness numerator used by the pressure servo).
+
+Every law has the methods ``pair_constants`` (per-pair damping constants), ``dt_stiffness`` (the
+stiffness entering the critical time step [N/m]), ``tangent(delta)`` (the tangent stiffnesses
+``(kn, kt)`` [N/m] at overlaps ``delta`` [m], arrays of the shape of ``delta``), ``fn_elastic(delta)``
+(the elastic normal force), ``with_friction(mu)`` (the same law with another friction coefficient)
+and ``to_meta()`` (a JSON-ready dict that :func:`law_from_meta` turns back into the law).
 """
 from __future__ import annotations
 
@@ -90,17 +96,25 @@ class _Composed:
         return normal.tangent(delta), tangential.tangent(normal, delta)
 
     def fn_elastic(self, delta):
+        """Elastic normal force [N/m] at overlaps ``delta`` [m] (array of the same shape)."""
         return self.models[0].fn_elastic(delta)
 
     def with_friction(self, mu):
+        """The same law with friction coefficient ``mu``."""
         return replace(self, mu=float(mu))
 
 
 @dataclass(frozen=True)
 class Frictionless(_Composed):
-    """Linear normal spring ``fn = kn delta`` [N/m], no tangential force, no spins, no history.
+    """Linear normal spring ``fn = kn delta``, no tangential force, no spins, no history.
 
-    restitution : optional coefficient of restitution e in (0, 1] (viscous normal damping).
+    Parameters
+    ----------
+    kn : float
+        Normal stiffness [N/m], > 0.
+    restitution : float or None
+        Coefficient of restitution ``e`` in (0, 1] of a viscous normal dashpot (module docstring);
+        None: no damping.
     """
     kn: float
     restitution: float | None = None
@@ -110,28 +124,43 @@ class Frictionless(_Composed):
 
     @property
     def mu(self):
+        """The friction coefficient (always 0)."""
         return 0.0
 
     @property
     def kt(self):
+        """The tangential stiffness [N/m] (always 0)."""
         return 0.0
 
     def with_friction(self, mu):
+        """This law (only ``mu = 0`` is allowed; anything else raises ``ValueError``)."""
         if mu != 0:
             raise ValueError("Frictionless law: mu must be 0")
         return self
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "Frictionless", "kn": self.kn, "restitution": self.restitution}
 
 
 @dataclass(frozen=True)
 class LinearFriction(_Composed):
-    """Linear spring kn [N/m], tangential spring kt [N/m] with Coulomb limit mu, with spins.
+    """Linear normal spring, tangential spring with a Coulomb limit, with spins.
 
-    restitution : optional e in (0, 1] for viscous normal damping (see module docstring).
-    tangential_damping : if True the same dashpot also acts on the tangential relative velocity
-        (the Coulomb cap applies to the total tangential force).
+    Parameters
+    ----------
+    kn : float
+        Normal stiffness [N/m], > 0.
+    kt : float
+        Tangential stiffness [N/m], >= 0.
+    mu : float
+        Coulomb friction coefficient (dimensionless), >= 0.
+    restitution : float or None
+        Coefficient of restitution ``e`` in (0, 1] of a viscous normal dashpot (module docstring);
+        None: no damping.
+    tangential_damping : bool
+        If True the same dashpot also acts on the tangential relative velocity (the Coulomb cap
+        applies to the total tangential force).
     """
     kn: float
     kt: float
@@ -144,16 +173,28 @@ class LinearFriction(_Composed):
                       cm.LinearHistory(self.kt, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "LinearFriction", "kn": self.kn, "kt": self.kt, "mu": self.mu,
                 "restitution": self.restitution, "tangential_damping": self.tangential_damping}
 
 
 @dataclass(frozen=True)
 class HertzMindlin(_Composed):
-    """Hertz normal force ``fn = kh delta^{3/2}`` (kh [N/m^{3/2}]), Mindlin tangent stiffness
-    ``kt = kt_ratio * 1.5 kh sqrt(delta)`` (incremental, no-slip), Coulomb mu, with spins.
+    """Hertz normal force ``fn = kh delta^{3/2}``, Mindlin tangent stiffness
+    ``kt = kt_ratio * 1.5 kh sqrt(delta)`` (incremental, no-slip), Coulomb limit, with spins.
 
-    delta_ref : overlap [m] at which the tangent stiffness enters the critical time step.
+    Parameters
+    ----------
+    kh : float
+        Hertz constant [N/m^{3/2}], > 0.
+    mu : float
+        Coulomb friction coefficient (dimensionless), >= 0.
+    delta_ref : float
+        Overlap [m] at which the tangent stiffness enters the critical time step, > 0.
+    kt_ratio : float
+        Ratio of the tangential to the normal tangent stiffness (default 2/3).
+    restitution : float or None
+        Coefficient of restitution ``e`` in (0, 1] of a viscous normal dashpot; None: no damping.
     """
     kh: float
     mu: float
@@ -166,6 +207,7 @@ class HertzMindlin(_Composed):
                       cm.Mindlin(self.kt_ratio, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzMindlin", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
                 "kt_ratio": self.kt_ratio, "restitution": self.restitution}
 
@@ -174,7 +216,17 @@ class HertzMindlin(_Composed):
 class HertzRolling(_Composed):
     """:class:`HertzMindlin` with rolling resistance (:class:`~dem.contact_models.RollingResistance`):
     a torque spring ``k_r = kr_ratio k_n(delta) R_eff^2`` on the relative rotation of the two disks,
-    capped at ``mu_r R_eff max(fn, 0)`` (``mu_r`` dimensionless rolling friction)."""
+    capped at ``mu_r R_eff max(fn, 0)``.
+
+    Parameters
+    ----------
+    kh, mu, delta_ref, kt_ratio, restitution
+        As in :class:`HertzMindlin` (kh [N/m^{3/2}], delta_ref [m]).
+    mu_r : float
+        Rolling friction coefficient (dimensionless), >= 0.
+    kr_ratio : float
+        Rolling stiffness in units of ``k_n(delta) R_eff^2`` (default 0.25).
+    """
     kh: float
     mu: float
     delta_ref: float
@@ -188,6 +240,7 @@ class HertzRolling(_Composed):
                       cm.Mindlin(self.kt_ratio, self.mu), cm.RollingResistance(self.kr_ratio, self.mu_r))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzRolling", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
                 "mu_r": self.mu_r, "kr_ratio": self.kr_ratio, "kt_ratio": self.kt_ratio,
                 "restitution": self.restitution}
@@ -198,8 +251,21 @@ class LammpsHookeHistory(_Composed):
     """LAMMPS ``pair_style gran/hooke/history kn kt gamma_n gamma_t mu dampflag``, followed to
     round-off (``tests/test_lammps_equivalence.py``).
 
-    kn, kt [N/m]; gamma_n, gamma_t [1/s] (dashpots ``m_eff gamma``; ``gamma_t = None`` is LAMMPS'
-    ``NULL``, meaning ``gamma_n / 2``; ``dampflag = 0`` drops the tangential dashpot); mu.
+    Parameters
+    ----------
+    kn, kt : float
+        Normal and tangential stiffnesses [N/m].
+    gamma_n : float
+        Normal damping rate [1/s] (dashpot ``m_eff gamma_n``).
+    mu : float
+        Coulomb friction coefficient (dimensionless).
+    gamma_t : float or None
+        Tangential damping rate [1/s]; None is LAMMPS' ``NULL``, meaning ``gamma_n / 2``.
+    dampflag : int
+        1 (LAMMPS' default) or 0 (no tangential dashpot).
+
+    Notes
+    -----
     Differences from :class:`LinearFriction` (see ``docs/dem.md``): dashpot ``m_eff gamma`` instead of
     ``2 zeta sqrt(m_eff kn)``; Coulomb cap ``mu |fn|`` instead of ``mu max(fn, 0)``; the shear
     displacement is a vector, projected on the tangent plane each step (it shrinks by ``cos`` of
@@ -221,14 +287,27 @@ class LammpsHookeHistory(_Composed):
                       cm.LammpsHistory(self.kt, self.mu))
 
     def to_meta(self):
+        """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "LammpsHookeHistory", "kn": self.kn, "kt": self.kt, "gamma_n": self.gamma_n,
                 "mu": self.mu, "gamma_t": self.gamma_t, "dampflag": self.dampflag}
 
 
 @dataclass(frozen=True)
 class ContactLaw(_Composed):
-    """Any combination of sub-models of :mod:`dem.contact_models` (normal, damping, tangential,
-    rolling), e.g. ``ContactLaw(Hertz(1e5, 0.01), MassGamma(5.0, 2.5), LammpsHistory(1e4, 0.5))``."""
+    """Any combination of sub-models of :mod:`dem.contact_models`, e.g.
+    ``ContactLaw(Hertz(1e5, 0.01), MassGamma(5.0, 2.5), LammpsHistory(1e4, 0.5))``.
+
+    Parameters
+    ----------
+    normal : Hooke or Hertz
+        Normal force model.
+    damping : NoDamping, Viscous, ViscousTangential or MassGamma
+        Dashpot model (default none).
+    tangential : NoTangential, LinearHistory, Mindlin or LammpsHistory
+        Tangential force model (default none: frictionless, no spins).
+    rolling : NoRolling or RollingResistance
+        Rolling resistance model (default none).
+    """
     normal: object
     damping: object = cm.NoDamping()
     tangential: object = cm.NoTangential()
@@ -247,14 +326,18 @@ class ContactLaw(_Composed):
 
     @property
     def mu(self):
+        """Friction coefficient of the tangential sub-model."""
         return self.tangential.mu
 
     def with_friction(self, mu):
+        """The same law with the tangential sub-model's friction coefficient set to ``mu``."""
         if isinstance(self.tangential, cm.NoTangential):
             return Frictionless.with_friction(self, mu)
         return replace(self, tangential=self.tangential._replace(mu=float(mu)))
 
     def to_meta(self):
+        """JSON-ready dict of the sub-models and their coefficients (:func:`law_from_meta` rebuilds
+        the law)."""
         def d(m):
             return {"model": type(m).__name__, **{k: float(v) for k, v in m._asdict().items()}}
         return {"law": "ContactLaw", "normal": d(self.normal), "damping": d(self.damping),

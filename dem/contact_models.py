@@ -23,8 +23,11 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
 * ``check()``: raises ``ValueError`` naming the coefficient and its allowed range;
 * ``HISTORY`` (slots per pair in the contact history) and ``PARITY`` (per slot, +1 if the slot is
   unchanged when the pair's i and j are swapped, -1 if it changes sign; used at list rebuilds);
-* ``dt_stiffness(normal)``: its stiffness for the critical time step (see :mod:`dem.integrate`);
-* its numba implementation, registered with :func:`_implements` for one of the generic hooks
+* ``dt_stiffness(normal)``: its stiffness for the critical time step [N/m] (see :mod:`dem.integrate`);
+* normal and tangential models: ``tangent(delta)`` (``tangent(normal, delta)``), the tangent
+  stiffness [N/m] at overlaps ``delta`` [m]; normal models: ``fn_elastic(delta)``, the elastic
+  normal force;
+* its numba implementation, registered with the private decorator ``_implements`` for one of the generic hooks
   below (``normal_force``, ``pair_constants``, ``normal_damping``, ``tangential_force``,
   ``rolling_torque``).
 

@@ -29,14 +29,14 @@ larger user ``dt`` than ``dt_crit`` raises ``ValueError``.
 
 Instability guard: every ``check_every`` steps the state is checked for NaN/inf and for a kinetic
 energy above ``ke_limit`` (default ``N * k_law * r_min^2``: every particle as energetic as a
-full-diameter overlap); a failure raises :class:`InstabilityError` carrying the last good state (and
+full-diameter overlap); a failure raises :class:`~dem.runtime.InstabilityError` carrying the last good state (and
 saves it to ``failure_path`` if set).
 
 Timing: every run ends with a per-phase table (neighbours, forces, integration, other) and the
 particle-steps per second, like LAMMPS (``Simulation.timing_report()``). The stress, energy and
 contact tallies of the force loop (``Simulation.out``) are computed on the steps that read them
-only: every step under a cell control, on callback steps and on the last step of :meth:`run`, and
-on every :meth:`step` called directly.
+only: every step under a cell control, on callback steps and on the last step of :meth:`Simulation.run`, and
+on every :meth:`Simulation.step` called directly.
 """
 from __future__ import annotations
 
@@ -217,6 +217,8 @@ class Simulation:
 
     # ---- pieces of a step ------------------------------------------------------------------------
     def rebuild(self):
+        """Rebuild the Verlet neighbour list now (carrying the contact history over); every
+        ``sort_every``-th rebuild also sorts the particles spatially."""
         sort = self.sort_every > 0 and self.n_rebuilds % self.sort_every == 0
         neighbors.rebuild(self.state, self.skin, sort=sort, history=self.law.history_parity)
         self.n_rebuilds += 1
@@ -347,6 +349,8 @@ class Simulation:
         return self.state.copy()
 
     def meta(self):
+        """JSON-ready dict of the run parameters and counters (``dt`` [s], damping, skin [m], law,
+        cell control, ...), stored in checkpoints."""
         return {"dt": self.dt, "damping": self.damping, "skin": self.skin, "sort_every": self.sort_every,
                 "check_every": self.check_every, "ke_limit": self.ke_limit,
                 "n_rebuilds": self.n_rebuilds, "need_rebuild": self.need_rebuild,
@@ -357,7 +361,7 @@ class Simulation:
     # ---- runs -------------------------------------------------------------------------------------
     def run(self, nsteps, *, callback=None, every=0):
         """Advance ``nsteps`` steps. ``callback(sim)`` is called every ``every`` steps; a truthy
-        return value stops the run. Returns a :class:`RunReport` (timing table included)."""
+        return value stops the run. Returns a :class:`~dem.runtime.RunReport` (timing table included)."""
         nsteps = int(nsteps)
         if nsteps < 0:
             raise ValueError(f"nsteps must be >= 0, got {nsteps}")
@@ -390,11 +394,14 @@ class Simulation:
 
     # ---- read-only measurements ---------------------------------------------------------------
     def measure(self):
-        """Stress and balance of the *last computed* forces (read-only). Returns a dict with
-        ``stress`` (2x2, tension positive, Love-Weber static part), ``pressure`` (-tr/2),
-        ``n_contacts``, ``mean_contact_force``, ``unbalanced`` (Yade: mean over particles of the
-        resultant contact force |F_i| over the mean contact-force magnitude), ``unbalanced_max``
-        (same with max_i |F_i|), ``kinetic_energy``, ``elastic_energy``, ``iso_stiffness``."""
+        """Stress and balance of the *last computed* forces (read-only).
+
+        Returns a dict with ``stress`` ((2, 2) [N/m], tension positive, Love-Weber static part),
+        ``pressure`` (``-tr/2`` [N/m]), ``n_contacts``, ``mean_contact_force``, ``unbalanced`` (Yade:
+        mean over particles of the resultant contact force ``|F_i|`` over the mean contact-force
+        magnitude, dimensionless), ``unbalanced_max`` (same with ``max_i |F_i|``),
+        ``kinetic_energy``, ``elastic_energy`` and ``iso_stiffness`` (the affine isotropic
+        stiffness the pressure servo uses [N/m])."""
         st = self.state
         A = st.area
         o = self.out

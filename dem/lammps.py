@@ -356,17 +356,35 @@ def read_dump_local(path) -> tuple[list, np.ndarray]:
 
 @dataclass
 class LammpsRun:
-    """A packing prepared by LAMMPS and read back (see :func:`read_run`).
+    """A packing prepared by LAMMPS and read back (see :func:`read_run`), in the caller's units.
 
-    config : the final :class:`dem.io.Configuration` (sorted by id; ``fields['c_cn']`` holds
-        LAMMPS's contact counts). network : :class:`~microhom.network.ContactNetwork` with ``kn``,
-        ``kt`` of the run, ``fn = kn * overlap`` and ``ft`` from LAMMPS's tangential forces.
-    lammps : LAMMPS's own figures from the ``PACK_RESULT`` line (``pressure``, ``pxx``, ``pyy``,
-        ``pxy`` of ``compute pressure NULL virial``, ``Z``, ``phi``, ``converged``, ...).
-    phases : the ``PACK_PHASE`` lines (steps, pressure, criteria per phase).
-    contacts : per-contact LAMMPS data aligned with the network's contacts: ``force`` (normal force
-        magnitude of ``compute pair/local``) and ``fs`` (C, 2) (tangential force on the lower-index
-        particle). params : the parameters written. run : :func:`run_lammps`'s dict (times).
+    Attributes
+    ----------
+    config : dem.io.Configuration
+        The final configuration, sorted by id (positions, radii [length]; ``fields['c_cn']`` holds
+        LAMMPS's contact counts).
+    network : microhom.network.ContactNetwork
+        The contact network with ``kn``, ``kt`` [N/m] of the run, ``fn = kn * overlap`` and ``ft``
+        from LAMMPS's tangential forces (both (C,), forces per unit thickness).
+    lammps : dict
+        LAMMPS's own figures from the ``PACK_RESULT`` line: ``pressure``, ``pxx``, ``pyy``, ``pxy``
+        (``compute pressure NULL virial``, 2D stress [N/m]), ``Z``, ``phi``, ``converged``, ...
+    phases : list of dict
+        The ``PACK_PHASE`` lines (steps, pressure, criteria per phase).
+    contacts : dict
+        Per-contact LAMMPS data aligned with the network's contacts: ``force`` (C,) (normal force
+        magnitude of ``compute pair/local``), ``fs`` (C, 2) (tangential force on the lower-index
+        particle) and ``dist`` (C,) (centre distance).
+    params : dict
+        The parameters written (:func:`write_inputs`' return value: kn, kt, mu, ...).
+    run : dict
+        :func:`run_lammps`'s dict (``wall_s`` [s], ``np``, ``command``, ``log``, ``returncode``);
+        empty when read by :func:`read_run` alone.
+    folder : str
+        The run's folder.
+    timing : dict
+        ``loops``: one dict per LAMMPS ``Loop time`` line (``loop_s`` [s], ``procs``, ``steps``,
+        ``atoms``); :func:`pack_lammps` adds ``read_s`` and ``lammps_wall_s`` [s].
     """
     config: object
     network: object

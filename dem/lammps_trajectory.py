@@ -96,11 +96,18 @@ class Trajectory(Result):
 
 @dataclass(frozen=True)
 class Divergence(Result):
-    """Per step, the largest difference between two trajectories:
+    """Per step, the largest difference between two trajectories ``a`` and ``b`` (dimensionless).
 
-    dx : (S,) max |x_a - x_b| (nearest periodic image) over the mean disk diameter;
-    dv : (S,) max |v_a - v_b| over the rms velocity of ``b``; domega : (S,) max |w_a - w_b| over the
-    rms spin of ``b`` (0 where the rms is 0 and the spins agree).
+    Attributes
+    ----------
+    steps : (S,) int array
+        The compared time steps.
+    dx : (S,) array
+        ``max |x_a - x_b|`` (nearest periodic image) over the mean disk diameter.
+    dv : (S,) array
+        ``max |v_a - v_b|`` over the rms velocity of ``b``.
+    domega : (S,) array
+        ``max |w_a - w_b|`` over the rms spin of ``b`` (0 where the rms is 0 and the spins agree).
     """
     steps: np.ndarray
     dx: np.ndarray
@@ -109,13 +116,14 @@ class Divergence(Result):
 
 
 def lammps_masses(radius, rho):
-    """Disk masses as LAMMPS' ``set density/disc`` computes them: ``(pi r) r rho``."""
+    """(N,) disk masses as LAMMPS' ``set density/disc`` computes them: ``(pi r) r rho``, for radii
+    (N,) [m] and an areal density ``rho`` [kg/m^2] (the rounding order matters for bit equality)."""
     r = np.asarray(radius, dtype=np.float64)
     return math.pi * r * r * rho
 
 
 def pair_style_line(law) -> str:
-    """``pair_style gran/hooke/history`` line for a :class:`LammpsHookeHistory` law."""
+    """``pair_style gran/hooke/history`` line for a :class:`~dem.contact_laws.LammpsHookeHistory` law."""
     if not isinstance(law, LammpsHookeHistory):
         raise TypeError(f"law must be a LammpsHookeHistory, got {type(law).__name__}")
     gt = "NULL" if law.gamma_t is None else repr(float(law.gamma_t))

@@ -55,10 +55,18 @@ class Fabric(Result):
 class ForceStatistics(Result):
     """Contact force statistics (forces per unit thickness [N/m]).
 
-    fn_mean, fn_std, fn_max : normal force mean, standard deviation, maximum [N/m];
-    ft_over_fn_mean : mean mobilised friction |ft|/fn over the contacts (0 where fn <= 0);
-    sliding_fraction : fraction of contacts flagged sliding; tension_contacts : contacts with fn < 0;
-    fraction_above_mean : fraction of contacts with fn above the mean.
+    Attributes
+    ----------
+    fn_mean, fn_std, fn_max : float
+        Normal force mean, standard deviation and maximum [N/m].
+    ft_over_fn_mean : float
+        Mean mobilised friction ``|ft|/fn`` over the contacts (0 where ``fn <= 0``).
+    sliding_fraction : float
+        Fraction of contacts flagged sliding.
+    tension_contacts : int
+        Number of contacts with ``fn < 0``.
+    fraction_above_mean : float
+        Fraction of contacts with ``fn`` above the mean.
     """
 
     fn_mean: float

@@ -33,6 +33,7 @@ __all__ = ["rebuild", "list_cutoff", "bin_counts"]
 
 
 def list_cutoff(radius, skin) -> float:
+    """Neighbour-list cutoff ``2 max(radius) + skin`` [m] for radii (N,) [m] and a skin [m]."""
     return 2.0 * float(np.max(radius)) + float(skin)
 
 

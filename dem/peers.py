@@ -30,19 +30,34 @@ __all__ = ["PeerModuli", "jaxmd_elasticity"]
 class PeerModuli(Result):
     """An elastic tensor in a peer's convention and ours, with the pre-stress that links them.
 
-    convention : the peer (``"jax-md"``).
-    C : (2, 2, 2, 2) the peer's tensor ``C_ijkl`` [N/m] (jax-md: second derivative of U/V0 with
-        respect to the linear strain, non-affine relaxation included).
-    C_mandel : (3, 3) the same in Mandel form over ``[xx, yy, sqrt2 xy]`` [N/m].
-    B, G : the peer's isotropic moduli [N/m] (jax-md's ``extract_isotropic_moduli``).
-    C_cauchy_mandel : (3, 3) our Cauchy-increment tensor [N/m] (``dem.stiffness``, pre-stress on).
-    K, G_cauchy : our isotropic moduli [N/m]: ``K = B + p/2``, ``G_cauchy = G - p/2``.
-    pressure : ``p = -tr(sigma0)/2`` [N/m], compression positive.
-    sigma0 : (2, 2) pre-stress [N/m], tension positive.
-    n_particles, n_contacts : particles and overlapping pairs of the packing.
-    n_rattlers, n_floppy, n_unstable : from the stiffness solve (``n_unstable > 0``: the packing is
-        not a stable minimum and no tensor is meaningful).
-    network : the contact network built (not exported); stiffness : the full solve (not exported).
+    Attributes
+    ----------
+    convention : str
+        The peer (``"jax-md"``).
+    C : (2, 2, 2, 2) array
+        The peer's tensor ``C_ijkl`` [N/m] (jax-md: second derivative of ``U/V0`` with respect to
+        the linear strain, non-affine relaxation included).
+    C_mandel : (3, 3) array
+        The same in Mandel form over ``[xx, yy, sqrt2 xy]`` [N/m].
+    B, G : float
+        The peer's isotropic moduli [N/m] (jax-md's ``extract_isotropic_moduli``).
+    C_cauchy_mandel : (3, 3) array
+        Our Cauchy-increment tensor [N/m] (:mod:`dem.stiffness`, pre-stress on).
+    K, G_cauchy : float
+        Our isotropic moduli [N/m]: ``K = B + p/2``, ``G_cauchy = G - p/2``.
+    pressure : float
+        ``p = -tr(sigma0)/2`` [N/m], compression positive.
+    sigma0 : (2, 2) array
+        Pre-stress [N/m], tension positive.
+    n_particles, n_contacts : int
+        Particles and overlapping pairs of the packing.
+    n_rattlers, n_floppy, n_unstable : int
+        From the stiffness solve (``n_unstable > 0``: the packing is not a stable minimum and no
+        tensor is meaningful).
+    network : microhom.network.ContactNetwork
+        The contact network built (not exported).
+    stiffness : dem.stiffness.StiffnessResult
+        The full stiffness solve (not exported).
     """
 
     convention: str

@@ -11,6 +11,8 @@ from microhom.network import ContactNetwork
 from microhom.periodic import wrap
 from microhom.structural_sums import rattlers
 
+__all__ = ["plot_packing"]
+
 
 def plot_packing(net: ContactNetwork, path, *, title=None, max_width=3.0, dpi=150, show_images=True):
     """Save a PNG of the packing with force chains to ``path``; returns the path.
@@ -18,6 +20,22 @@ def plot_packing(net: ContactNetwork, path, *, title=None, max_width=3.0, dpi=15
     Line width = ``max_width * fn / max(fn)`` (points); sliding contacts are drawn in orange.
     Particles are drawn at their wrapped positions; contacts that cross the periodic boundary are
     drawn from both ends (to the image) when ``show_images``.
+
+    Parameters
+    ----------
+    net : microhom.network.ContactNetwork
+        The packing: positions (N, 2) and radii (N,) in the same length unit, contact pairs and
+        normal forces ``fn`` (C,) (without forces every contact line is 0.5 points wide).
+    path : str or path-like
+        Output PNG file.
+    title : str, optional
+        Figure title.
+    max_width : float
+        Width in points of the line of the largest normal force.
+    dpi : int
+        Resolution of the PNG (dots per inch).
+    show_images : bool
+        Draw contacts across the periodic boundary from both ends.
     """
     import matplotlib
 

@@ -33,14 +33,25 @@ _MODES = (np.array([[1.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 0.0], [0.0, 1.0]])
 class ProbeResult(Result):
     """The stiffness measured by strain probes, and the cost of the measurement.
 
-    C_mandel : (3, 3) tangent stiffness over Mandel ``[xx, yy, sqrt2 xy]`` [N/m] (Cauchy stress
-        increment per strain, pre-stress included; column k from the +-probes of mode k);
-    K, G : its isotropic projection [N/m] (:func:`microhom.tensors.isotropic_moduli`);
-    amplitude : strain of each probe (dimensionless); steps : DEM steps, all probes and the
-    initial relaxation; wall_time : [s]; converged : every relaxation met ``tol_unbalanced``;
-    unbalanced : (6,) final unbalanced force ratio of each probe (+xx, -xx, +yy, -yy, +xy, -xy);
-    contact_events : contacts opened or closed, summed over the six probes (0 for a tangent
-    measurement).
+    Attributes
+    ----------
+    C_mandel : (3, 3) array
+        Tangent stiffness over Mandel ``[xx, yy, sqrt2 xy]`` [N/m] (Cauchy stress increment per
+        strain, pre-stress included; column k from the +- probes of mode k).
+    K, G : float
+        Its isotropic projection [N/m] (:func:`microhom.tensors.isotropic_moduli`).
+    amplitude : float
+        Strain of each probe (dimensionless).
+    steps : int
+        DEM steps, all probes and the initial relaxation.
+    wall_time : float
+        Wall time of the measurement [s].
+    converged : bool
+        Every relaxation met ``tol_unbalanced``.
+    unbalanced : (6,) tuple of float
+        Final unbalanced force ratio of each probe (+xx, -xx, +yy, -yy, +xy, -xy).
+    contact_events : int
+        Contacts opened or closed, summed over the six probes (0 for a tangent measurement).
     """
 
     C_mandel: np.ndarray
@@ -54,6 +65,7 @@ class ProbeResult(Result):
     contact_events: int = 0
 
     def summary(self):
+        """One line: the moduli [N/m], the cost and the convergence."""
         return (f"strain probes (amplitude {self.amplitude:g}): K = {self.K:.6g}, G = {self.G:.6g}, "
                 f"{self.steps} steps in {self.wall_time:.2f} s, converged = {self.converged}, "
                 f"contact events = {self.contact_events}")

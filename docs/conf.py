@@ -33,12 +33,17 @@ nb_execution_show_tb = True
 
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"           # the docstrings state types, units and shapes
-autodoc_default_options = {"members": True, "show-inheritance": False}
+# no "show-inheritance" key: autodoc treats any value, False included, as the flag being set
+# (it then lists private bases such as dem.contact_laws._Composed)
+autodoc_default_options = {"members": True}
 napoleon_numpy_docstring = True
 napoleon_google_docstring = False
 napoleon_use_rtype = False
 napoleon_use_param = False       # parameter types are free text (shapes, units), not cross-references
 napoleon_use_ivar = True
+# "Attributes" (the fields of result dataclasses) rendered like "Parameters": their types are free
+# text with shapes and units, e.g. "(S,) int array", not cross-references
+napoleon_custom_sections = [("Attributes", "params_style")]
 
 nitpicky = True
 # names from libraries we do not link to (no network at build time, so no intersphinx)

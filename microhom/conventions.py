@@ -113,5 +113,6 @@ def kn_to_oval(kn):
 
 
 def lammps_kt(kn, kt=None):
-    """LAMMPS ``gran/*`` tangential stiffness: ``kt``, or ``2/7 kn`` when ``kt`` is None (``NULL``)."""
+    """LAMMPS ``gran/*`` tangential stiffness [N/m]: ``kt``, or ``2/7 kn`` when ``kt`` is None (``NULL``);
+    scalars or arrays of any shape (broadcast)."""
     return LAMMPS_KT_RATIO * np.asarray(kn, dtype=float) if kt is None else np.asarray(kt, dtype=float)

@@ -33,6 +33,9 @@ from . import printed as P
 from . import symbolic as s
 from .neighbourhood import derive_phi_of_nbar, nbar_from_phi
 
+__all__ = ["KINDS", "CHECKS", "Check", "circularity", "check", "run", "main"]
+
+#: What the compared side of a :class:`Check` is: key -> description.
 KINDS = {
     "printed": "the paper's printed formula (microhom.printed)",
     "reading": "our stated reading of a garbled print (microhom.printed, labelled a reconstruction)",
@@ -44,18 +47,45 @@ KINDS = {
 
 @dataclass
 class Check:
-    """One identity: what was derived (from which inputs) and what it was compared with."""
+    """One identity: what was derived (from which inputs) and what it was compared with.
+
+    Attributes
+    ----------
+    name : str
+        Name of the check (the function that made it).
+    ref : str
+        The equations involved, for the one-line summary, e.g. ``"(36)-(37)"``.
+    ok : bool
+        Whether the derived and the compared sides agree (set to False by :func:`run` when
+        :func:`circularity` rejects the check).
+    derived : str
+        What sympy computed, in words.
+    compared : str
+        What it was compared with, in words.
+    kind : str
+        Key of :data:`KINDS`: the nature of the compared side.
+    inputs : tuple of str
+        Equations the derivation starts from (the paper's definitions and models).
+    targets : tuple of str
+        Printed equations compared with (must not be among the inputs).
+    lhs : str
+        The derived expression, printed.
+    rhs : str
+        The compared expression, printed.
+    detail : str
+        Extra information: an error, a numeric discrepancy, or why the check is circular.
+    """
 
     name: str
-    ref: str  # the equations involved, for the one-line summary
+    ref: str
     ok: bool
-    derived: str  # what sympy computed, in words
-    compared: str  # what it was compared with, in words
-    kind: str  # key of KINDS: the nature of the compared side
-    inputs: tuple = ()  # equations the derivation starts from (definitions, models)
-    targets: tuple = ()  # printed equations compared with (must not be among the inputs)
-    lhs: str = ""  # the derived expression
-    rhs: str = ""  # the compared expression
+    derived: str
+    compared: str
+    kind: str
+    inputs: tuple = ()
+    targets: tuple = ()
+    lhs: str = ""
+    rhs: str = ""
     detail: str = ""
 
 
@@ -85,10 +115,12 @@ def _vsub():
     return {s.v: sp.pi * s.D ** 2 / (4 * s.phi)}
 
 
+#: Every registered check, in the order :func:`run` runs them (functions returning a :class:`Check`).
 CHECKS: list[Callable[[], Check]] = []
 
 
 def check(fn):
+    """Decorator: register ``fn`` (no arguments, returns a :class:`Check`) in :data:`CHECKS`."""
     CHECKS.append(fn)
     return fn
 
@@ -422,6 +454,9 @@ def numeric_matches_symbolic():
 def run(verbose=True, out=None):
     """Run every check, print what was derived and what it was compared with; return the list of Check.
 
+    ``verbose=False`` prints the failures and the summary only; ``out`` is a text stream
+    (default ``sys.stdout``).
+
     A check that raises, or that :func:`circularity` rejects, fails with the reason shown.
     """
     out = sys.stdout if out is None else out
@@ -460,6 +495,7 @@ def run(verbose=True, out=None):
 
 
 def main(argv=None):
+    """Command line ``python -m microhom.derivations [--quiet]``; returns the exit code (0: all passed)."""
     ap = argparse.ArgumentParser(prog="python -m microhom.derivations",
                                  description="Check every homogenisation formula by sympy derivation: for each "
                                              "identity, what was derived (from which equations) and what it was "

@@ -47,11 +47,17 @@ _SQ2 = np.sqrt(2.0)
 class ContactMatrices:
     """Element matrices of every contact of a network (see the module docstring).
 
-    B : (C, 2, 6) compatibility on local unknowns ``(u_i[2], omega_i, u_j[2], omega_j)`` [m for
-        the spin columns, 1 for translations];
-    D : (C, 2, 3) affine contact displacement per Mandel unit strain [m];
-    K : (C, 2, 2) contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m];
-    Kg : (C, 2, 2) geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
+    Attributes
+    ----------
+    B : (C, 2, 6) array
+        Compatibility on the local unknowns ``(u_i[2], omega_i, u_j[2], omega_j)`` [m for the spin
+        columns, 1 for translations].
+    D : (C, 2, 3) array
+        Affine contact displacement per Mandel unit strain [m].
+    K : (C, 2, 2) array
+        Contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m].
+    Kg : (C, 2, 2) array or None
+        Geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
     """
 
     B: np.ndarray
@@ -61,7 +67,8 @@ class ContactMatrices:
 
 
 def contact_matrices(net: ContactNetwork, prestress: bool = False) -> ContactMatrices:
-    """Per-contact ``B``, ``D``, ``K`` (and ``K_g`` if ``prestress``) of ``net``."""
+    """Per-contact ``B`` (C, 2, 6), ``D`` (C, 2, 3) [m], ``K`` (C, 2, 2) [N/m] (and ``K_g``
+    (C, 2, 2) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`)."""
     if prestress and net.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network "
                          "(ContactNetwork.fn, compression positive, N/m)")
@@ -167,8 +174,9 @@ class Assembly:
 
 
 def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None) -> Assembly:
-    """Assemble the reduced Hessian ``H`` and load ``F`` of a periodic network (rattlers removed
-    iteratively with :func:`microhom.structural_sums.rattlers`)."""
+    """Assemble the reduced Hessian ``H`` (ndof, ndof) [N/m] and load ``F`` (ndof, 3) of a periodic
+    network (rattlers removed iteratively with :func:`microhom.structural_sums.rattlers`); see
+    :class:`Assembly`."""
     if network.cell is None:
         raise ValueError("the stiffness problem needs a periodic network (cell is None)")
     N = network.n_particles

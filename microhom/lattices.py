@@ -49,7 +49,8 @@ def square(nx=5, ny=5, *, diameter=1.0, kn=1.0, kt=None, sliding=False, angle=0.
 
 def honeycomb(nx=4, ny=3, *, diameter=1.0, kn=1.0, kt=None, sliding=False,
               angle=0.0) -> ContactNetwork:
-    """Honeycomb lattice of ``nx`` x ``ny`` rectangular 4-disk unit cells (sqrt3 D by 3 D)."""
+    """Honeycomb lattice of ``nx`` x ``ny`` rectangular 4-disk unit cells (``sqrt3 D`` by ``3 D``,
+    D = ``diameter`` [m]), optionally rotated by ``angle`` [rad]."""
     _check(nx, ny, diameter)
     d = float(diameter)
     s3 = np.sqrt(3.0)

@@ -12,12 +12,15 @@ stiffnesses per unit thickness [N/m].
 * :class:`SoftSphere` -- jax-md's ``energy.soft_sphere``: ``U = eps/alpha (1 - d/sigma)^alpha`` with
   ``sigma = r_i + r_j``; ``alpha = 2`` is the harmonic law (:func:`harmonic`,
   ``kn = eps / sigma^2``), ``alpha = 5/2`` jax-md's Hertzian one.
-* :class:`Hertz` -- ``fn = kh delta^{3/2}`` (``dem.contact_laws.Hertz``), or with
+* :class:`Hertz` -- ``fn = kh delta^{3/2}`` (``dem.contact_models.Hertz``), or with
   ``reff=True`` LAMMPS ``gran/hertz/history``: ``fn = kn sqrt(R_eff delta) delta``,
   ``R_eff = r_i r_j / (r_i + r_j)``.
 
 Every law also carries the tangential-to-normal stiffness ratio ``kt_ratio`` used when a network
-is built with it and no ``kt`` is given (0 for jax-md, which has no friction).
+is built with it and no ``kt`` is given (0 for jax-md, which has no friction), and has two
+methods taking (C,) arrays ``ri``, ``rj``, ``overlap`` [m] (or scalars, broadcast):
+``force(ri, rj, overlap)``, the (C,) normal force ``fn`` [N/m] (0 where ``overlap <= 0``), and
+``stiffness(ri, rj, overlap)``, the (C,) tangent stiffness ``kn = d fn / d overlap`` [N/m].
 """
 from __future__ import annotations
 
@@ -112,7 +115,8 @@ class SoftSphere(_Law):
 
 
 def harmonic(epsilon=1.0) -> SoftSphere:
-    """jax-md's harmonic soft disks: ``kn = epsilon / (r_i + r_j)^2``, ``fn = kn delta``, no friction."""
+    """jax-md's harmonic soft disks: ``kn = epsilon / (r_i + r_j)^2`` [N/m], ``fn = kn delta``, no
+    friction (``epsilon`` [J/m] > 0: :class:`SoftSphere` with ``alpha = 2``)."""
     return SoftSphere(epsilon=epsilon, alpha=2.0)
 
 

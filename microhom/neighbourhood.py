@@ -139,10 +139,20 @@ def near_neighbours(network: ContactNetwork, nbar=None, search=1.6) -> Neighbour
     section 6), whose mean follows from φ. We take the ``round(N nbar / 2)`` pairs of smallest
     surface gap (so the mean number per particle is N̄; contacts, with gap <= 0, come first).
 
-    network : the packing (positions, radii, optional periodic cell; images handled).
-    nbar : target mean number of near neighbours; default ``nbar_from_phi(network.solid_fraction)``
-        (needs phi in [pi/4, pi/(2 sqrt 3)]); must be > 0.
-    search : candidate pairs are looked for up to ``search * 2 r_max`` between centres (> 1).
+    Parameters
+    ----------
+    network : microhom.network.ContactNetwork
+        The packing (positions (N, 2) [m], radii (N,) [m], optional periodic cell; images handled).
+    nbar : float, optional
+        Target mean number of near neighbours, > 0; default
+        ``nbar_from_phi(network.solid_fraction)`` (needs phi in ``[pi/4, pi/(2 sqrt 3)]``).
+    search : float
+        Candidate pairs are looked for up to ``search * 2 r_max`` between centres (> 1).
+
+    Returns
+    -------
+    Neighbourhood
+        The near-neighbour pairs and their branch vectors.
     """
     if nbar is None:
         nbar = float(nbar_from_phi(network.solid_fraction))

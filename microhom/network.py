@@ -148,25 +148,28 @@ class ContactNetwork:
     # ---- sizes -------------------------------------------------------------------------------
     @property
     def n_particles(self) -> int:
+        """Number of particles N."""
         return self.positions.shape[0]
 
     @property
     def n_contacts(self) -> int:
+        """Number of contacts C."""
         return self.pairs.shape[0]
 
     @property
     def periodic(self) -> bool:
+        """True when the network has a periodic cell."""
         return self.cell is not None
 
     # ---- per-contact geometry ----------------------------------------------------------------
     @property
     def lengths(self) -> np.ndarray:
-        """(C,) branch lengths |c| [m]."""
+        """(C,) branch lengths ``|c|`` [m]."""
         return np.hypot(self.branch[:, 0], self.branch[:, 1])
 
     @property
     def normals(self) -> np.ndarray:
-        """(C, 2) unit contact normals n = c/|c|, from particle i to particle j."""
+        """(C, 2) unit contact normals ``n = c/|c|``, from particle i to particle j."""
         return self.branch / self.lengths[:, None]
 
     @property
@@ -176,7 +179,7 @@ class ContactNetwork:
 
     @property
     def effective_kt(self) -> np.ndarray:
-        """(C,) tangent stiffness used by the theory and the stiffness solver: kt, 0 where sliding."""
+        """(C,) tangent stiffness [N/m] used by the theory and the stiffness solver (``kt``, 0 where sliding)."""
         return np.where(self.sliding, 0.0, self.kt)
 
     def stiffness_tensors(self) -> np.ndarray:
@@ -220,7 +223,7 @@ class ContactNetwork:
     def with_stiffness(self, kn=None, kt=None, sliding=None) -> "ContactNetwork":
         """A copy with new contact stiffnesses and/or sliding flags.
 
-        Each of ``kn``, ``kt`` [N/m] is a scalar, a (C,) array in the order of :attr:`pairs`, or a
+        Each of ``kn``, ``kt`` [N/m] is a scalar, a (C,) array in the order of ``pairs``, or a
         function ``f(i, j, r_i, r_j, overlap)`` of (C,) arrays returning (C,) values (``overlap``
         = :attr:`overlaps`); ``None`` keeps the current values.
         """
@@ -365,7 +368,7 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
         ``tolerance`` is 0.
     branch_length : ``"distance"`` (default) keeps the centre-to-centre vector as the branch
         vector; ``"radii"`` keeps its direction but sets its length to ``r_i + r_j`` (the
-        undeformed-contact convention of the paper, where |c| = D).
+        undeformed-contact convention of the paper, where ``|c| = D``).
     tolerance : relative gap still counted as contact, in [0, 0.5); default 1e-9 (0 with a law).
     origin : (2,) lower-left corner of the periodic cell [m].
     """

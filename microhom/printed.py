@@ -6,7 +6,9 @@ paper's starting points (its models and definitions) and must never import this 
 Equation numbers ``(n)`` are those of *The incremental response of random aggregates of identical
 round particles*. Where the converted text is garbled, the function says how it was read.
 
-This module imports sympy.
+Every function returns sympy expressions in the symbols of :mod:`microhom.symbolic` (``kn``,
+``kt`` [N/m], ``D`` [m], ``v`` [m^2], ``phi``, ``Nc``, ...); tensors are dicts from index tuples to
+expressions. This module imports sympy.
 """
 from __future__ import annotations
 
@@ -15,6 +17,13 @@ import itertools
 import sympy as sp
 
 from .symbolic import D, Nbar, Nc, S, X, Y, alpha, kn, kt, lam, phi, r, rho, v
+
+__all__ = [
+    "vbar_ebar_37", "mean_field_55", "T_isotropic_after_32", "operator_26", "kernel_27", "local_30",
+    "kroner_33_34", "A_nu_42", "eps_ratio_44", "normal_equations_48", "XY_49", "moduli_50_51", "rho_54",
+    "limits_55", "frictionless_56", "delta_section6_reading", "phi_nbar_section6",
+    "polygon_area_section6", "solids_section6",
+]
 
 _R2 = (0, 1)
 

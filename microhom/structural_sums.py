@@ -59,7 +59,15 @@ def _scatter(n, pairs, val_i, val_j):
 
 
 class ParticleSums:
-    """Per-particle structural sums of a network (see the module docstring for definitions)."""
+    """Per-particle structural sums of a network (see the module docstring for definitions).
+
+    ``active``: optional (C,) bool mask of the contacts to use (e.g. without rattlers). With N
+    particles, the attributes are ``network`` (the network restricted to the active contacts),
+    ``counts`` (N,) contact numbers, ``A2`` (N, 2, 2) ``sum K`` [N/m], ``A3`` (N, 2, 2, 2)
+    ``sum K c`` [N], ``A4`` (N, 2, 2, 2, 2) ``sum K c c`` [N m] (indices: stiffness, stiffness,
+    branch, branch), ``W`` (N, 2) ``(1/pi) sum n`` and ``V`` (N, 2) :func:`neighbour_vector` over
+    the contacts (both dimensionless); :attr:`B` and :attr:`Z` are the spin elimination (15)-(16).
+    """
 
     def __init__(self, network: ContactNetwork, active=None):
         """active: optional (C,) bool mask of the contacts to use (e.g. without rattlers)."""
@@ -80,7 +88,7 @@ class ParticleSums:
 
     @property
     def B(self) -> np.ndarray:
-        """(N,) B = eps_3qr eps_ij3 A_rijq (15); equals -sum kt_eff |c|^2, zero without tangent stiffness."""
+        """(N,) ``B = eps_3qr eps_ij3 A_rijq`` (15) [N m]; equals ``-sum kt_eff |c|^2``, zero without tangent stiffness."""
         return np.einsum("qr,ij,nrijq->n", _EPS2, _EPS2, self.A4)
 
     @property
@@ -100,7 +108,8 @@ class ParticleSums:
 
 
 def particle_sums(network: ContactNetwork, active=None) -> ParticleSums:
-    """Per-particle structural sums, optionally over a subset of the contacts."""
+    """Per-particle structural sums (:class:`ParticleSums`), optionally over a subset of the contacts
+    (``active``: (C,) bool mask)."""
     return ParticleSums(network, active)
 
 
@@ -156,10 +165,19 @@ def isotropic_fit(A4):
 def neighbour_vector(counts, pairs, branch, n=None):
     """V^mu = (1/pi) sum_nu Nc^nu n^{mu nu} over the given neighbour pairs (41): (N, 2).
 
-    counts : (N,) contact numbers Nc^nu of the particles (the summand is the neighbour's own
-        contact number, whether or not the neighbour touches mu).
-    pairs : (E, 2) int neighbour pairs, each once; branch : (E, 2) ``x_j - x_i`` [m].
-    Each pair adds ``Nc^j n`` to V^i and ``-Nc^i n`` to V^j (n = branch/|branch|).
+    Each pair adds ``Nc^j n`` to ``V^i`` and ``-Nc^i n`` to ``V^j`` (``n = branch/|branch|``).
+
+    Parameters
+    ----------
+    counts : (N,) array
+        Contact numbers ``Nc^nu`` of the particles (the summand is the neighbour's own contact
+        number, whether or not the neighbour touches mu).
+    pairs : (E, 2) int array
+        Neighbour pairs, each once.
+    branch : (E, 2) array
+        ``x_j - x_i`` [m] (only its direction is used).
+    n : int, optional
+        Number of particles N (default ``len(counts)``).
     """
     counts = np.asarray(counts, dtype=float)
     n = len(counts) if n is None else n
@@ -205,32 +223,74 @@ class NetworkStatistics(Result):
 
     Suffix ``_all``: all particles, rattlers included; no suffix: rattlers removed (iteratively,
     see :func:`rattlers`). Lengths in the unit of the positions [m]; ``vbar``, ``ebar`` and their
-    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless. Fields that need non-rattlers are NaN when every particle is
-    a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
+    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless.
+    Fields that need non-rattlers are NaN when every particle is a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
     returned before it was typed (NaN -> None).
+
+    Attributes
+    ----------
+    n_particles : int
+        Number of particles N.
+    n_contacts : int
+        Number of contacts C.
+    n_rattlers : int
+        Particles removed as rattlers.
+    rattler_fraction : float
+        ``n_rattlers / N``.
+    nc_all : float
+        Mean contacts per particle, all particles.
+    r_all : float
+        ``var(Nc)/mean(Nc)^2``, all particles (the paper's ``mean(Nc'^2)/Nc^2``).
+    rho_all : float
+        ``Nc sum V.W / sum V^2``, all particles (V over ``rho_neighbours``).
+    nc : float
+        Mean contacts per non-rattler, counting only contacts between non-rattlers.
+    r : float
+        ``var(Nc)/mean(Nc)^2`` over non-rattlers.
+    rho : float
+        ``Nc sum V.W / sum V^2`` over non-rattlers (V over ``rho_neighbours``).
+    phi : float
+        Solid (area) fraction.
+    nbar_phi : float or None
+        N̄ from phi (section 6); None outside ``[pi/4, pi/(2 sqrt 3)]``.
+    diameter : float
+        Mean particle diameter [m].
+    sliding_fraction : float
+        Fraction of contacts at the Coulomb limit.
+    vbar : float
+        ``vbar`` of the isotropic fit (37) of the mean A4 over non-rattlers [N m].
+    ebar : float
+        The ``(d_pr d_qs + d_ps d_qr)`` coefficient of the same fit [N m].
+    vbar_theory : float
+        ``vbar`` of (37) with the measured Nc, mean D^2, kn, kt [N m].
+    ebar_theory : float
+        ``ebar`` of (37) with the measured Nc, mean D^2, kn, kt [N m].
+    odd_norm : float
+        Mean Frobenius norm of A3 over non-rattlers, over ``kn D`` (dimensionless).
+    rho_neighbours : str
+        The neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that
+        ``as_dict()`` keeps the keys the command-line tools have always written.
     """
 
-    n_particles: int  #: number of particles N
-    n_contacts: int  #: number of contacts C
-    n_rattlers: int  #: particles removed as rattlers
-    rattler_fraction: float  #: n_rattlers / N
-    nc_all: float  #: mean contacts per particle, all particles
-    r_all: float  #: var(Nc)/mean(Nc)^2, all particles (the paper's mean(Nc'^2)/Nc^2)
-    rho_all: float  #: Nc sum V.W / sum V^2, all particles (V over ``rho_neighbours``)
-    nc: float  #: mean contacts per non-rattler, counting only contacts between non-rattlers
-    r: float  #: var(Nc)/mean(Nc)^2 over non-rattlers
-    rho: float  #: Nc sum V.W / sum V^2 over non-rattlers (V over ``rho_neighbours``)
-    phi: float  #: solid (area) fraction
-    nbar_phi: float | None  #: N̄ from phi (section 6); None outside [pi/4, pi/(2 sqrt 3)]
-    diameter: float  #: mean particle diameter [m]
-    sliding_fraction: float  #: fraction of contacts at the Coulomb limit
-    vbar: float = float("nan")  #: isotropic fit (37) of the mean A4 over non-rattlers [N m]
-    ebar: float = float("nan")  #: idem, the (d_pr d_qs + d_ps d_qr) coefficient [N m]
-    vbar_theory: float = float("nan")  #: (37) with the measured Nc, mean D^2, kn, kt [N m]
-    ebar_theory: float = float("nan")  #: (37) idem [N m]
-    odd_norm: float = float("nan")  #: mean Frobenius norm of A3 over non-rattlers / (kn D)
-    #: the neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that ``as_dict()``
-    #: keeps the keys the command-line tools have always written
+    n_particles: int
+    n_contacts: int
+    n_rattlers: int
+    rattler_fraction: float
+    nc_all: float
+    r_all: float
+    rho_all: float
+    nc: float
+    r: float
+    rho: float
+    phi: float
+    nbar_phi: float | None
+    diameter: float
+    sliding_fraction: float
+    vbar: float = float("nan")
+    ebar: float = float("nan")
+    vbar_theory: float = float("nan")
+    ebar_theory: float = float("nan")
+    odd_norm: float = float("nan")
     rho_neighbours: str = field(default="contacts", metadata={"export": False})
 
 
@@ -238,12 +298,20 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
                        nbar=None) -> NetworkStatistics:
     """The statistics the theory takes as input, with and without rattlers (:class:`NetworkStatistics`).
 
-    rho_neighbours : the neighbourhood the vector V of (41) is summed over.
-        ``"contacts"`` (default; the definition used so far): mu's contacting neighbours only.
-        ``"near"``: the paper's neighbourhood of (39), the N̄ near neighbours of mu whether or not
-        they touch it (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless
-        ``nbar`` is given. ``docs/results/rho.md`` compares the two with a null model.
-    nbar : mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
+    Parameters
+    ----------
+    network : ContactNetwork
+        The packing (positions [m], radii [m], contacts, stiffnesses [N/m]).
+    min_contacts : int, optional
+        Rattler threshold of :func:`rattlers` (None: 2 with tangent stiffness, 3 without).
+    rho_neighbours : str
+        The neighbourhood the vector V of (41) is summed over. ``"contacts"`` (default; the
+        definition used so far): mu's contacting neighbours only. ``"near"``: the paper's
+        neighbourhood of (39), the N̄ near neighbours of mu whether or not they touch it
+        (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless ``nbar`` is
+        given. ``docs/results/rho.md`` compares the two with a null model.
+    nbar : float, optional
+        Mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
     """
     if rho_neighbours not in RHO_NEIGHBOURS:
         raise ValueError(f"rho_neighbours must be one of {RHO_NEIGHBOURS}, got {rho_neighbours!r}")
@@ -299,6 +367,23 @@ class RhoDefinitions(Result):
     the value the definition gives when the neighbours' contact numbers carry no correlation with
     mu at all. ``mean_degree[name]`` is the mean number of neighbours per particle in that
     neighbourhood. Dimensionless throughout.
+
+    Attributes
+    ----------
+    rho : dict of str to float
+        Measured rho per neighbourhood name.
+    null_mean, null_std : dict of str to float
+        Mean and standard deviation of rho over the ``n_null`` permutations, per name.
+    mean_degree : dict of str to float
+        Mean number of neighbours per non-rattler, per name.
+    nc : float
+        Mean active contacts per non-rattler.
+    r : float
+        ``var(Nc)/mean(Nc)^2`` over non-rattlers.
+    nbar : float
+        N̄ used for the ``"near"`` neighbourhood.
+    n_null : int
+        Number of random permutations of the null model.
     """
 
     rho: dict

@@ -25,6 +25,17 @@ Derivation chain (see ``docs/theory.md``):
 7. The final working formulas, the limits (55), the frictionless pair and ``Delta``. The
    geometry phi(Nbar) of section 6 is derived in :func:`microhom.neighbourhood.derive_phi_of_nbar`.
 
+Symbols (sympy, shared with :mod:`microhom.printed` and :mod:`microhom.derivations`): ``kn``, ``kt``
+contact stiffnesses [N/m]; ``Nc`` mean contact number; ``D`` particle diameter [m]; ``phi`` solid
+fraction; ``v`` area per particle [m^2] (``v = pi D^2 / (4 phi)``); ``r = mean(Nc'^2)/Nc^2``;
+``Nbar`` number of near neighbours (section 6); ``rho = Nc S`` the alignment factor with
+``S = sum V.W / sum V^2``; ``alpha`` the alignment parameter of (52); ``theta`` the contact angle;
+``lam`` the four lambdas of (21); ``X``, ``Y`` of (45)-(46); ``k_vec`` the wave vector of (27);
+``vbar_s``, ``ebar_s`` the isotropic mean (24) [N m]; ``vprime``, ``eprime`` the
+fluctuation model (32) and ``v2``, ``e2``, ``ev`` its second moments; ``Ncp`` the contact-number
+fluctuation ``Nc' = Nc^nu - Nc``; ``Vvec``, ``Wvec`` the odd angular distributions of (41)-(43).
+Tensors are returned as dicts from index tuples (0 or 1 each) to expressions.
+
 This module imports sympy; ``import microhom`` does not import it.
 """
 from __future__ import annotations
@@ -43,6 +54,19 @@ alpha = sp.symbols("alpha", positive=True)
 theta = sp.symbols("theta", real=True)
 lam = sp.symbols("lambda1:5", real=True)
 X, Y = sp.symbols("X Y", real=True)
+
+__all__ = [
+    # symbols
+    "kn", "kt", "Nc", "D", "phi", "v", "r", "Nbar", "rho", "S", "alpha", "theta", "lam", "X", "Y",
+    "k_vec", "vbar_s", "ebar_s", "vprime", "eprime", "v2", "e2", "ev", "Ncp", "Vvec", "Wvec",
+    # derivations
+    "circle_integral", "mean_structural_sum", "stress_from_structural_sum", "moduli_from_stress",
+    "mean_field_moduli", "spin_elimination", "iso_A", "Lambda_21", "kroner_operator", "kroner_kernel",
+    "angular_mean", "local_part_lemma", "kroner_local", "kroner_moduli", "fluctuation_sums",
+    "X_Y_definitions", "constant_stiffness_moduli", "odd_and_neighbour_sums", "least_squares_XY",
+    "alignment_integral", "rho_model_stable", "FinalFormulas", "final_formulas", "biaxial_delta",
+    "lambdify_final",
+]
 
 _R2 = (0, 1)
 
@@ -75,7 +99,7 @@ def circle_integral(expr):
     """int_0^2pi expr dtheta for an expression polynomial in cos(theta), sin(theta).
 
     The expression is expanded into monomials ``cos^a sin^b`` (coefficients free of theta), each
-    integrated once by sympy (:func:`_angular_moment`): the same integral as
+    integrated once by sympy (a cached angular moment): the same integral as
     ``sp.integrate(expr, (theta, 0, 2 pi))``, many times faster.
     """
     c, s_ = sp.cos(theta), sp.sin(theta)
@@ -430,7 +454,7 @@ def least_squares_XY():
     ``odd_ijk - (1/Nbar) Lambda_ijklmn nb_lmn`` ((39) with N^mu -> Nbar).
 
     We check that ``Lambda . nb`` depends on the lambdas only through X, Y (45)-(46), minimise
-    ``sum_mu |residual|^2`` over X and Y (the terms in |W|^2 do not depend on them), and return
+    ``sum_mu |residual|^2`` over X and Y (the terms in ``|W|^2`` do not depend on them), and return
     the normal equations and the solution in terms of ``S = sum V.W / sum V^2``.
     """
     Vv, Wv = Vvec, Wvec
@@ -487,11 +511,24 @@ def rho_model_stable(a=alpha):
 # ---- 7. final formulas ------------------------------------------------------------------------
 @dataclass(frozen=True)
 class FinalFormulas:
+    """The working formulas (50)-(51) in the symbols ``kn``, ``kt``, ``Nc``, ``phi``, ``r``, ``Nbar``
+    and ``rho`` (sympy expressions; evaluated, the moduli are in N/m like ``kn``).
+
+    Attributes
+    ----------
+    K_mf, G_mf : sympy.Expr
+        Mean-field bulk and shear moduli [N/m] (first terms of (50)-(51)).
+    K, G : sympy.Expr
+        Corrected bulk and shear moduli [N/m], (50)-(51) with (49) and ``rho = Nc S``.
+    drop_K, drop_G : sympy.Expr
+        Fraction changes ``1 - K/K_mf`` and ``1 - G/G_mf`` (dimensionless).
+    """
+
     K_mf: sp.Expr
     G_mf: sp.Expr
-    K: sp.Expr  # corrected, in terms of r, Nbar, Nc and rho
+    K: sp.Expr
     G: sp.Expr
-    drop_K: sp.Expr  # fraction change 1 - K/K_mf
+    drop_K: sp.Expr
     drop_G: sp.Expr
 
 

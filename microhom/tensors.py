@@ -78,7 +78,8 @@ def mandel_to_strain(v) -> np.ndarray:
 
 
 def isotropic_moduli(m) -> tuple[float, float]:
-    """Isotropic projection (K, G) of a 2D Mandel stiffness (formula in the module docstring)."""
+    """Isotropic projection (K, G) [unit of ``m``, N/m for stiffnesses] of a (3, 3) 2D Mandel
+    stiffness ``m`` (formula in the module docstring)."""
     m = np.asarray(m, dtype=float)
     c1111, c2222, c1122, c1212 = m[0, 0], m[1, 1], 0.5 * (m[0, 1] + m[1, 0]), 0.5 * m[2, 2]
     k = (c1111 + c2222 + 2.0 * c1122) / 4.0

@@ -154,10 +154,12 @@ class Configuration:
     # ---- sizes and geometry -----------------------------------------------------------------
     @property
     def n_particles(self) -> int:
+        """Number of particles N."""
         return self.positions.shape[0]
 
     @property
     def periodic(self) -> bool:
+        """True when the configuration has a periodic cell."""
         return self.cell is not None
 
     def fractional(self) -> np.ndarray:
@@ -215,6 +217,7 @@ class Configuration:
         return out
 
     def copy(self) -> "Configuration":
+        """A deep copy (every array copied)."""
         return Configuration(
             positions=self.positions.copy(), radii=self.radii.copy(),
             cell=None if self.cell is None else self.cell.copy(), origin=self.origin.copy(),

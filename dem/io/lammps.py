@@ -8,7 +8,7 @@ Dump files give the *bounding box* of the tilted cell, ``xlo_bound = xlo + min(0
 ``yhi_bound = yhi + max(0, yz)``; the readers/writers here invert/apply exactly that. LAMMPS's
 *general* triclinic form (any orientation; data header ``avec/bvec/cvec/abc origin``, dump
 ``BOX BOUNDS abc origin``, LAMMPS >= 17Apr2024) is read, and written for cells that are not in the
-restricted form (or use :meth:`Configuration.to_restricted` first for older LAMMPS versions).
+restricted form (or use :meth:`~dem.io.Configuration.to_restricted` first for older LAMMPS versions).
 """
 from __future__ import annotations
 
@@ -40,13 +40,14 @@ _REL_TOL = 1e-9  # relative slack of the "inside a non-periodic box" check
 # ---- box helpers ------------------------------------------------------------------------------
 
 def dump_bounds(xlo, xhi, ylo, yhi, xy=0.0, xz=0.0, yz=0.0):
-    """LAMMPS dump bounding box of a restricted triclinic box: (xlo_b, xhi_b, ylo_b, yhi_b)."""
+    """LAMMPS dump bounding box of a restricted triclinic box: (xlo_b, xhi_b, ylo_b, yhi_b), all in
+    the length unit of the box bounds and tilt factors ``xy``, ``xz``, ``yz``."""
     return (xlo + min(0.0, xy, xz, xy + xz), xhi + max(0.0, xy, xz, xy + xz),
             ylo + min(0.0, yz), yhi + max(0.0, yz))
 
 
 def box_from_dump_bounds(xlo_b, xhi_b, ylo_b, yhi_b, xy=0.0, xz=0.0, yz=0.0):
-    """Inverse of :func:`dump_bounds`: (xlo, xhi, ylo, yhi) of the box itself."""
+    """Inverse of :func:`dump_bounds`: (xlo, xhi, ylo, yhi) of the box itself (same length unit)."""
     return (xlo_b - min(0.0, xy, xz, xy + xz), xhi_b - max(0.0, xy, xz, xy + xz),
             ylo_b - min(0.0, yz), yhi_b - max(0.0, yz))
 
@@ -108,7 +109,7 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
     ``boundary`` command): ``periodic=True`` (default) takes x and y as periodic (``cell`` set);
     ``periodic=False`` gives ``cell=None``, keeps the box in ``meta['box']`` and checks that every
     particle lies inside it. ``unwrap=True`` adds the image flags to the positions
-    (x + ix a + iy b); by default positions are kept as written. Raises :class:`FormatError`.
+    (x + ix a + iy b); by default positions are kept as written. Raises :class:`~dem.io.FormatError`.
     """
     path = os.fspath(path)
     data = open_bytes(path)
@@ -508,7 +509,7 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     (restricted triclinic: the lines hold the *bounding* box and the tilt, converted back with
     :func:`box_from_dump_bounds`) or ``abc origin pp pp pp`` (general triclinic). ``cell`` is set
     when x and y are both periodic (``pp``); otherwise ``cell=None``, ``meta['box']`` holds the
-    box and particles outside its non-periodic directions raise :class:`FormatError`.
+    box and particles outside its non-periodic directions raise :class:`~dem.io.FormatError`.
     ``frame`` indexes the frames (negative from the end); see :func:`iter_lammps_dump`. Not given,
     the first frame is read, with a warning naming the frame count when the file has several (a
     trajectory's first frame is usually its initial gas). ``meta['frame']`` (0-based) and
@@ -537,7 +538,7 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
 
 
 def iter_lammps_dump(path, *, radius=None):
-    """Yield every frame of a LAMMPS text dump as a :class:`Configuration`."""
+    """Yield every frame of a LAMMPS text dump as a :class:`~dem.io.Configuration`."""
     path = os.fspath(path)
     data = open_bytes(path)
     offs = _frame_offsets(data)

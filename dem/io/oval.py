@@ -49,14 +49,14 @@ _COL = 25  # width of a 1pd25.17 field
 def read_oval(path) -> Configuration:
     """Read a DEMPLA/OVAL D-file of circular disks (layout and cell: module docstring).
 
-    Returns a periodic :class:`Configuration` (``origin = (0, 0)``, ids 1..N in file order,
+    Returns a periodic :class:`~dem.io.Configuration` (``origin = (0, 0)``, ids 1..N in file order,
     ``source_format = "oval"``) with ``meta`` keys ``oval_shape_code``, ``oval_xcell33`` (third
     dimension of line 2), ``oval_xcell13``, ``oval_xcell23`` (the offsets of the third direction on
     line 3; a non-zero value is kept and warned about: a 2D cell has no third direction).
 
     OVAL's kn multiplies half the overlap: use ``config.network(kn=..., kn_convention="oval")``
     (``--kn-convention oval`` on the command line).
-    Raises :class:`FormatError` (file, line, field) for a shape code other than 1, a bad header,
+    Raises :class:`~dem.io.FormatError` (file, line, field) for a shape code other than 1, a bad header,
     a line 3 without three offsets, a truncated particle list, a wrong column count, non-numeric
     values, a radius <= 0 or no particles.
     """
