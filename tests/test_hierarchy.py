@@ -1,0 +1,252 @@
+"""The relaxation hierarchy against closed forms, the exact solver (dem.stiffness, a separate
+factorisation) and dense linear algebra; its bound properties; bad input."""
+import numpy as np
+import pytest
+
+from dem.packing import pack
+from dem.stiffness import stiffness
+from microhom import lattices
+from microhom.hierarchy import (block_preconditioner, isotropic_weights, moments,
+                                relaxation_hierarchy, spectral_lower_bound)
+from microhom.kinematics import assemble
+from microhom.network import ContactNetwork, from_overlaps
+from microhom.structural_sums import particle_sums
+from microhom.tensors import isotropic_moduli
+
+S3 = np.sqrt(3.0)
+
+
+def _diluted(nx=8, ny=8, z=4.4, kt=1.0, seed=0, jitter=0.15, poly=0.15, sliding=0.0):
+    """Jittered polydisperse triangular lattice with contacts kept at random (mean Z ~ z)."""
+    rng = np.random.default_rng(seed)
+    base = lattices.triangular(nx, ny)
+    pos = base.positions + jitter * rng.uniform(-0.5, 0.5, base.positions.shape)
+    rad = 0.5 * (1 + poly * rng.uniform(-1, 1, len(pos)))
+    net = from_overlaps(pos, rad, base.cell, kn=1.0, kt=kt, tolerance=0.35)
+    keep = rng.random(net.n_contacts) < z / 6
+    net = net.select_contacts(keep)
+    sl = rng.random(net.n_contacts) < sliding
+    return net.with_stiffness(kn=rng.uniform(0.5, 1.5, net.n_contacts), sliding=sl)
+
+
+@pytest.fixture(scope="module")
+def packing():
+    """A small frictional DEM packing (kt = 0.5 kn, p/kn = 1e-3) with its forces."""
+    return pack(150, p_over_kn=1e-3, kt=0.5, mu=0.5, mu_prep=0.1, dispersity=0.2, seed=3).to_network()
+
+
+def _psd(A, tol):
+    return np.linalg.eigvalsh(0.5 * (A + A.T)).min() >= -tol
+
+
+# ---- lattices: closed forms ------------------------------------------------------------------
+@pytest.mark.parametrize("kt", [1.0, 0.3, 0.0])
+def test_triangular_exact_at_order_zero(kt):
+    h = relaxation_hierarchy(lattices.triangular(6, 6, kt=kt, angle=0.3))
+    assert h.order == 0 and h.converged and not h.reasons
+    assert h.K.value == pytest.approx(S3 / 2, rel=1e-12) and h.K.lower == pytest.approx(S3 / 2, rel=1e-12)
+    assert h.G.value == pytest.approx(S3 / 4 * (1 + kt), rel=1e-12)
+    assert h.G.error == 0 and h.G.error_rigorous
+
+
+@pytest.mark.parametrize("kt", [1.0, 0.3, 0.05, 0.0])
+def test_honeycomb_relaxation_is_everything(kt):
+    """Honeycomb: the shear response is entirely non-affine; every particle is equivalent, so the
+    single-particle relaxation (order 1, block-diagonal preconditioner) is already exact."""
+    h = relaxation_hierarchy(lattices.honeycomb(4, 3, kt=kt, angle=0.2), tol=1e-9)
+    G_exact = kt / (S3 * (1 + kt)) if kt > 0 else 0.0
+    assert h.K.upper == pytest.approx(1 / (2 * S3), rel=1e-10)
+    assert abs(h.G.upper - G_exact) <= 1e-10
+    assert h.converged
+    if kt != 1.0:   # kt = kn: the honeycomb is affine (G = K = 1/(2 sqrt3)), exact at order 0
+        assert h.G_orders[0] > 1.3 * G_exact + 0.01  # the affine estimate is far off
+        assert h.order == 1
+    assert h.G.lower is not None and abs(h.G.lower - G_exact) <= 1e-10
+
+
+def test_square_lattice_affine():
+    h = relaxation_hierarchy(lattices.square(5, 5, kt=0.4))
+    assert h.K.value == pytest.approx(0.5, rel=1e-12) and h.G.value == pytest.approx(0.35, rel=1e-12)
+
+
+# ---- bounds on random networks against the exact solver --------------------------------------
+@pytest.mark.parametrize("kt, sliding", [(1.0, 0.0), (0.3, 0.1), (0.1, 0.0), (0.0, 0.0)])
+def test_bounds_monotone_and_exact_limit(kt, sliding):
+    net = _diluted(kt=kt, sliding=sliding, z=5.2 if kt == 0 else 4.4, seed=int(10 * kt))
+    ex = stiffness(net)
+    h = relaxation_hierarchy(net, tol=1e-12, max_order=400)
+    scale = np.abs(ex.C_mandel).max()
+    # exact limit: agrees with the factorised solve
+    assert np.abs(h.C_upper - ex.C_mandel).max() <= 1e-8 * scale
+    assert abs(h.K.value - ex.K) <= 1e-8 * ex.K and abs(h.G.value - ex.G) <= 1e-8 * max(ex.G, scale)
+    # every order is an upper bound in the Loewner order, and the sequence is monotone
+    for C in h.C_orders:
+        assert _psd(C - ex.C_mandel, 1e-10 * scale)
+    for a, b in zip(h.C_orders[:-1], h.C_orders[1:]):
+        assert _psd(a - b, 1e-10 * scale)
+    assert np.all(np.diff(h.K_orders) <= 1e-12 * scale) and np.all(np.diff(h.G_orders) <= 1e-12 * scale)
+    # certified lower bounds (dense spectral bound on this small system) hold at every order
+    assert h.spectral_bound_source == "dense"
+    ok = np.isfinite(h.K_lower_orders)
+    assert ok[1:].all()
+    assert np.all(h.K_lower_orders[ok] <= ex.K + 1e-10 * scale)
+    assert np.all(h.G_lower_orders[ok] <= ex.G + 1e-10 * scale)
+    assert _psd(ex.C_mandel - h.C_lower, 1e-9 * scale)
+
+
+def test_exact_inside_interval_every_order_small_tolerance_stop():
+    net = _diluted(kt=0.5, seed=4)
+    ex = stiffness(net)
+    for k in (1, 2, 3, 5, 8, 13):
+        h = relaxation_hierarchy(net, tol=1e-12, max_order=k)
+        assert h.order == k and not h.converged
+        assert any("not met" in r for r in h.reasons)
+        for est, exact in ((h.K, ex.K), (h.G, ex.G)):
+            assert est.lower <= exact * (1 + 1e-10) and exact <= est.upper * (1 + 1e-10)
+    loose = relaxation_hierarchy(net, tol=0.05, max_order=400)
+    assert loose.converged and loose.order < 400
+    for est, exact in ((loose.K, ex.K), (loose.G, ex.G)):
+        assert est.lower <= exact <= est.upper
+        # met by the rigorous interval or by the extrapolation's stated error, which holds here
+        assert 2 * est.error <= 0.05 * est.value
+        assert abs(est.value - exact) <= est.error
+
+
+def test_dense_spectral_bound_is_the_pencil_minimum():
+    net = _diluted(kt=0.7, seed=7)
+    asm = assemble(net, pin=False)
+    M, Minv, nbad = block_preconditioner(asm)
+    assert nbad == 0
+    assert np.allclose((Minv @ M).diagonal(), 1.0)
+    lam, nz, nneg = spectral_lower_bound(asm, M)
+    # independent: scipy's generalised symmetric eigen-solver on the dense pencil
+    from scipy.linalg import eigh
+    w = eigh(asm.H.toarray(), M.toarray(), eigvals_only=True)
+    w = w[np.abs(w) > 1e-9 * w.max()]
+    assert nneg == 0 and nz >= 2  # the two global translations at least
+    assert lam <= w.min() and lam == pytest.approx(w.min(), rel=1e-6)
+
+
+def test_first_order_is_the_single_particle_relaxation():
+    """Order '1' (first-order Kroener, measured one-sided sums): each particle relaxes alone.
+    The load on a particle is its odd structural sum A_pqr E_qr (paper eq. 10, computed by
+    microhom.structural_sums, separate code), its translation block is A_pq."""
+    net = _diluted(kt=0.6, seed=2, poly=0.0)
+    asm = assemble(net, pin=False)
+    sums = particle_sums(asm.net)
+    E = np.array([[0.3, 0.2], [0.2, -0.1]])
+    e = np.array([E[0, 0], E[1, 1], np.sqrt(2) * E[0, 1]])
+    b = -(asm.F @ e)
+    N = net.n_particles
+    for p in range(N):
+        if asm.dof_map[2 * p] < 0:
+            continue
+        bp = b[asm.dof_map[[2 * p, 2 * p + 1]]]
+        assert np.allclose(bp, np.einsum("pqr,qr->p", sums.A3[p], E), atol=1e-12)
+        Mp = asm.H[asm.dof_map[[2 * p, 2 * p + 1]]][:, asm.dof_map[[2 * p, 2 * p + 1]]].toarray()
+        assert np.allclose(Mp, sums.A2[p], atol=1e-12)
+    h = relaxation_hierarchy(net)
+    mu = moments(asm, e, j_max=2)
+    C = h.C_first_order
+    assert e @ C @ e == pytest.approx(e @ h.C_orders[0] @ e - mu[0] / net.area, rel=1e-12)
+    # 1-point Gauss rule = mu_0^2 / mu_1 <= exact relaxation along e (single-column check)
+    h1 = relaxation_hierarchy(net, max_order=1)
+    assert e @ h1.C_orders[1] @ e <= e @ h.C_orders[0] @ e - mu[0] ** 2 / mu[1] / net.area + 1e-12
+
+
+def test_isotropic_weights_reproduce_projection():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(3, 3))
+    C = A @ A.T
+    eK, wK, eG, wG = isotropic_weights()
+    K, G = isotropic_moduli(C)
+    assert K == pytest.approx(float(np.einsum("a,ai,ij,aj->", wK, eK, C, eK)), rel=1e-14)
+    assert G == pytest.approx(float(np.einsum("a,ai,ij,aj->", wG, eG, C, eG)), rel=1e-14)
+
+
+# ---- DEM packing: prestress, sliding, extrapolation -----------------------------------------
+@pytest.mark.parametrize("prestress", [False, True])
+def test_packing_bounds_and_convergence(packing, prestress):
+    ex = stiffness(packing, prestress=prestress)
+    assert ex.n_unstable == 0
+    h = relaxation_hierarchy(packing, prestress=prestress, tol=1e-10, max_order=600)
+    scale = np.abs(ex.C_mandel).max()
+    assert np.abs(h.C_upper - ex.C_mandel).max() <= 1e-8 * scale
+    for C in h.C_orders:
+        assert _psd(C - ex.C_mandel, 1e-9 * scale)
+    assert h.prestress == prestress and not h.unstable
+    short = relaxation_hierarchy(packing, prestress=prestress, tol=1e-12, max_order=12)
+    for est, exact in ((short.K, ex.K), (short.G, ex.G)):
+        assert est.lower <= exact <= est.upper
+
+
+def test_sliding_contacts_as_the_exact_solver(packing):
+    rng = np.random.default_rng(5)
+    net = packing.with_stiffness(sliding=rng.random(packing.n_contacts) < 0.3)
+    ex = stiffness(net)
+    h = relaxation_hierarchy(net, tol=1e-10, max_order=600)
+    assert abs(h.K.upper - ex.K) <= 1e-8 * ex.K and abs(h.G.upper - ex.G) <= 1e-8 * ex.K
+
+
+def test_unstable_prestress_is_flagged():
+    """A honeycomb under a large compressive contact force buckles: H is indefinite."""
+    net = lattices.honeycomb(4, 3, kt=0.05)
+    from dataclasses import replace
+    net = replace(net, fn=np.full(net.n_contacts, 0.6))
+    h = relaxation_hierarchy(net, prestress=True)
+    assert h.unstable and not h.valid
+    assert any("negative curvature" in r for r in h.reasons)
+
+
+# ---- bad input --------------------------------------------------------------------------------
+def test_no_contacts_and_all_rattlers_flagged():
+    pos = np.array([[0.0, 0.0], [3.0, 3.0]])
+    net = from_overlaps(pos, 0.5, np.eye(2) * 6.0)
+    h = relaxation_hierarchy(net)
+    assert any("no contacts" in r for r in h.reasons)
+    assert h.K.value == 0 and h.G.value == 0 and np.all(np.isfinite(h.C_upper))
+    net2 = from_overlaps(np.array([[0.0, 0.0], [0.99, 0.0], [3.0, 3.0]]), 0.5, np.eye(2) * 6.0)
+    h2 = relaxation_hierarchy(net2)
+    assert any("rattler" in r for r in h2.reasons)
+    assert np.all(np.isfinite(h2.C_upper))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(tol=0.0), "tol"), (dict(tol=1.5), "tol"), (dict(tol=float("nan")), "tol"),
+    (dict(max_order=0), "max_order"), (dict(max_order=2.5), "max_order"),
+    (dict(spectral_bound=-1.0), "spectral_bound"), (dict(spectral_bound="maybe"), "spectral_bound"),
+    (dict(prestress=True), "fn"),
+])
+def test_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        relaxation_hierarchy(lattices.triangular(4, 4), **kwargs)
+
+
+def test_open_network_and_nan_input():
+    net = lattices.triangular(4, 4)
+    from dataclasses import replace
+    with pytest.raises(ValueError, match="periodic"):
+        relaxation_hierarchy(replace(net, cell=None))
+    with pytest.raises(ValueError, match="non-finite"):
+        ContactNetwork(positions=np.array([[np.nan, 0.0]]), radii=[0.5], cell=np.eye(2),
+                       pairs=np.zeros((0, 2)), branch=np.zeros((0, 2)), kn=1.0, kt=1.0, sliding=False)
+    with pytest.raises(TypeError):
+        relaxation_hierarchy("not a network")
+
+
+def test_floppy_network_answers_and_says_so():
+    """Square lattice without tangent stiffness: shear floppy (C1212 = 0), K exact."""
+    net = lattices.square(5, 6, kt=0.0, angle=0.4)
+    h = relaxation_hierarchy(net, tol=1e-8, max_order=100)
+    ex = stiffness(net)
+    assert abs(h.C_upper[2, 2] - ex.C_mandel[2, 2]) <= 1e-8
+    assert h.K.upper == pytest.approx(ex.K, rel=1e-8)
+
+
+def test_result_as_dict_is_json_ready(packing):
+    import json
+    h = relaxation_hierarchy(packing, max_order=4, spectral_bound="none")
+    d = h.as_dict()
+    json.dumps(d)
+    assert d["K"]["lower"] is None and d["spectral_bound_source"] == "none"
+    assert any("no certified spectral bound" in r or "not met" in r for r in d["reasons"]) or h.converged
