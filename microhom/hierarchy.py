@@ -363,8 +363,8 @@ def _extrapolate(seq):
     j = np.arange(1, d.size + 1, dtype=float)[-6:]
     slope, logc = np.polyfit(np.log(j), np.log(d[-6:]), 1)
     s_ = -slope
-    if not (s_ > 1.05):
-        return float(u[-1] - tail_g), float("inf")
+    if not (s_ > 1.05):                                    # no summable tail: no estimate
+        return float(u[-1]), float("inf")
     tail_p = np.exp(logc) * (j[-1] + 0.5) ** (1 - s_) / (s_ - 1)
     tail = 0.5 * (tail_g + tail_p)
     return float(u[-1] - tail), float(tail + 1e-6 * abs(u[-1]))
