@@ -180,8 +180,9 @@ def _particle_of_dof(asm: Assembly) -> np.ndarray:
 def block_preconditioner(asm: Assembly):
     """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3) and its inverse.
 
-    Returns (M, Minv) as CSR matrices (ndof, ndof) and the number of singular or indefinite
-    blocks (their inverse is taken on the positive part only; 0 for a well-posed network).
+    Returns (M, Minv, Minv_sqrt, n_bad): CSR matrices (ndof, ndof) ``M``, ``M^-1``, ``M^-1/2``
+    and the number of singular or indefinite blocks (their inverse is taken on the positive part
+    only; 0 for a well-posed network).
     """
     H = asm.H.tocoo()
     owner = _particle_of_dof(asm)
@@ -206,16 +207,18 @@ def block_preconditioner(asm: Assembly):
     n_bad = int(np.count_nonzero(~good.all(axis=1)))
     winv = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
     inv = np.einsum("nij,nj,nkj->nik", V, winv, V)
+    isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V)
     members = np.full((nb, 3), -1, dtype=np.int64)             # unknown at (block, slot)
     members[bi[order], slot[order]] = order
     r = np.broadcast_to(members[:, :, None], (nb, 3, 3)).ravel()
     c = np.broadcast_to(members[:, None, :], (nb, 3, 3)).ravel()
     ok = (r >= 0) & (c >= 0)
     Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
-    return M, Minv, n_bad
+    Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
+    return M, Minv, Minv_sqrt, n_bad
 
 
-def spectral_lower_bound(asm: Assembly, M=None, *, dense_max=3000):
+def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000):
     """Smallest non-zero eigenvalue of the pencil ``(H, M)`` (floppy modes excluded), computed
     exactly by a dense eigen-decomposition of ``M^-1/2 H M^-1/2`` when ``ndof <= dense_max``.
 
@@ -226,13 +229,8 @@ def spectral_lower_bound(asm: Assembly, M=None, *, dense_max=3000):
     n = asm.ndof
     if n == 0 or n > dense_max:
         return None, 0, 0
-    if M is None:
-        M, _, _ = block_preconditioner(asm)
-    Md = M.toarray()
-    w, V = np.linalg.eigh(Md)
-    wpos = np.where(w > 0, w, np.inf)
-    S = (V / np.sqrt(wpos)) @ V.T                     # M^-1/2 (zero on singular directions)
-    A = S @ asm.H.toarray() @ S
+    S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
+    A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
     lmax = float(np.abs(lam).max()) if lam.size else 0.0
     zero = np.abs(lam) <= _ZERO_EIG * lmax
@@ -250,7 +248,7 @@ def moments(asm: Assembly, e, j_max=3, Minv=None):
     strain ``e`` (3,) [N m per unit strain, squared over N/m]; ``mu_0`` is the first-order
     relaxation (``C_fo = C_aff - mu_0 / A`` along ``e``)."""
     if Minv is None:
-        _, Minv, _ = block_preconditioner(asm)
+        Minv = block_preconditioner(asm)[1]
     b = -(asm.F @ np.asarray(e, dtype=float))
     vals = []
     y = Minv @ b
@@ -287,15 +285,16 @@ class _BlockPCG:
         zz = np.einsum("ij,ij->j", self.Z, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
         self.Rk = np.zeros((B.shape[1], B.shape[1]))
-        self.blocks = []
+        self.Pall = np.empty((B.shape[0], 0))             # all earlier H-orthonormal directions
+        self.HPall = np.empty((B.shape[0], 0))
         self.unstable = False
         self.n_floppy = 0
         self.done = False
 
     def step(self):
         P = self.P
-        for Pj, HPj in self.blocks:                      # full H-conjugation (re-orthogonalisation)
-            P = P - Pj @ (HPj.T @ P)
+        if self.Pall.shape[1]:                           # full H-conjugation (re-orthogonalisation)
+            P = P - self.Pall @ (self.HPall.T @ P)
         Gm = P.T @ (self.M @ P)
         wm, Vm = np.linalg.eigh(0.5 * (Gm + Gm.T))
         keep = wm > max(1e-24 * self.scale2, 1e-12 * wm.max(initial=0.0))
@@ -317,7 +316,7 @@ class _BlockPCG:
             return
         T = Uh[:, ok] / np.sqrt(wh[ok])                  # P T is H-orthonormal
         P, HP = P @ T, HP @ T
-        self.blocks.append((P, HP))
+        self._append(P, HP)
         alpha = P.T @ self.R
         self.X += P @ alpha
         self.R -= HP @ alpha
@@ -325,6 +324,23 @@ class _BlockPCG:
         self.Rk = 0.5 * (R + R.T)
         self.Z = self.Minv @ self.R
         self.P = self.Z
+
+    def _append(self, P, HP):
+        """Store the block in capacity-doubling arrays (amortised O(1) copies)."""
+        m, s = self.Pall.shape[1], P.shape[1]
+        if not hasattr(self, "_cap") or m + s > self._cap:
+            cap = max(2 * (m + s), 12)
+            for name in ("Pall", "HPall"):
+                old = getattr(self, "_" + name, None)
+                new = np.empty((P.shape[0], cap))
+                if m:
+                    new[:, :m] = old[:, :m]
+                setattr(self, "_" + name, new)
+            self._cap = cap
+        self._Pall[:, m:m + s] = P
+        self._HPall[:, m:m + s] = HP
+        self.Pall = self._Pall[:, :m + s]
+        self.HPall = self._HPall[:, :m + s]
 
 
 def _tensor(C_aff_kept, Rk, area, corr):
@@ -426,7 +442,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
 
     t1 = time.perf_counter()
     B = -asm.F
-    M, Minv, n_bad = (None, None, 0) if asm.ndof == 0 else block_preconditioner(asm)
+    M, Minv, Msq, n_bad = (None, None, None, 0) if asm.ndof == 0 else block_preconditioner(asm)
     if n_bad:
         reasons.append(f"{n_bad} particle block(s) of H singular or indefinite (floppy particle or "
                        "pre-stress larger than the contact stiffness)")
@@ -440,7 +456,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     if user_lam is not None:
         lam, src = user_lam, "user"
     elif spectral_bound == "auto" and asm.ndof:
-        lam, _, n_neg_dense = spectral_lower_bound(asm, M, dense_max=dense_max)
+        lam, _, n_neg_dense = spectral_lower_bound(asm, Msq, dense_max=dense_max)
         src = "dense" if lam is not None else "none"
         if lam is None and asm.ndof > dense_max:
             reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "

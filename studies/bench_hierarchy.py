@@ -53,7 +53,7 @@ def certified_bound(net, prestress=True):
     minus 1e-6 relative for the solver tolerance; (lam, seconds)."""
     t0 = time.perf_counter()
     asm = assemble(net, prestress=prestress, pin=False)
-    M, _, _ = block_preconditioner(asm)
+    M = block_preconditioner(asm)[0]
     w = sla.eigsh(asm.H.tocsc(), k=8, M=M.tocsc(), sigma=-1e-9, which="LM",
                   return_eigenvectors=False, tol=1e-10)
     w = np.sort(w)

@@ -115,10 +115,11 @@ def test_exact_inside_interval_every_order_small_tolerance_stop():
 def test_dense_spectral_bound_is_the_pencil_minimum():
     net = _diluted(kt=0.7, seed=7)
     asm = assemble(net, pin=False)
-    M, Minv, nbad = block_preconditioner(asm)
+    M, Minv, Msq, nbad = block_preconditioner(asm)
     assert nbad == 0
     assert np.allclose((Minv @ M).diagonal(), 1.0)
-    lam, nz, nneg = spectral_lower_bound(asm, M)
+    lam, nz, nneg = spectral_lower_bound(asm, Msq)
+    assert np.allclose((Msq @ Msq @ M).diagonal(), 1.0)
     # independent: scipy's generalised symmetric eigen-solver on the dense pencil
     from scipy.linalg import eigh
     w = eigh(asm.H.toarray(), M.toarray(), eigvals_only=True)
@@ -250,3 +251,82 @@ def test_result_as_dict_is_json_ready(packing):
     json.dumps(d)
     assert d["K"]["lower"] is None and d["spectral_bound_source"] == "none"
     assert any("no certified spectral bound" in r or "not met" in r for r in d["reasons"]) or h.converged
+
+
+# ---- derivation check: first order under the seed's isotropic statistical model -------------
+def _seed_model_first_order():
+    """Sympy: mu_0 per particle for a first-harmonic contact density rho = Nc/2pi + W.n (A1-A4 of
+    docs/theory.md section 9); returns (drop_K, drop_G) as functions of kn, kt, Nc, W2 = <|W|^2>."""
+    import sympy as s
+    th, kn, kt, D, Wx, Wy, Nc = s.symbols("theta k_n k_t D W_x W_y N_c", real=True)
+    W2 = s.symbols("W2", positive=True)
+    n = s.Matrix([s.cos(th), s.sin(th)])
+    t = s.Matrix([-s.sin(th), s.cos(th)])
+    K = kn * n * n.T + kt * t * t.T
+    rho = Nc / (2 * s.pi) + Wx * s.cos(th) + Wy * s.sin(th)
+
+    def integ(f):
+        return s.integrate(s.expand(f), (th, 0, 2 * s.pi))
+    a = D / 2
+    Muu = (K * rho.subs({Wx: 0, Wy: 0})).applyfunc(integ)
+    Mww = integ(a ** 2 * (t.T * K * t)[0] * Nc / (2 * s.pi))
+    M0 = s.Matrix([[Muu[0, 0], Muu[0, 1], 0], [Muu[1, 0], Muu[1, 1], 0], [0, 0, Mww]])
+    r2 = s.Rational(1, 2)
+    modes = [(s.Matrix([[r2, 0], [0, r2]]), "K", 1), (s.Matrix([[r2, 0], [0, -r2]]), "G", r2),
+             (s.Matrix([[0, 1 / s.sqrt(2)], [1 / s.sqrt(2), 0]]), "G", s.Rational(1, 4))]
+    drop = {"K": 0, "G": 0}
+    for E, m, w in modes:
+        bu = (K * E * (D * n) * rho).applyfunc(integ)
+        bw = integ(a * (t.T * K * E * D * n)[0] * rho)
+        b = s.Matrix([bu[0], bu[1], bw])
+        mu0 = s.expand((b.T * M0.inv() * b)[0])
+        mu0 = mu0.subs({Wx * Wy: 0}).subs({Wx ** 2: W2 / 2, Wy ** 2: W2 / 2})   # isotropy (A4)
+        drop[m] += w * mu0
+    drop_K = s.simplify(drop["K"] / (Nc * D ** 2 * kn / 8))          # per particle K_mf A/N
+    drop_G = s.simplify(drop["G"] / (Nc * D ** 2 * (kn + kt) / 16))  # per particle G_mf A/N
+    return drop_K, drop_G, (kn, kt, Nc, W2, D)
+
+
+@pytest.mark.slow  # sympy integration, ~20 s; the numeric check below runs in the default suite
+def test_first_order_under_the_seed_model():
+    import sympy as s
+    drop_K, drop_G, (kn, kt, Nc, W2, D) = _seed_model_first_order()
+    y = s.pi ** 2 * W2 / Nc ** 2
+    assert s.simplify(drop_K - 4 * kn / (kn + kt) * y) == 0
+    assert s.simplify(drop_G - 2 * y) == 0
+    # the seed's (50)-(51): drop_K = 4 kn/(3kn+kt) x, drop_G = 2(2kn+kt)/(3kn+kt) x
+    x = s.symbols("x", positive=True)
+    seed_K, seed_G = 4 * kn / (3 * kn + kt) * x, 2 * (2 * kn + kt) / (3 * kn + kt) * x
+    ident = s.solve(s.Eq(drop_K, seed_K), W2)[0]           # the identification matching the bulk
+    ratio = s.simplify(drop_G.subs(W2, ident) / seed_G)
+    assert s.simplify(ratio - (kn + kt) / (2 * kn + kt)) == 0   # shear then differs: no match in both
+
+
+def test_seed_model_formula_against_the_kinematics_code():
+    """Numeric check of the sympy integrals with the project's per-contact matrices: a star of 720
+    contacts around one disk, each weighted by the first-harmonic density, small W."""
+    from microhom.kinematics import contact_matrices
+    Nc, kn, kt, D = 4.0, 1.0, 0.4, 1.0
+    nc = 720
+    th = (np.arange(nc) + 0.5) * 2 * np.pi / nc
+    n = np.stack([np.cos(th), np.sin(th)], 1)
+    out = {}
+    for Wdir in (np.array([1.0, 0.0]), np.array([0.0, 1.0])):
+        W = 0.02 * Wdir
+        wgt = (Nc / (2 * np.pi) + n @ W) * 2 * np.pi / nc          # rho(theta) dtheta
+        pos = np.vstack([[0.0, 0.0], D * n])
+        net = ContactNetwork(positions=pos, radii=np.full(nc + 1, D / 2), cell=None,
+                             pairs=np.stack([np.zeros(nc, int), np.arange(1, nc + 1)], 1),
+                             branch=D * n, kn=kn * wgt, kt=kt * wgt, sliding=False)
+        m = contact_matrices(net)
+        Bi = m.B[:, :, :3]                                         # the centre's (u, omega) columns
+        M = np.einsum("cai,cab,cbj->ij", Bi, m.K, Bi)
+        b = -np.einsum("cai,cab,cbk->ik", Bi, m.K, m.D)            # (3, 3): load per Mandel strain
+        for name, e, w in (("K", [0.5, 0.5, 0], 1), ("G1", [0.5, -0.5, 0], 0.5), ("G3", [0, 0, 1], 0.25)):
+            be = b @ np.array(e, float)
+            out[name] = out.get(name, 0) + 0.5 * w * be @ np.linalg.solve(M, be)   # average over W dirs
+    y = np.pi ** 2 * 0.02 ** 2 / Nc ** 2
+    dK = out["K"] / (Nc * D ** 2 * kn / 8)
+    dG = (out["G1"] + out["G3"]) / (Nc * D ** 2 * (kn + kt) / 16)
+    assert dK == pytest.approx(4 * kn / (kn + kt) * y, rel=2e-3)    # O(W^2) relative corrections
+    assert dG == pytest.approx(2 * y, rel=2e-3)
