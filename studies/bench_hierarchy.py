@@ -172,7 +172,7 @@ def stats_speed(n=1_000_000, repeats=3):
     ts = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        predict_closure(nc=nc, kt_over_kn=kt, p_over_kn=1e-4, dispersity=0.1)
+        predict_closure(nc=nc, r=r, kt_over_kn=kt, phi=0.84, dispersity=0.1)
         ts.append(time.perf_counter() - t0)
     print(f"predict_closure (statistics-only closure): {n / min(ts):.3g} parameter sets/s (best of {repeats})")
 
