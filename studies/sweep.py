@@ -166,14 +166,15 @@ def main(argv=None):
     wall = time.perf_counter() - t0
     n_err = int((df.status != "ok").sum())
     summary = summarise(df)
-    summary.to_csv(out / "summary.csv", index=False)
     show = summary[["mu_prep", "p_over_kn", "kt_ratio", "n_seeds", "nc", "r", "rho", "exact_K", "exact_K_sem",
-                    "theory_rho_K", "exact_G", "exact_G_sem", "theory_rho_G", "drop_G_dem", "drop_G_theory"]]
+                    "theory_rho_K", "closure_K", "hier_K", "exact_G", "exact_G_sem", "theory_rho_G", "closure_G",
+                    "hier_G", "drop_G_dem", "drop_G_theory"]]
     pd.set_option("display.width", 220)
     print(show.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     md = write_table(show, out, "summary", "Sweep: theory (measured rho) against DEM exact",
                      f"{len(df)} cases ({n_err} failed, see sweep.csv), scheduler {sched}, wall {wall:.0f} s. "
                      "Means over seeds with standard errors (_sem).")
+    summary.to_csv(out / "summary.csv", index=False)   # after write_table, which writes the shown columns
     plot(summary, out / "sweep.png")
     print(f"written: {md}, {out / 'sweep.csv'}, {out / 'sweep.png'}; {n_err} failed cases; wall {wall:.0f} s")
 
