@@ -286,7 +286,9 @@ class _BlockPCG:
     """
 
     def __init__(self, H, M, Minv, B, full=True):
-        self.H, self.M, self.Minv, self.full = H.tocsr(), M, Minv, full
+        # H is symmetric: its transpose is the CSR form of the same matrix, without a copy
+        self.H = H.T if sp.isspmatrix_csc(H) else H.tocsr()
+        self.M, self.Minv, self.full = M, Minv, full
         B = np.asfortranarray(B)
         self.B = B
         self.X = np.zeros_like(B)
@@ -354,6 +356,17 @@ class _BlockPCG:
         for Pc, HPc, m in self._chunks:
             P = P - _tall(Pc[:, :m], HPc[:, :m].T @ P)
         return P
+
+
+def _affine_kept(asm: Assembly, area: float) -> np.ndarray:
+    """(3, 3) affine tensor ``Df^T (K + K_g) Df / A`` of the load-bearing contacts, from the
+    assembly's own matrices (the same as ``kinematics.affine_tensor(asm.net, prestress)``)."""
+    if asm.net.n_contacts == 0:
+        return np.zeros((3, 3))
+    C = asm.Df.T @ (asm.Ks @ asm.Df)
+    if asm.Kgs is not None:
+        C = C + asm.Df.T @ (asm.Kgs @ asm.Df)
+    return C / area
 
 
 def _tensor(C_aff_kept, Rk, area, corr):
@@ -448,8 +461,9 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     asm = assemble(network, prestress=prestress, min_contacts=min_contacts, pin=False)
     area = network.area
     corr = prestress_correction(stress0(network)) if prestress else np.zeros((3, 3))
-    C_aff_all = affine_tensor(network, prestress) + corr
-    C_aff = affine_tensor(asm.net, prestress) if asm.net.n_contacts else np.zeros((3, 3))
+    C_aff = _affine_kept(asm, area)
+    C_aff_all = (affine_tensor(network, prestress) if asm.net.n_contacts < network.n_contacts
+                 else C_aff) + corr
     C0 = _tensor(C_aff, np.zeros((3, 3)), area, corr)
     Ka_all, Ga_all = _iso(C_aff_all)
     t_asm = time.perf_counter() - t0
