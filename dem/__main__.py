@@ -1,6 +1,7 @@
-"""Command line of the disk DEM.
+"""Command line of the disk DEM (also installed as the ``dem`` console script).
 
     python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 --out packing.npz
+    python -m dem analyse packing.npz                 # or any file dem.io reads (see dem.analyse_cli)
 
 ``pack`` builds a dense random packing with :func:`dem.packing.pack` (random gas -> compaction
 under the pressure servo -> equilibrium at the preparation friction -> equilibrium at the test
@@ -17,10 +18,18 @@ friction) and writes, next to ``--out`` (``packing.npz`` below):
 * ``packing.checkpoint.npz`` — the checkpoint while running (atomic, every
   ``--checkpoint-every`` seconds); removed after a converged run, kept otherwise for ``--resume``.
 
-Exit codes: 0 converged; 2 bad input (the message names the option and its allowed range);
-3 not converged within ``--max-steps`` (outputs written, flagged ``converged = False``; continue
-with ``--resume --max-steps M``); 4 unstable run (reason printed, last good checkpoint kept);
-130 interrupted (Ctrl-C; the last checkpoint is kept).
+Exit codes of ``pack``: 0 converged; 2 bad input (the message names the option and its allowed
+range); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged = False``;
+continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good checkpoint
+kept); 130 interrupted (Ctrl-C; the last checkpoint is kept).
+
+Exit codes of ``analyse``: 0 analysed (a degenerate result is flagged in the report, with its
+reason); 2 bad input (an option out of range, a missing or malformed file: one line naming the
+file, line and field).
+
+Every command: 1 the machine's state (a file that cannot be read or written, a full disk, out of
+memory: one line, no traceback); 130 interrupted; 141 the output pipe was closed (``| head``):
+silent, as Unix tools are.
 """
 from __future__ import annotations
 
@@ -32,7 +41,11 @@ import os
 import sys
 import time
 
+from . import analyse_cli
+from .io import FormatError
+
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
+EXIT_MACHINE, EXIT_BROKEN_PIPE = 1, 141
 
 #: physics options of ``pack``: (default, allowed range text, check). A resumed run keeps the
 #: values stored in its checkpoint; giving a different one is refused.
@@ -55,8 +68,14 @@ class BadInput(ValueError):
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m dem", description="Disk DEM command line.")
+    ap = argparse.ArgumentParser(
+        prog="python -m dem", description="Disk DEM command line: pack (build a packing), "
+        "analyse (measure a packing file against the theory).",
+        epilog="exit codes (every command): 0 done, 2 bad input, 1 the machine's state (file "
+               "cannot be read or written, disk full, out of memory), 130 interrupted, 141 output "
+               "pipe closed; pack also 3 not converged, 4 unstable (see python -m dem pack -h)")
     sub = ap.add_subparsers(dest="command", required=True)
+    analyse_cli.add_parser(sub)
     p = sub.add_parser(
         "pack", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="build a dense random disk packing at a target pressure",
@@ -200,7 +219,7 @@ def _summary_rows(res, net):
             v = rep[k]
             rows.append(("packing", k, v.item() if hasattr(v, "item") else v))
     rows.append(("packing", "phase_steps", json.dumps(rep.get("phase_steps", []))))
-    for k, v in measure.summary(net).items():
+    for k, v in measure.summary(net).table().items():
         if hasattr(v, "item"):
             v = v.item()
         rows.append(("measure", k, v))
@@ -369,13 +388,41 @@ def _join_negative_numbers(argv):
     return out
 
 
+def _silence_stdout():
+    """After a closed pipe: point stdout at /dev/null so the interpreter's final flush is silent."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv=None) -> int:
     ap = _parser()
     args = ap.parse_args(_join_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
     try:
         if args.command == "pack":
             return cmd_pack(args)
-    except BadInput as exc:
+        if args.command == "analyse":
+            return analyse_cli.run(args, sys.stdout)
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (BadInput, FormatError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print("error: out of memory (try a smaller input)", file=sys.stderr)
+        return EXIT_MACHINE
+    except OSError as exc:  # permissions, full disk, read-only folder: the machine's state
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_MACHINE
+    except (ValueError, IndexError) as exc:
+        if args.command != "analyse":  # pack validates its own options (BadInput)
+            raise
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     ap.error(f"unknown command {args.command}")

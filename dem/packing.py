@@ -162,7 +162,7 @@ def network_from_state(state, law):
 def hexatic_psi6(net) -> dict:
     """psi6 (global |mean|) and mean local |psi6_i| over periodic Delaunay neighbours."""
     from .measure import hexatic_order
-    return hexatic_order(net)
+    return hexatic_order(net).as_dict()
 
 
 _CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the cell, in the "

@@ -22,17 +22,16 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from .hierarchy import relaxation_hierarchy
+from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
 from .structural_sums import network_statistics
 
 __all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
            "PHI_MAX", "PHI_MIN_NBAR"]
 
-PHI_MAX = np.pi / (2 * np.sqrt(3))  # triangular close packing
-PHI_MIN_NBAR = np.pi / 4  # below this phi the Nbar(phi) relation has no solution
-
 _REASONS = (
     (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
-    (2, "first-order correction larger than max_correction of the mean field: outside the theory's range"),
+    (2, "first-order correction (softening or stiffening) larger than max_correction of the mean field: "
+        "outside the theory's range"),
     (4, "phi outside [pi/4, pi/(2 sqrt 3)] (overlaps inflate it above close packing, or a loose "
         "packing): Nbar and the mean field taken at the nearest end of the range"),
     (8, "near isostatic (Z - Z_iso < 0.5 on the load-bearing particles): the shear modulus vanishes "
@@ -69,16 +68,6 @@ def rho_from_alpha(alpha):
     """
     a = _check("alpha", alpha, 0.0, 2.0)
     return 0.5 * np.pi * np.sinc(0.5 * (1.0 - a)) / (1.0 + a)
-
-
-def nbar_from_phi(phi):
-    """Mean number of near neighbours Nbar from the solid fraction (section 6).
-
-    Inverts ``phi = (pi/4)/sin(pi (Nbar - 2)/Nbar)`` on the branch Nbar in [4, 6]:
-    ``Nbar = 2 pi / arcsin(pi/(4 phi))``. phi must lie in [pi/4, pi/(2 sqrt 3)].
-    """
-    p = _check("phi", phi, PHI_MIN_NBAR * (1 - 1e-12), PHI_MAX * (1 + 1e-12))
-    return 2.0 * np.pi / np.arcsin(np.minimum(np.pi / (4.0 * p), 1.0))
 
 
 @dataclass
@@ -198,7 +187,8 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     G = G_mf * (1.0 - drop_G)
     drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
     big = np.maximum(drop_K, drop_G)
-    flags = np.where(big >= 1.0, 1, 0) | np.where(big > max_correction, 2, 0)
+    size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
+    flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
     flags = flags.astype(np.int8)
     valid = flags == 0
     if warn and not np.all(valid):
@@ -243,8 +233,8 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
         raise ValueError("alpha is only used with measured_rho=False")
     kn = float(np.mean(network.kn)) if network.n_contacts else 1.0
     kt = float(np.mean(network.effective_kt)) if network.n_contacts else 0.0
-    rho = st["rho" + key] if measured_rho else None
-    phi = st["phi"]
+    rho = getattr(st, "rho" + key) if measured_rho else None
+    phi = st.phi
     extra = 0
     if not (PHI_MIN_NBAR <= phi <= PHI_MAX) and nbar is None:
         extra |= 4
@@ -253,14 +243,16 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
         extra |= 4
         phi = PHI_MAX
     z_iso = 3.0 if kt > 0 else 4.0
-    if st["nc"] - z_iso < 0.5:
+    if not st.nc - z_iso >= 0.5:   # also NaN: no load-bearing particle
         extra |= 8
-    nc = st["nc" + key]
+    nc = getattr(st, "nc" + key)
     if not nc > 0:  # no load-bearing particle: report the zero network as invalid, not a crash
         nc, extra = 1e-300, extra | 8
     warn = kwargs.pop("warn", True)
-    p = predict_moduli(kn, kt, nc, phi, st["r" + key], alpha=alpha, rho=rho,
-                       nbar=nbar, diameter=st["diameter"], warn=False, **kwargs)
+    r = getattr(st, "r" + key)
+    p = predict_moduli(kn, kt, nc, phi, r if np.isfinite(r) else 0.0, alpha=alpha,
+                       rho=rho if rho is None or np.isfinite(rho) else 0.0,
+                       nbar=nbar, diameter=st.diameter, warn=False, **kwargs)
     if check_bounds and network.cell is not None and network.n_contacts:
         h = relaxation_hierarchy(network, max_order=bound_order, spectral_bound="none",
                                  min_contacts=min_contacts)

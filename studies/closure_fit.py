@@ -47,7 +47,7 @@ def measure(net, case, kt_ratio):
     """One row: statistics, exact moduli (no pre-stress), normalised moments."""
     if kt_ratio is not None:
         net = net.with_stiffness(kt=kt_ratio)
-    st = network_statistics(net)
+    st = network_statistics(net).as_dict()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         ex = stiffness(net)

@@ -53,7 +53,7 @@ def test_translation_by_cell_vector_measures_the_same():
     b = from_overlaps(pos + net.cell @ [1, -2], 0.5, net.cell)
     a = replace(a, fn=1e4 * (1 - a.lengths), ft=np.zeros(a.n_contacts))
     b = replace(b, fn=1e4 * (1 - b.lengths), ft=np.zeros(b.n_contacts))
-    sa, sb = measure.summary(a), measure.summary(b)
+    sa, sb = measure.summary(a).table(), measure.summary(b).table()
     for k, v in sa.items():
         if isinstance(v, float):
             assert sb[k] == pytest.approx(v, rel=1e-9, abs=1e-12), k
@@ -65,18 +65,18 @@ def test_delaunay_degree_is_six_and_psi6():
     for cell in (np.diag([L, L]), np.array([[L, 6.0], [0.0, L]])):
         net = from_overlaps(rng.uniform(0, L, (300, 2)), 0.5, cell)
         nb = measure.delaunay_neighbours(net)
-        assert nb["mean_degree"] == pytest.approx(6.0, abs=1e-12)  # Euler: exactly 6 on a torus
-        assert measure.hexatic_order(net, nb)["psi6"] < 0.2
+        assert nb.mean_degree == pytest.approx(6.0, abs=1e-12)  # Euler: exactly 6 on a torus
+        assert measure.hexatic_order(net, nb).psi6 < 0.2
     lat = lattices.triangular(8, 8, angle=0.3)
-    assert measure.hexatic_order(lat)["psi6"] == pytest.approx(1.0, abs=1e-12)
+    assert measure.hexatic_order(lat).psi6 == pytest.approx(1.0, abs=1e-12)
 
 
 def test_coordination_and_fabric_of_square_lattice():
     net = lattices.square(5, 5)
     c = measure.coordination(net)
-    assert c["z"] == 4 and c["n_rattlers"] == 0 and c["hist"][4] == 25
+    assert c.z == 4 and c.n_rattlers == 0 and c.hist[4] == 25
     f = measure.fabric(net)
-    assert np.allclose(f["F"], 0.5 * np.eye(2)) and abs(f["anisotropy"]) < 1e-12
+    assert np.allclose(f.F, 0.5 * np.eye(2)) and abs(f.anisotropy) < 1e-12
 
 
 def test_measurements_do_not_mutate():
