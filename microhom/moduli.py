@@ -32,8 +32,8 @@ _REASONS = (
     (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
     (2, "first-order correction (softening or stiffening) larger than max_correction of the mean field: "
         "outside the theory's range"),
-    (4, "phi outside [pi/4, pi/(2 sqrt 3)] (overlaps inflate it above close packing, or a loose "
-        "packing): Nbar and the mean field taken at the nearest end of the range"),
+    (4, "phi above close packing pi/(2 sqrt 3) (overlaps inflate it): Nbar and the mean field taken "
+        "at close packing"),
     (8, "near isostatic (Z - Z_iso < 0.5 on the load-bearing particles): the shear modulus vanishes "
         "at isostaticity and the first-order theory cannot follow"),
     (16, "prediction above the rigorous upper bound of the relaxation hierarchy: provably too stiff"),
@@ -215,10 +215,10 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     with rattlers excluded (``rattlers="exclude"``, default) or included; ``phi`` is the network's
     solid fraction. With ``measured_rho=False`` the paper's alpha model is used instead.
 
-    Never raises for a measurable periodic network; it flags (``valid = False``, ``reason``):
+    It flags (``valid = False``, ``reason``) rather than raising:
 
-    * ``phi`` above close packing (overlapping disks) or below pi/4: Nbar and the mean field are
-      taken at the nearest end of [pi/4, pi/(2 sqrt 3)];
+    * ``phi`` above close packing (overlapping disks): Nbar and the mean field are taken at close
+      packing (below pi/4 Nbar(phi) does not exist: ValueError asking for ``nbar``, as before);
     * near-isostatic packings, ``Z - Z_iso < 0.5`` with ``Z`` the mean coordination of the
       load-bearing particles and ``Z_iso`` = 3 (frictional: some contact has kt_eff > 0) or 4;
     * with ``check_bounds`` (periodic networks), a K or G above the rigorous upper bound of the
@@ -236,10 +236,7 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     rho = getattr(st, "rho" + key) if measured_rho else None
     phi = st.phi
     extra = 0
-    if not (PHI_MIN_NBAR <= phi <= PHI_MAX) and nbar is None:
-        extra |= 4
-        phi = float(np.clip(phi, PHI_MIN_NBAR, PHI_MAX))
-    elif phi > PHI_MAX:
+    if phi > PHI_MAX:     # overlaps inflate phi: flag and take Nbar, the mean field at close packing
         extra |= 4
         phi = PHI_MAX
     z_iso = 3.0 if kt > 0 else 4.0
