@@ -219,17 +219,18 @@ def block_preconditioner(asm: Assembly):
     return M, Minv, Minv_sqrt, n_bad
 
 
-def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000):
+def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False):
     """Smallest non-zero eigenvalue of the pencil ``(H, M)`` (floppy modes excluded), computed
     exactly by a dense eigen-decomposition of ``M^-1/2 H M^-1/2`` when ``ndof <= dense_max``.
 
     Returns (lam, n_zero, n_negative): ``lam`` reduced by a round-off margin
     (``1e3 * eps * ndof * lam_max``) so that it is a certified lower bound; None if the system is
     too large, or if the margin swallows it. ``n_negative`` > 0 means ``H`` is indefinite.
+    With ``return_max``, (lam, lam_max + margin, n_zero, n_negative).
     """
     n = asm.ndof
     if n == 0 or n > dense_max:
-        return None, 0, 0
+        return (None, None, 0, 0) if return_max else (None, 0, 0)
     S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
@@ -237,11 +238,11 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000):
     zero = np.abs(lam) <= _ZERO_EIG * lmax
     neg = (lam < 0) & ~zero
     pos = lam[(lam > 0) & ~zero]
-    if pos.size == 0:
-        return None, int(zero.sum()), int(neg.sum())
     margin = 1e3 * np.finfo(float).eps * n * lmax
-    lo = float(pos.min()) - margin
-    return (lo if lo > 0 else None), int(zero.sum()), int(neg.sum())
+    hi = float(lam.max()) + margin
+    lo = float(pos.min()) - margin if pos.size else -1.0
+    out = (lo if lo > 0 else None), int(zero.sum()), int(neg.sum())
+    return (out[0], hi, out[1], out[2]) if return_max else out
 
 
 def moments(asm: Assembly, e, j_max=3, Minv=None):
@@ -484,11 +485,12 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     # certified spectral bound
     tb = time.perf_counter()
     lam, src = None, "none"
+    lam_hi = None if prestress else 2.0    # H <= 2M without pre-stress (docs/theory.md section 9)
     n_neg_dense = 0
     if user_lam is not None:
         lam, src = user_lam, "user"
     elif spectral_bound == "auto" and asm.ndof:
-        lam, _, n_neg_dense = spectral_lower_bound(asm, Msq, dense_max=dense_max)
+        lam, lam_hi, _, n_neg_dense = spectral_lower_bound(asm, Msq, dense_max=dense_max, return_max=True)
         src = "dense" if lam is not None else "none"
         if lam is None and asm.ndof > dense_max:
             reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "
@@ -498,7 +500,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
 
     eK, wK, eG, wG = isotropic_weights()
     Cs = [C0]
-    lowers = [_lower(C0, None, lam, area)]
+    lowers = [None]
     scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
     trivial = asm.ndof == 0 or float(np.abs(B).max(initial=0.0)) <= 1e-13 * scale_F
     converged = False
@@ -519,8 +521,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                 break
             C = _tensor(C_aff, cg.Rk, area, corr)
             Cs.append(C)
-            ResM = cg.R.T @ cg.Z                           # Res^T M^-1 Res
-            lowers.append(_lower(C, 0.5 * (ResM + ResM.T), lam, area))
+            lowers.append(_lower(C, cg, lam, lam_hi, area) if lam is not None else None)
             if _met(C, lowers[-1], tol, Cs):
                 converged = True
                 break
@@ -571,13 +572,23 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         solve_time=t_solve, bound_time=t_bound)
 
 
-def _lower(C, ResM, lam, area):
-    """Rigorous lower bound of C: ``C - Res^T M^-1 Res / (lam A)`` (None without ``lam``)."""
-    if lam is None:
+def _lower(C, cg, lam, lam_hi, area):
+    """Rigorous lower bound of C from the residual ``Res`` of the iterate (docs/theory.md, sec. 9).
+
+    With ``m0 = Res^T M^-1 Res``, ``m1 = Z^T H Z`` (``Z = M^-1 Res``) and the spectrum of the
+    pencil (H, M) on range(H) inside ``[a, b]``: ``Res^T H^+ Res <= ((a + b) m0 - m1)/(a b)``
+    (the chord of the convex 1/lambda over the residual's spectral measure); ``b = inf`` gives
+    the plain residual bound ``m0 / a``.
+    """
+    if C is None or cg is None:
         return None
-    if ResM is None:
-        return None
-    return C - ResM / (lam * area)
+    m0 = cg.R.T @ cg.Z
+    m0 = 0.5 * (m0 + m0.T)
+    if lam_hi is None or not np.isfinite(lam_hi):
+        return C - m0 / (lam * area)
+    m1 = cg.Z.T @ (cg.H @ cg.Z)
+    m1 = 0.5 * (m1 + m1.T)
+    return C - ((lam + lam_hi) * m0 - m1) / (lam * lam_hi * area)
 
 
 def _met(C, L, tol, Cs):
