@@ -81,3 +81,15 @@ def test_bench_hierarchy_validate_quick(tmp_path):
     t = pd.read_csv(tmp_path / "validation.csv")
     assert len(t) == 3 and t.exact_inside_all_intervals.all()
     assert t.K_ext16_holds.all() and t.G_ext16_holds.all()
+
+
+@pytest.mark.slow
+def test_closure_fit_quick(tmp_path, capsys):
+    from studies import closure_fit
+
+    closure_fit.main(["--quick", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "COEF_K =" in out and "validation (not fitted)" in out
+    t = pd.read_csv(tmp_path / "validation_full.csv")
+    assert len(t) == 2 and t.closure_valid.all()
+    assert (t.err_K.abs() < 0.2).all() and (t.err_G.abs() < 0.3).all()  # a 4-packing refit, loosely
