@@ -101,6 +101,7 @@ class HierarchyResult(Result):
         lower bounds, or None; spectral_bound_source : "dense", "user" or "none".
     reasons : tuple of strings naming every condition that limits the result (empty = none).
     unstable : negative curvature met (pre-stressed network not stable): bounds are void.
+    empty : no contacts or no load-bearing backbone (the zero tensor is returned, flagged).
     n_floppy_directions : search directions dropped as floppy (zero stiffness).
     n_dof, n_rattlers, n_particles, n_contacts : problem size (contacts kept).
     prestress : pre-stress terms included (geometric stiffness and the Cauchy-increment correction).
@@ -129,6 +130,7 @@ class HierarchyResult(Result):
     spectral_bound_source: str
     reasons: tuple
     unstable: bool
+    empty: bool
     n_floppy_directions: int
     n_dof: int
     n_rattlers: int
@@ -141,8 +143,8 @@ class HierarchyResult(Result):
 
     @property
     def valid(self) -> bool:
-        """True when the interval met the tolerance and nothing voids the bounds."""
-        return self.converged and not self.unstable
+        """True when the interval met the tolerance and nothing voids the bounds or the network."""
+        return self.converged and not self.unstable and not self.empty
 
     def summary(self) -> str:
         lo = lambda e: "n/a" if e.lower is None else f"{e.lower:.6g}"  # noqa: E731
@@ -468,9 +470,10 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     C0 = _tensor(C_aff, np.zeros((3, 3)), area, corr)
     Ka_all, Ga_all = _iso(C_aff_all)
     t_asm = time.perf_counter() - t0
+    empty = network.n_contacts == 0 or asm.ndof == 0 or asm.net.n_contacts == 0
     if network.n_contacts == 0:
         reasons.append("no contacts: the network carries no load")
-    elif asm.ndof == 0 or asm.net.n_contacts == 0:
+    elif empty:
         reasons.append("no load-bearing backbone: every particle is a rattler")
 
     t1 = time.perf_counter()
@@ -566,7 +569,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         K_first_order=_iso(C_fo)[0], G_first_order=_iso(C_fo)[1], C_first_order=C_fo,
         K_affine_all=Ka_all, G_affine_all=Ga_all, order=int(order), n_moments=2 * int(order),
         tol=float(tol), converged=bool(converged), spectral_bound=lam, spectral_bound_source=src,
-        reasons=tuple(reasons), unstable=bool(unstable), n_floppy_directions=int(n_floppy),
+        reasons=tuple(reasons), unstable=bool(unstable), empty=bool(empty), n_floppy_directions=int(n_floppy),
         n_dof=int(asm.ndof), n_rattlers=int(asm.rattlers.sum()), n_particles=network.n_particles,
         n_contacts=asm.net.n_contacts, prestress=bool(prestress), assembly_time=t_asm,
         solve_time=t_solve, bound_time=t_bound)

@@ -208,9 +208,10 @@ def test_no_contacts_and_all_rattlers_flagged():
     h = relaxation_hierarchy(net)
     assert any("no contacts" in r for r in h.reasons)
     assert h.K.value == 0 and h.G.value == 0 and np.all(np.isfinite(h.C_upper))
+    assert h.empty and not h.valid
     net2 = from_overlaps(np.array([[0.0, 0.0], [0.99, 0.0], [3.0, 3.0]]), 0.5, np.eye(2) * 6.0)
     h2 = relaxation_hierarchy(net2)
-    assert any("rattler" in r for r in h2.reasons)
+    assert any("rattler" in r for r in h2.reasons) and not h2.valid
     assert np.all(np.isfinite(h2.C_upper))
 
 
