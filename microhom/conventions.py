@@ -63,7 +63,7 @@ def _mandel(C, name="C_mandel"):
 
 def pressure_of(sigma0) -> float:
     """2D pressure ``p = -tr(sigma0)/2`` [N/m], compression positive."""
-    return float(-np.trace(_sigma(sigma0)) / 2)
+    return float(-np.trace(_sigma(sigma0)) / 2) + 0.0   # + 0.0: no -0.0 for an unstressed packing
 
 
 def energy_density_from_cauchy(C_mandel, sigma0) -> np.ndarray:

@@ -16,7 +16,14 @@ Conventions (see ``docs/theory.md``):
 * ``fn`` is the normal force magnitude, compression positive; ``ft`` the tangential force on ``j``
   along ``t = (-n_y, n_x)``. Both optional (needed for stress and for geometric stiffness terms).
 * ``cell`` is the 2x2 shape matrix ``h`` whose *columns* are the periodic cell vectors; the cell
-  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^2. ``None`` means no periodicity.
+  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^2. ``None`` means no periodicity
+  (periodic geometry: :mod:`microhom.periodic`).
+
+Builders: :func:`from_overlaps` (contacts found from positions and radii) and :func:`from_pairs`
+(the caller's contact list, in the caller's order). Both take ``kn``, ``kt`` per contact as
+scalars, (C,) arrays or functions ``f(i, j, r_i, r_j, overlap)``, or a normal contact ``law`` of
+:mod:`microhom.laws` that sets ``kn`` and consistent forces ``fn``; peers' conventions are in
+:mod:`microhom.conventions`.
 """
 from __future__ import annotations
 
@@ -282,7 +289,7 @@ def _candidate_pairs(positions, cell, origin, cutoff):
         pairs = tree.query_pairs(cutoff, output_type="ndarray")
         i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
         d = local[j] - local[i]
-        d -= box * np.rint(d / box)
+        d = periodic.minimum_image(d, cell)
     else:
         # sheared cell: the particles plus the images of those within `cutoff` of an edge
         images, owner = periodic.boundary_images(positions, cell, origin, cutoff)
@@ -399,7 +406,7 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
     pairs : (C, 2) int particle indices ``(i, j)``, ``i != j``; the branch vector is
         ``x_j - x_i``.
     shifts : (C, 2) int image counts ``k`` with branch ``x_j + h k - x_i``; default: the minimum
-        image (requires both cell heights to exceed twice the longest branch).
+        image (requires both cell heights to exceed twice the largest ``r_i + r_j``).
     kn, kt, sliding, law : as :func:`from_overlaps` (arrays of length C in the order of ``pairs``,
         or functions of ``(i, j, r_i, r_j, overlap)``).
     fn, ft : normal (compression positive) and tangential forces [N/m], scalars, (C,) arrays or
@@ -424,10 +431,11 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
             raise ValueError(f"shifts must have the shape of pairs {pairs.shape}, got {shifts.shape}")
         d = d + shifts @ cell_arr.T
     elif cell_arr is not None:
-        d = periodic.minimum_image(d, cell_arr)
-        longest = np.hypot(d[:, 0], d[:, 1]).max(initial=0.0)
-        if np.any(periodic.heights(cell_arr) <= 2 * longest):
+        reach = float((radii[i] + radii[j]).max(initial=0.0))
+        if np.any(periodic.heights(cell_arr) <= 2 * reach):
             raise ValueError(f"the minimum image is ambiguous: the cell heights {periodic.heights(cell_arr)} "
-                             f"must exceed twice the longest branch {longest:.6g}; pass shifts")
+                             f"must exceed twice the largest contact distance r_i + r_j = {reach:.6g} "
+                             f"(a particle could touch two images of one neighbour); pass shifts")
+        d = periodic.minimum_image(d, cell_arr)
     return _finish(positions, radii, cell_arr, origin, i, j, d, kn=kn, kt=kt, sliding=sliding,
                    law=law, fn=fn, ft=ft)

@@ -67,7 +67,7 @@ def _energy(x, cell, rad, eps):
 
 def _relaxed_energy(x0, cell, rad, eps):
     res = minimize(lambda y: _energy(y, cell, rad, eps), x0, jac=True, method="L-BFGS-B",
-                   options=dict(maxiter=50000, gtol=1e-14, ftol=1e-300, maxcor=50))
+                   options=dict(maxiter=50000, gtol=1e-11, ftol=1e-300, maxcor=10))
     return res.fun, res.x
 
 

@@ -23,8 +23,8 @@ def _lattice_cauchy_tensor(d, D, kn, kt):
     """Closed form (sympy): Mandel tangent of the Cauchy stress of a triangular lattice of spacing
     d, disks of diameter D, linear springs kn, kt (no sliding), under a homogeneous strain.
     sigma(E) = -(1/A(E)) sum_bonds (fn n + ft t) (x) c, c = (I + E) c0, A = A0 det(I + E),
-    fn = kn (D - |c|), ft = -kt t0.E.c0 (force on j along t, first order; every particle is a centre of inversion,
-    so the deformation is affine and no particle spins)."""
+    fn = kn (D - |c|), ft = -kt t0.E.c0 (force on j along t, first order; every particle is a
+    centre of inversion, so the deformation is affine and no particle spins)."""
     e = sympy.symbols("e0:3", real=True)
     E = sympy.Matrix([[e[0], e[2] / sympy.sqrt(2)], [e[2] / sympy.sqrt(2), e[1]]])
     F = sympy.eye(2) + E
@@ -98,10 +98,10 @@ def test_rigid_rotation_of_a_frictionless_packing():
 
 @pytest.mark.xfail(strict=True, reason=(
     "dem.contact_laws.LinearFriction takes the spin arms as the radii r_i, r_j, not the distances "
-    "to the contact point |c| r_i/(r_i+r_j): under a rigid rotation w of an overlapping frictional "
-    "polydisperse packing the spins cannot cancel every tangential slip, leaving forces "
-    "O(kt w overlap) - the stress error is 0.08 w p here (0.16 w p at N = 300) instead of O(w^2) (LAMMPS gran/* uses "
-    "the same arms; microhom.kinematics uses the contact point)"))
+    "to the contact point |c| r_i/(r_i+r_j): under a rigid rotation w of a frictional packing whose "
+    "contacts overlap by different amounts the spins cannot cancel every tangential slip, leaving forces "
+    "O(kt w overlap) - the stress error is 0.08 w p here (0.16 w p at N = 300) instead of "
+    "O(w^2) (LAMMPS gran/* uses the same arms; microhom.kinematics uses the contact point)"))
 def test_rigid_rotation_of_a_frictional_packing():
     res = pack(200, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.5, mu_prep=0.02, seed=5)
     w = 1e-5

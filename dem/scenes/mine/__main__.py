@@ -1,4 +1,4 @@
-"""python -m dem.hexmine [--config scene.toml] [--set key=value ...] [--out DIR] [--resume]"""
+"""python -m dem.scenes.mine [--config scene.toml] [--set key=value ...] [--out DIR] [--resume]"""
 from __future__ import annotations
 
 import argparse
@@ -7,7 +7,9 @@ import os
 import sys
 from dataclasses import fields
 
-from .scene import MineParams, load_toml
+from .outputs import plot_profile, plot_series, plot_state, write_vtk
+from .params import MineParams, load_toml
+from .runner import run_scene
 
 
 def _coerce(name, text):
@@ -22,10 +24,10 @@ def _coerce(name, text):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m dem.hexmine", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m dem.scenes.mine", description=__doc__)
     ap.add_argument("--config", help="TOML file with MineParams fields (SI units)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
-    ap.add_argument("--out", default="out/hexmine")
+    ap.add_argument("--out", default="out/mine")
     ap.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
@@ -37,16 +39,17 @@ def main(argv=None):
         if k not in names:
             ap.error(f"unknown parameter {k!r}")
         kw[k] = _coerce(k, v)
-    p = p.replace(**kw).validate()
-    from .outputs import plot_profile, plot_series, plot_state, write_vtk
-    from .runner import run_scene
+    try:
+        p = p.replace(**kw).validate()
+    except ValueError as exc:
+        ap.error(str(exc))
     res = run_scene(p, out_dir=a.out, progress=not a.no_progress, resume=a.resume)
     os.makedirs(a.out, exist_ok=True)
     plot_state(res.scene, os.path.join(a.out, "state.png"))
     plot_series(res.series, os.path.join(a.out, "series.png"))
     plot_profile(res.scene, os.path.join(a.out, "profile.png"))
     write_vtk(res.scene, os.path.join(a.out, "state.vtk"))
-    out = {"indicators": res.indicators, "dt": res.dt, "dt_gershgorin": res.dt_gershgorin,
+    out = {"indicators": res.indicators.as_dict(), "dt": res.dt, "dt_gershgorin": res.dt_gershgorin,
            "timings": res.timings, "info": res.scene.info, "E_eff": res.scene.E_eff}
     with open(os.path.join(a.out, "summary.json"), "w") as fh:
         json.dump(out, fh, indent=1, default=float)

@@ -7,7 +7,7 @@ Node ``k`` (k = 0..5) is the midpoint of edge ``k``; its outward normal is at an
 ``f = K u`` is the resultant traction force (traction times edge length L) that the surroundings must
 apply on each edge to hold the edge-average displacements ``u``.
 
-Two versions (MINE_SCENE.md §1.2 and §3.2):
+Two versions (docs/mine_scene.md §2):
 
 * ``"bem"`` — the paper's boundary-element version: Kelvin plane-strain kernels, one constant
   element per edge, collocation at the midpoints, ``H u = G t`` and ``K = diag(L) G^-1 H``,
@@ -227,7 +227,7 @@ def isotropic_from_C(C: np.ndarray):
 
 
 def lattice_closed_form(kn_l: float, ks_l: float) -> np.ndarray:
-    """Triangular lattice of rigid particles with springs kn_l, ks_l [N/m per m] (MINE_SCENE §3.1)."""
+    """Triangular lattice of rigid particles with springs kn_l, ks_l [N/m per m]: C11 = sqrt3 (3kn + ks)/4, C12 = sqrt3 (kn - ks)/4, C66 = sqrt3 (kn + ks)/4."""
     s3 = np.sqrt(3.0)
     return np.array([[s3 * (3 * kn_l + ks_l) / 4, s3 * (kn_l - ks_l) / 4, 0.0],
                      [s3 * (kn_l - ks_l) / 4, s3 * (3 * kn_l + ks_l) / 4, 0.0],

@@ -4,7 +4,7 @@ Units: m. Edge ``k`` of every cell has outward normal at ``theta0 + k*60 deg``; 
 edge ``k`` sits at ``c + d n_k`` (d = 2 r_in) and faces it with its edge ``(k+3) % 6``.
 
 ``theta0 = 0`` (default): vertical edges, "pointy-top" cells, horizontal rows of centres, interface
-normals at 0, +-60 deg -> the virgin state (K0 = 1/3) stays inside Mohr-Coulomb (MINE_SCENE §0.3).
+normals at 0, +-60 deg -> the virgin state (K0 = 1/3) stays inside Mohr-Coulomb (docs/mine_scene.md D4).
 ``theta0 = pi/6``: flat-top cells, normals at 30, 90, 150 deg (fails at the virgin state with the
 paper's strengths; kept as an option and refused by the scene's virgin check).
 """

@@ -1,12 +1,19 @@
-"""Explicit central-difference dynamics of the hexagon assembly (numba force kernel).
+"""Explicit central-difference dynamics of the free-hexagon assembly (numba force kernel).
+
+This is the free-hexagon method's own integrator, state and time-step bound; the disk engine
+(``dem.integrate``) is a different method and neither imports the other. Shared: ``dem.runtime``.
 
 Units: SI per m of thickness (N/m, kg/m, J/m). Tension positive.
 
 Time stepping: central differences in leapfrog form (PFC / velocity Verlet order)::
 
-    v^{n+1/2} = v^{n-1/2} + dt M^-1 (f^n - alpha M v^{n-1/2})
+    v^{n+1/2} = v^{n-1/2} + dt M^-1 (f^n - C v^{n-1/2} - alpha M v^{n-1/2})
     u^{n+1}   = u^n + dt v^{n+1/2}
     f^{n+1}   = F(u^{n+1}, t^{n+1})          (interface states are updated inside F, once per step)
+
+``C`` (``Model.cvis``, per dof) holds boundary dashpots (Lysmer-Kuhlemeyer absorbing boundaries);
+``Model.kspr`` per-dof ground springs about ``Model.uref`` (a compliant overburden). Both are zero
+unless a scene sets them; their work is booked in D_damp and U.
 
 The narrow, swappable pieces: :func:`step` (one step, any ``forces_fn``, pure numpy) and
 :func:`advance` (fused numba loop used by the scene; bit-compatible with ``step`` + :func:`model_forces`).
@@ -22,10 +29,13 @@ import scipy.sparse.linalg as spla
 from numba import njit
 
 from ..runtime import InstabilityError          # shared with the disk engine
-from .interface import mc_update
+from .element import element_stiffness
+from .interface import mc_update, spring_stiffness_rule
+from .lattice import make_lattice
 
 __all__ = ["Model", "step", "advance", "model_forces", "assemble_stiffness", "gershgorin_dt",
-           "power_dt", "energies", "cell_stress", "ramp_value", "RAMP_CODES"]
+           "power_dt", "energies", "cell_stress", "ramp_value", "RAMP_CODES", "forces_frozen",
+           "free_cells_model", "stored_energy_abs"]
 
 RAMP_CODES = {"instant": 0, "linear": 1, "nonlinear": 2, "none": 3}
 # energy/contact accounts in Model.acc: W_E, W_gas, D_break, D_fric, D_damp, D_dash (accumulated);
@@ -100,6 +110,22 @@ class Model:
     grid: np.ndarray = None       # (x0, y0, h, nbx, nby) of the fixed binning grid
     u0: np.ndarray = None
     U0: float = 0.0
+    # boundary devices (zeros unless a scene sets them): per-dof dashpot [N s/m per m], ground
+    # spring [N/m per m] about the reference displacement uref [m]
+    cvis: np.ndarray = None
+    kspr: np.ndarray = None
+    uref: np.ndarray = None
+
+    def devices(self):
+        """(cvis, kspr, uref) arrays of shape (N,12), zeros when the scene has none."""
+        N = self.n_cells
+        if self.cvis is None:
+            self.cvis = np.zeros((N, 12))
+        if self.kspr is None:
+            self.kspr = np.zeros((N, 12))
+        if self.uref is None:
+            self.uref = np.zeros((N, 12))
+        return self.cvis, self.kspr, self.uref
 
     @property
     def n_cells(self):
@@ -164,7 +190,7 @@ def ramp_value(kind, Tr, t):
 
 
 @njit(cache=True)
-def _forces(u, f, g, Kmat, mat, f0, fext, wc, wk, FE0,
+def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
             ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
             sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt):
     N = u.shape[0]
@@ -174,7 +200,7 @@ def _forces(u, f, g, Kmat, mat, f0, fext, wc, wk, FE0,
             s = f0[c, r]
             for q in range(12):
                 s += K[r, q] * u[c, q]
-            f[c, r] = fext[c, r] - s
+            f[c, r] = fext[c, r] - s - kspr[c, r] * (u[c, r] - uref[c, r])
     for w in range(wc.shape[0]):
         c = wc[w]
         k = wk[w]
@@ -347,7 +373,7 @@ def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc,
 
 @njit(cache=True)
 def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
-             Kmat, mat, f0, fext, wc, wk, FE0,
+             Kmat, mat, f0, fext, cvis, kspr, uref, wc, wk, FE0,
              ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
              sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort,
              contact, centres, nbc, nif, cut, kc, cc, grid, head, nxt, cand, pos, vel):
@@ -363,8 +389,9 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
                 vp = vh[c, r]
                 vh_prev[c, r] = vp
                 if minv[c, r] > 0.0:
-                    vn = vp + dt * (minv[c, r] * f[c, r] - alpha * vp)
-                    d_damp += alpha * m * vp * 0.5 * (vp + vn) * dt
+                    cv = cvis[c, r]
+                    vn = vp + dt * (minv[c, r] * (f[c, r] - cv * vp) - alpha * vp)
+                    d_damp += (alpha * m + cv) * vp * 0.5 * (vp + vn) * dt
                 else:
                     vn = 0.0
                 vh[c, r] = vn
@@ -379,7 +406,7 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
         acc[0] += w_e
         acc[4] += d_damp
         t = t0 + (s + 1) * dt
-        _forces(u, f, g_new, Kmat, mat, f0, fext, wc, wk, FE0,
+        _forces(u, f, g_new, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
                 ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
                 sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt)
         if contact:
@@ -416,7 +443,8 @@ def model_forces(model: Model, u: np.ndarray, t: float) -> np.ndarray:
     f = np.empty_like(u)
     g = ramp_value(model.ramp_kind, model.ramp_time, t)
     vh = model.vh if model.vh is not None else np.zeros_like(u)
-    _forces(u, f, g, model.Kmat, model.mat, model.f0, model.fext, model.wc, model.wk, model.FE0,
+    _forces(u, f, g, model.Kmat, model.mat, model.f0, model.fext, *model.devices()[1:], model.wc, model.wk,
+            model.FE0,
             *model.ifc_args(), model.acc, vh, float(model.cdash), float(model.dt_last))
     if model.contact:
         model.acc[5] += _contacts(u, vh, f, model.acc, float(model.dt_last), *model.contact_args())
@@ -459,7 +487,7 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
         model.f = model_forces(model, model.u, model.t)
     t = _advance(int(nsteps), float(dt), float(model.t), model.u, model.vh, model.vh_prev, model.f,
                  model.minv, float(model.alpha), int(model.ramp_kind), float(model.ramp_time),
-                 model.Kmat, model.mat, model.f0, model.fext, model.wc, model.wk, model.FE0,
+                 model.Kmat, model.mat, model.f0, model.fext, *model.devices(), model.wc, model.wk, model.FE0,
                  *model.ifc_args(), model.acc, model.mnode, float(model.cdash), float(model.v_abort),
                  *_contact_call_args(model))
     model.dt_last = float(dt)
@@ -506,6 +534,10 @@ def assemble_stiffness(model: Model, intact_only: bool = False):
                 rows.append(A + p)
                 cols.append(Bn + q)
                 vals.append(sgn * S[:, p, q])
+    if model.kspr is not None and np.any(model.kspr):
+        rows.append(np.arange(12 * N))
+        cols.append(np.arange(12 * N))
+        vals.append(model.kspr.ravel())
     K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(12 * N, 12 * N))
     return K
@@ -526,7 +558,12 @@ def gershgorin_dt(model: Model, K=None, contact: bool = True) -> float:
     w2 = rs.max() if rs.size else 0.0
     if contact and model.contact and model.kc > 0:
         w2 += 2.0 * model.kc * model.minv.max()
-    return 2.0 / np.sqrt(w2)
+    w = np.sqrt(w2)
+    xi = 0.0
+    if model.cvis is not None and np.any(model.cvis):
+        # boundary dashpots lagged by half a step: dt <= (2/w)(sqrt(1+xi^2) - xi) (Belytschko et al.)
+        xi = float((model.cvis * model.minv).max()) / (2.0 * w)
+    return 2.0 / w * (np.sqrt(1.0 + xi * xi) - xi)
 
 
 def power_dt(model: Model, K=None, iters: int = 3000, seed: int = 0, tol: float = 1e-10) -> float:
@@ -562,7 +599,7 @@ def energies(model: Model) -> dict:
     D_break, D_fric, D_damp, W_ext, balance residual = W_ext - (dU + Ek_shadow + D)."""
     Uc = _energy_cells(model.u, model.Kmat, model.mat, model.f0)
     Ui = model.L * np.sum(0.5 * model.sn ** 2 / model.kn + 0.5 * model.tau ** 2 / model.kt)
-    U = Uc + Ui - model.U0
+    U = Uc + Ui + _spring_energy(model) - model.U0
     m = model.mnode[:, None]
     vs = 0.5 * (model.vh + model.vh_prev)
     Ek = 0.5 * np.sum(m * vs * vs)
@@ -577,10 +614,16 @@ def energies(model: Model) -> dict:
             "residual": W - (U + Eks + D)}
 
 
+def _spring_energy(model: Model) -> float:
+    if model.kspr is None:
+        return 0.0
+    return float(0.5 * np.sum(model.kspr * (model.u - model.uref) ** 2))
+
+
 def stored_energy_abs(model: Model) -> float:
     Uc = _energy_cells(model.u, model.Kmat, model.mat, model.f0)
     Ui = model.L * np.sum(0.5 * model.sn ** 2 / model.kn + 0.5 * model.tau ** 2 / model.kt)
-    return Uc + Ui
+    return Uc + Ui + _spring_energy(model)
 
 
 def cell_stress(model: Model, u=None) -> np.ndarray:
@@ -596,3 +639,44 @@ def cell_stress(model: Model, u=None) -> np.ndarray:
     syy = np.sum(F[:, :, 1] * x[None, :, 1], axis=1) / A
     sxy = 0.5 * np.sum(F[:, :, 0] * x[None, :, 1] + F[:, :, 1] * x[None, :, 0], axis=1) / A
     return np.stack([sxx, syy, sxy], axis=1)
+
+
+def forces_frozen(model: Model, u):
+    """F(u, t=0) without changing the model's interface states or energy accounts."""
+    saved = [a.copy() for a in (model.sn, model.tau, model.jtp, model.jnp, model.broken, model.pg, model.acc)]
+    f = model_forces(model, u, 0.0)
+    model.sn, model.tau, model.jtp, model.jnp, model.broken, model.pg, model.acc = saved
+    return f
+
+
+def free_cells_model(centres, velocities, E=50e9, nu=0.25, r_in=0.25, rho=25e3 / 9.81,
+                     contact_factor=1.0, contact_damping=0.0, theta0=0.0) -> Model:
+    """Unbonded hexagons (no interfaces, no supports) with the new-neighbour contact switched on:
+    the smallest model to check the proximity contact (tests). ``centres`` (n,2) m, ``velocities``
+    (n,2) m/s (rigid translation of each cell). Contact stiffness and dashpot as in the scene:
+    kc = contact_factor * kn L with kn from the Itasca rule."""
+    C = np.asarray(centres, float).reshape(-1, 2)
+    N = len(C)
+    geo = make_lattice(1.0, 1.0, r_in, theta0).geo
+    L = geo["L"]
+    kn = spring_stiffness_rule([(E, nu)], r_in)
+    mnode = np.full(N, rho * geo["A"] / 6.0)
+    e64 = np.zeros(0, np.int64)
+    z = np.zeros(0)
+    m = Model(centres=C, mat=np.zeros(N, np.int64), is_coal=np.zeros(N, bool),
+              Kmat=element_stiffness(E, nu, r_in, theta0)[None], f0=np.zeros((N, 12)), fext=np.zeros((N, 12)),
+              mnode=mnode, minv=np.full((N, 12), 1.0 / mnode[0]), geo=geo, ci=e64, ca=e64, cj=e64, cb=e64,
+              nx=z, ny=z, L=L, kn=z, kt=z, ft=z, coh=z, tanphi=z, tanphi_r=z, vent=z, sn0=z,
+              is_disl=np.zeros(0, bool), sn=z.copy(), tau=z.copy(), jtp=z.copy(), jnp=z.copy(), broken=e64.copy(),
+              pg=z.copy(), wc=e64, wk=e64, FE0=np.zeros((0, 2)), ramp_kind=RAMP_CODES["none"])
+    kc = contact_factor * kn * L
+    m.enable_contact(kc, contact_damping * 2.0 * np.sqrt(kc * 6 * mnode[0] / 2.0), margin=10.0 * r_in)
+    m.u = np.zeros((N, 12))
+    m.u0 = m.u.copy()
+    v = np.repeat(np.asarray(velocities, float).reshape(-1, 2), 6, axis=0).reshape(N, 12)
+    m.vh = v.copy()
+    m.vh_prev = v.copy()
+    m.t = 0.0
+    m.U0 = stored_energy_abs(m)
+    m.f = None
+    return m

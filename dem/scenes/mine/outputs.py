@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dynamics import cell_stress
-from ..runtime import atomic_write
-from .runner import cell_flags, seam_profile
+from ...hexagons.dynamics import cell_stress
+from ...runtime import atomic_write
+from .indicators import cell_flags, seam_profile
 
-__all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk"]
+__all__ = ["plot_state", "plot_series", "plot_profile", "write_vtk", "snapshot", "draw_snapshot"]
 
 
 def _mpl():
@@ -56,7 +56,7 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
         cols.append("tab:red" if m.broken[e] == 1 else ("tab:blue" if m.broken[e] == 2 else "tab:green"))
     if segs:
         ax.add_collection(LineCollection(segs, colors=cols, linewidths=1.6))
-    for seg in (p.dislocation_segments() if p.n_disl > 0 else []):
+    for seg in scene.geometry.dislocations:
         ax.plot(seg[:, 0], seg[:, 1], "g--", lw=0.8)
     if vectors:
         d = (m.u - m.u0).reshape(-1, 6, 2).mean(axis=1)
@@ -66,8 +66,8 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
         sel = mag > 0.02 * mag.max()
         ax.quiver(m.centres[sel, 0], m.centres[sel, 1], d[sel, 0], d[sel, 1], angles="xy",
                   scale_units="xy", scale=1.0 / vec_scale, width=0.0012, color="navy")
-    ax.set_xlim(-0.3, p.width + 0.3)
-    ax.set_ylim(-0.3, p.height + 0.3)
+    ax.set_xlim(-0.3, scene.geometry.W + 0.3)
+    ax.set_ylim(-0.3, scene.geometry.H + 0.3)
     ax.set_aspect("equal")
     ax.set_title(title or f"t = {m.t * 1e3:.1f} ms   red: tension, blue: shear, green: intact dislocation; "
                           f"orange/red cells: detached/free")
@@ -145,7 +145,7 @@ def write_vtk(scene, path):
 
 def _vtk_body(fh, m, P, N, s, nbr, free, vc, d, brk, lpts):
     npts = 6 * N + len(lpts)
-    fh.write("# vtk DataFile Version 3.0\nhexmine state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
+    fh.write("# vtk DataFile Version 3.0\nmine scene state t=%g s\nASCII\nDATASET POLYDATA\n" % m.t)
     fh.write(f"POINTS {npts} double\n")
     for q in P.reshape(-1, 2):
         fh.write(f"{q[0]:.6f} {q[1]:.6f} 0\n")
@@ -177,3 +177,54 @@ def _vtk_body(fh, m, P, N, s, nbr, free, vc, d, brk, lpts):
     scal("speed", z, np.linalg.norm(vc, axis=1))
     fh.write("VECTORS displacement double\n")
     fh.write("\n".join(f"{a:.6g} {b:.6g} 0" for a, b in np.vstack([np.zeros((len(brk), 2)), d])) + "\n")
+
+
+def snapshot(scene) -> dict:
+    """Compact picture of a final state (arrays only, for ``np.savez``): cell centres (N,2) [m],
+    displacement of the centres (N,2) [m], coal flag, number of broken interfaces per cell, free
+    flag, broken interfaces as segments (M,2,2) [m] with their type, the dislocation lines, domain."""
+    m = scene.model
+    nif, nbr, detached, free = cell_flags(m)
+    x, L, t = m.geo["x"], m.geo["L"], m.geo["t"]
+    e = np.nonzero(m.broken > 0)[0]
+    c0 = m.centres[m.ci[e]] + x[m.ca[e]]
+    tt = t[m.ca[e]]
+    segs = np.stack([c0 - 0.5 * L * tt, c0 + 0.5 * L * tt], axis=1) if len(e) else np.zeros((0, 2, 2))
+    g = scene.geometry
+    return {"centres": m.centres, "disp": (m.u - m.u0).reshape(-1, 6, 2).mean(axis=1), "is_coal": m.is_coal,
+            "nbr": nbr, "free": free, "crack_segs": segs, "crack_type": m.broken[e],
+            "disl": np.array(g.dislocations).reshape(-1, 2, 2), "domain": np.array([g.W, g.H]),
+            "verts": m.geo["verts"]}
+
+
+def draw_snapshot(ax, snap, title="", vectors=False, xlim=None, vec_scale=None):
+    """Draw a :func:`snapshot` on a matplotlib axis: cells (grey rock, dark coal, brown cracked coal,
+    red free) at their displaced positions, cracks (red tension, blue shear), the dislocation lines
+    (green dashed); with ``vectors`` the displacement vectors of the centres instead of the cells'
+    movement."""
+    plt, PolyCollection, LineCollection = _mpl()
+    C = snap["centres"]
+    d = snap["disp"]
+    coal = snap["is_coal"].astype(bool)
+    col = np.where(coal, "#404040", "#c8c8c8").astype(object)
+    col[(snap["nbr"] > 0) & coal] = "#8a6d3b"
+    col[snap["free"].astype(bool)] = "#ff3030"
+    P = C[:, None, :] + snap["verts"][None, :, :] + (0.0 if vectors else d[:, None, :])
+    ax.add_collection(PolyCollection(P, facecolors=list(col), edgecolors="#909090", linewidths=0.15))
+    if len(snap["crack_segs"]):
+        cols = np.where(snap["crack_type"] == 1, "tab:red", "tab:blue")
+        ax.add_collection(LineCollection(snap["crack_segs"], colors=list(cols), linewidths=1.0))
+    for seg in snap["disl"]:
+        ax.plot(seg[:, 0], seg[:, 1], "g--", lw=0.9)
+    if vectors:
+        mag = np.linalg.norm(d, axis=1)
+        if vec_scale is None:
+            vec_scale = 0.8 / max(np.percentile(mag, 99.5), 1e-12)
+        sel = mag > 0.02 * mag.max()
+        ax.quiver(C[sel, 0], C[sel, 1], d[sel, 0], d[sel, 1], angles="xy", scale_units="xy",
+                  scale=1.0 / vec_scale, width=0.002, color="navy")
+    W, H = snap["domain"]
+    ax.set_xlim(*(xlim or (-0.3, W + 0.3)))
+    ax.set_ylim(-0.3, H + 0.3)
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)

@@ -1,4 +1,4 @@
-"""Kirsch check (MINE_SCENE §3.3, test T6): a circular hole in a hexagon lattice under far-field
+"""Kirsch check (test T6): a circular hole in a hexagon lattice under far-field
 stress, solved statically (sparse direct solve) and compared with the Kirsch solution.
 
 Units: SI (m, Pa). Tension positive. Plane strain. No prestress: the far-field stress enters only as
@@ -6,7 +6,7 @@ the Kirsch tractions on the outer circle r = R_out, the hole r < a is traction-f
 modes are removed by three Lagrange multipliers (zero mean displacement and rotation), so the
 solution is the full (not incremental) stress field.
 
-    from dem.hexmine.kirsch import kirsch_model, kirsch_solve, kirsch_stress
+    from dem.hexagons.kirsch import kirsch_model, kirsch_solve, kirsch_stress
     km = kirsch_model(a=4.0, R_out=16.0, r_in=0.25)
     s = kirsch_solve(km, Sx=-25e6/3, Sy=-25e6)        # (N,3) cell stresses [sxx, syy, sxy]
 """
@@ -70,7 +70,7 @@ class KirschModel:
 def kirsch_model(a=4.0, R_out=16.0, r_in=0.25, E=50e9, nu=0.25, kn_factor=100.0, kt_over_kn=1.0,
                  theta0=0.0, element="hybrid") -> KirschModel:
     """Hexagon lattice (one cell centred at the origin) clipped to a <= |centre| <= R_out, with
-    penalty springs kn = kn_factor * E / d on every interface (the note's T6 uses 100)."""
+    penalty springs kn = kn_factor * E / d on every interface (test T6 uses 100)."""
     if not (0 < a < R_out):
         raise ValueError(f"need 0 < a < R_out, got a={a}, R_out={R_out}")
     d = 2 * r_in

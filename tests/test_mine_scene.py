@@ -1,21 +1,23 @@
-"""Verification tests of the free-hexagon mine scene (MINE_SCENE.md §6.2, ids T1-T10 there).
+"""Verification tests of the free-hexagon method and the mine scene (ids T1-T10 as in docs/mine_scene.md §7).
 
 Fast by default (small scenes); longer ones are marked slow.
 """
 import numpy as np
 import pytest
 
-from dem.hexmine import (InterfaceLaw, MineParams, advance, build_scene, element_stiffness, energies,
-                         gershgorin_dt, hex_geometry, isotropic_from_C, periodic_moduli, power_dt)
-from dem.hexmine.dynamics import assemble_stiffness
-from dem.hexmine.element import lattice_closed_form, linear_modes, plane_strain_D, rigid_modes
-from dem.hexmine.runner import load_checkpoint, run_scene, save_checkpoint
+from dem.hexagons import (InterfaceLaw, advance, element_stiffness, energies, gershgorin_dt, hex_geometry,
+                          isotropic_from_C, periodic_moduli, power_dt)
+from dem.hexagons.dynamics import free_cells_model, model_forces, step
+from dem.hexagons.element import lattice_closed_form, linear_modes, plane_strain_D, rigid_modes
+from dem.hexagons.kirsch import hoop, kirsch_model, kirsch_solve, kirsch_stress
+from dem.runtime import InstabilityError
+from dem.scenes.mine import MineParams, build_scene, load_toml, run_scene
 
 E, NU, R = 50e9, 0.25, 0.25
 
 
 def small(**kw):
-    base = dict(width=8.0, height=4.0, seam_bottom=0.0, seam_top=2.0, opening_x0=0.0, opening_width=1.0,
+    base = dict(width=8.0, height=4.0, seam_bottom=0.0, seam_top=2.0, adit_width=2.0,
                 n_disl=1, disl_first=1.5, disl_spacing=2.0, elastic_layer=1.0, depth=1000.0,
                 duration=0.01, ramp_time=0.002, output_every=2e-4)
     base.update(kw)
@@ -157,10 +159,10 @@ def test_T4_time_step_bound_and_stability():
     assert res[1.05] > 1e3
 
 
-def test_T4_bulk_scene_timestep_matches_note():
+def test_T4_bulk_scene_timestep_matches_bloch_analysis():
     sc = build_scene(MineParams())
     dg = gershgorin_dt(sc.model, contact=False)
-    assert 13e-6 < dg < 16.5e-6            # note: 15.7 us for d = 0.5 m, kn d/E = 24
+    assert 13e-6 < dg < 16.5e-6            # periodic Bloch analysis: 15.7 us for d = 0.5 m, kn d/E = 24
     dc = gershgorin_dt(sc.model)           # + proximity contact (Weyl sum): 11.2 us
     assert 10.5e-6 < dc < dg
 
@@ -184,7 +186,6 @@ def test_flat_top_orientation_is_refused_at_virgin_state():
 
 # ----------------------------------------------------------------------------- T6 Kirsch
 def _kirsch_case(a):
-    from dem.hexmine.kirsch import hoop, kirsch_model, kirsch_solve, kirsch_stress
     km = kirsch_model(a=a, R_out=4 * a, r_in=R, E=E, nu=NU, kn_factor=100.0)
     p = -25e6
     loads = [(0.0, p), (p, 0.0), (p, p), (p / 3, p)]       # uniaxial y, uniaxial x, equibiaxial, K0=1/3
@@ -196,7 +197,7 @@ def _kirsch_case(a):
 
 @pytest.fixture(scope="module")
 def kirsch8():
-    return _kirsch_case(4.0)            # a/d = 8 (the note's T6 scene)
+    return _kirsch_case(4.0)            # a/d = 8 (the T6 scene)
 
 
 def test_T6_kirsch_rim_concentration(kirsch8):
@@ -231,41 +232,145 @@ def test_T6_kirsch_field(kirsch8):
     assert hk < h < 0.0
 
 
+def _sidewall_centre_errors(km, s, Sx, Sy):
+    """Relative error of sigma_yy of the sidewall row (y = 0, x >= a) against Kirsch(a) evaluated
+    at the cell centres, ordered from the hole."""
+    x, y = km.centres.T
+    row = np.nonzero((np.abs(y) < 1e-9) & (x >= km.a - 1e-9) & (x <= km.a + 20 * R))[0]
+    row = row[np.argsort(x[row])]
+    return s[row, 1] / kirsch_stress(x[row], 0.0, km.a, Sx, Sy)[:, 1] - 1
+
+
+def test_T6_kirsch_at_cell_centres(kirsch8):
+    """At the cell centres, against Kirsch(a) itself, sigma_yy along the sidewall row is within 5 %
+    from the third cell on for the scene's stress state K0 = 1/3 (measured 0.7-4.5 % at a/d = 8;
+    uniaxial sigma_yy: 1.5-5.1 %, within 5.5 %). The first cell
+    (centre on r = a: the staircase 'tooth' whose inner edge sticks into the hole) carries 62 % less
+    and the second 9.7 % less: the documented staircase error within one cell of a free face."""
+    km, S, res, conc, loads, _ = kirsch8
+    for s, (Sx, Sy), tol in ((S[3], loads[3], 0.05), (S[0], loads[0], 0.055)):
+        err = _sidewall_centre_errors(km, s, Sx, Sy)
+        assert np.abs(err[2:]).max() < tol, err
+        assert -0.7 < err[0] < -0.5 and -0.12 < err[1] < -0.05
+
+
 def test_T6_kirsch_converges_with_a_over_d():
     """a/d = 16: the rim concentration approaches Kirsch (uniaxial within 5 %: 2.92 / 2.96)."""
     km, S, res, conc, loads, _ = _kirsch_case(8.0)
     assert 2.85 < conc[0] < 3.1 and 2.85 < conc[1] < 3.1
     assert 1.9 < conc[2] < 2.25
+    err = _sidewall_centre_errors(km, S[3], *loads[3])
+    assert np.abs(err[2:]).max() < 0.035, err
 
 
 # ----------------------------------------------------------------------------- T7 static solve
 def test_T7_elastic_excavation_matches_direct_sparse_solve():
-    import scipy.sparse.linalg as spla
+    from dem.scenes.mine.excavation import static_excavation
     p = small(elastic=True, ramp="instant", n_disl=0, damping=3000.0, contact_damping=0.0)
     sc = build_scene(p)
     m = sc.model
-    K = assemble_stiffness(m)
-    free = m.minv.ravel() > 0
-    rhs = np.zeros(m.u.size)
-    idx = 12 * m.wc + 2 * m.wk
-    np.add.at(rhs, idx, -m.FE0[:, 0])
-    np.add.at(rhs, idx + 1, -m.FE0[:, 1])
-    du = np.zeros(m.u.size)
-    du[free] = spla.spsolve(K[free][:, free].tocsc(), rhs[free])
+    du, Wr = static_excavation(m)
+    du = du.ravel()
     dg = gershgorin_dt(m)
     for _ in range(40):
         advance(m, 1000, 0.8 * dg, dg)
     got = (m.u - m.u0).ravel()
     assert np.abs(got - du).max() < 1e-4 * np.abs(du).max()
     # released energy = 1/2 sum F_E0 . du (linear), absorbed by the damping after an instant release
-    Wr = abs(0.5 * rhs @ du)
     e = energies(m)
     assert e["D_damp"] == pytest.approx(Wr, rel=0.02)
 
 
+def _lattice_static(**kw):
+    from dem.scenes.mine.excavation import static_excavation
+    from dem.scenes.mine.indicators import seam_profile
+    sc = build_scene(MineParams(elastic=True, **kw))
+    du, W = static_excavation(sc.model)
+    d, syy = seam_profile(sc, sc.model.u + du)
+    k = int(np.argmin(syy))
+    return W, syy[k], d[k]
+
+
+def _fe_static(h):
+    from fe_reference import fe_excavation, seam_profile
+    r = fe_excavation(h=h)
+    xs = np.arange(1.75, 8.0, 0.25)
+    prof = seam_profile(r, xs) - 25e6
+    k = int(np.argmin(prof))
+    return r["W"], prof[k], xs[k] - 1.5
+
+
+def test_T7_abutment_and_released_energy_against_fe():
+    """Paper scene, elastic, traction top: the lattice's abutment peak (sigma_yy along the seam
+    mid-height row) and released energy 1/2 sum F_E0 . du against an independent linear-triangle FE
+    solve of the same half-model (tests/fe_reference.py, h = 0.125 m: W = 299.9 kJ/m, peak -29.88 MPa
+    at 2.0-2.5 m from the rib; converged, h = 0.0625 gives the same to 0.3 %). Lattice r_in = 0.25 m:
+    peak -30.62 MPa (+2.5 %) at 2.0 m, W = 337.7 kJ/m (+12.6 %: the staircase face within one cell of
+    the opening is too soft, as in T6). The finer lattice (next test) closes the gap."""
+    Wf, pf, df = _fe_static(0.125)
+    Wl, pl, dl = _lattice_static()
+    assert abs(pl / pf - 1) < 0.05 and abs(dl - df) <= 0.5
+    assert 0 < Wl / Wf - 1 < 0.15
+    assert pl < -1.15 * 25e6                       # an abutment: 20 % above the virgin stress
+
+
+def test_T7_lattice_converges_to_fe():
+    """r_in = 0.125 m (4357 cells): W = 297.9 kJ/m (-0.7 %), peak -30.11 MPa (+0.8 %) at 2.0 m."""
+    Wf, pf, df = _fe_static(0.125)
+    Wl, pl, dl = _lattice_static(cell_size=0.125)
+    assert abs(Wl / Wf - 1) < 0.03 and abs(pl / pf - 1) < 0.03 and abs(dl - df) <= 0.5
+
+
+# ----------------------------------------------------------------------------- wedge on an inclined plane
+def _block_on_plane(alpha_deg, phi_deg=22.0, c=0.0, t_end=0.005):
+    """A rigid block (mass m, one interface of length L) on a plane inclined at alpha, under gravity,
+    integrated with the method's central-difference ``step`` and its interface law, from the static
+    elastic state. Returns the slip along the plane [m] at t_end and the largest elastic tangential jump
+    the loading could cause (2x static) [m]."""
+    m, L, g, kn = 500.0, 0.3, 9.81, 2.4e12
+    a = np.radians(alpha_deg)
+    n = np.array([0.0, 1.0])                         # plane frame: normal y, downslope +x
+    grav = m * g * np.array([np.sin(a), -np.cos(a)])
+    # start from the static elastic state (preloaded interface, zero jump): no dynamic overshoot
+    law = InterfaceLaw(kn, kn, 0.0, c, phi_deg, sn0=-m * g * np.cos(a) / L, tau0=m * g * np.sin(a) / L)
+    dt = 0.5 * np.sqrt(m / (kn * L))
+
+    def forces(u, t):
+        sn, tau = law.update(u[1], u[0])
+        return grav - L * (sn * n + tau * np.array([1.0, 0.0]))     # the block is cell j: f_j -= F
+
+    st = {"u": np.zeros(2), "vh": np.zeros(2), "t": 0.0}
+    st["f"] = forces(st["u"], 0.0)
+    while st["t"] < t_end:
+        st = step(st, dt, forces, np.full(2, 1.0 / m))
+    return st["u"][0], 2 * m * g * np.sin(a) / (kn * L)
+
+
+@pytest.mark.parametrize("c", [0.0, 2e3])
+def test_rigid_wedge_slides_at_the_friction_angle(c):
+    """Mohr-Coulomb plane: the block stays (only the elastic jump) below the angle where
+    m g sin(alpha) = c L + m g cos(alpha) tan(phi) (= phi for c = 0), and slides above it with the
+    analytic acceleration g (sin alpha - cos alpha tan phi): the cohesion is lost when the
+    interface breaks (the law's broken state is frictional only)."""
+    phi, m, L, g = 22.0, 500.0, 0.3, 9.81
+    # critical angle: solve sin a - cos a tan phi = c L / (m g)
+    from scipy.optimize import brentq
+    ac = np.degrees(brentq(lambda a: np.sin(a) - np.cos(a) * np.tan(np.radians(phi)) - c * L / (m * g), 0, 1.5))
+    if c == 0:
+        assert ac == pytest.approx(phi, abs=1e-9)
+    slip, el = _block_on_plane(ac - 0.5, phi, c)
+    assert slip <= 1.01 * el + 1e-12
+    t = 0.005
+    for da in (0.5, 5.0):
+        a = np.radians(ac + da)
+        acc = g * (np.sin(a) - np.cos(a) * np.tan(np.radians(phi)))
+        slip, el = _block_on_plane(ac + da, phi, c, t)
+        assert slip == pytest.approx(0.5 * acc * t ** 2, rel=0.02)
+
+
 # ----------------------------------------------------------------------------- T8 mirror symmetry
 def _mirror_pair(angle):
-    return MineParams(seam_bottom=2.375, seam_top=7.125, top_bc="roller", elastic_layer=0.0,
+    return MineParams(seam_bottom=2.375, seam_top=7.125, loading="rollers", elastic_layer=0.0,
                       disl_angle_deg=angle, duration=0.004, ramp="linear", ramp_time=0.002,
                       output_every=2e-4)
 
@@ -276,14 +381,14 @@ def test_T8_mirror_symmetry_about_seam_midplane():
     ea, eb = a.series["Ek"], b.series["Ek"]
     assert ea.max() > 0
     assert np.abs(ea - eb).max() <= 1e-9 * ea.max()
-    assert a.indicators["n_shear"] == b.indicators["n_shear"]
+    assert a.indicators.n_shear == b.indicators.n_shear
 
 
 # ----------------------------------------------------------------------------- T10 energy balance
 def test_T10_energy_balance_nonlinear():
     r = run_scene(small(duration=0.02, ramp_time=0.002))
     s = r.series
-    assert r.indicators["n_shear"] + r.indicators["n_tension"] > 0
+    assert r.indicators.n_shear + r.indicators.n_tension > 0
     W = np.abs(s["W_ext"]).max()
     assert np.abs(s["residual"]).max() < 0.01 * W
 
@@ -293,18 +398,17 @@ def test_T10_energy_balance_nonlinear():
     (dict(coal_E=-1.0), "coal_E"), (dict(rock_phi_deg=90.0), "rock_phi_deg"),
     (dict(coal_phi_deg=-1.0), "coal_phi_deg"), (dict(n_disl=3, disl_first=20.0), "dislocation"),
     (dict(disl_angle_deg=180.0), "disl_angle_deg"), (dict(rock_nu=0.5), "rock_nu"),
-    (dict(ramp="linear", ramp_time=0.0), "ramp_time"), (dict(top_bc="free"), "top_bc")])
+    (dict(ramp="linear", ramp_time=0.0), "ramp_time"), (dict(loading="free"), "loading")])
 def test_invalid_scenes_refused(kw, name):
     with pytest.raises(ValueError, match=name):
         MineParams(**kw).validate()
 
 
 def test_toml_loading(tmp_path):
-    from dem.hexmine import load_toml
     f = tmp_path / "s.toml"
-    f.write_text('[scene]\ndisl_angle_deg = 120.0\nn_disl = 2\ngas = false\n')
+    f.write_text('[scene]\ndisl_angle_deg = 120.0\nn_disl = 2\ngas = "none"\n')
     p = load_toml(f)
-    assert p.disl_angle_deg == 120.0 and p.n_disl == 2 and p.gas is False
+    assert p.disl_angle_deg == 120.0 and p.n_disl == 2 and p.gas == "none"
     f.write_text('bogus = 1\n')
     with pytest.raises(ValueError, match="bogus"):
         load_toml(f)
@@ -322,7 +426,6 @@ def test_checkpoint_resume_bit_exact(tmp_path):
 
 
 def test_generic_step_matches_fused_loop():
-    from dem.hexmine.dynamics import model_forces, step
     p = small(duration=0.001)
     a = build_scene(p).model
     b = build_scene(p).model
@@ -339,7 +442,6 @@ def test_generic_step_matches_fused_loop():
 
 # ----------------------------------------------------------------------------- new-neighbour contact
 def _collide(offset, contact_damping, frac=0.35, v=5.0):
-    from dem.hexmine.scene import free_cells_model
     d = 2 * R
     m = free_cells_model([[0.0, 0.0], [1.2 * d, offset * d]], [[v, 0.0], [-v, 0.0]],
                          contact_damping=contact_damping)
@@ -404,9 +506,141 @@ def test_contact_only_for_cells_with_broken_interfaces():
 def test_runaway_raises_shared_instability_error(tmp_path):
     """The runaway guard raises the engine's InstabilityError; the runner keeps the last good
     snapshot (step named) and writes it as failure.npz."""
-    from dem.integrate import InstabilityError
     r = run_scene(small(duration=0.004, v_abort=1e-3), out_dir=tmp_path)
     assert isinstance(r.error, InstabilityError) and r.stopped
     assert r.error.state.step < r.error.step
     assert (tmp_path / "failure.npz").exists()
     assert "Loop time" in str(r.report)
+
+
+# ----------------------------------------------------------------------------- readings of the paper
+def test_every_reading_builds_and_keeps_a_static_virgin_state():
+    from dem.scenes.mine import READINGS
+    for name in ("placement", "floor", "loading", "gas", "lattice"):
+        for v in READINGS[name]:
+            kw = {name: v}
+            if name == "floor" and v == "rock":
+                kw["floor_layer"] = 1.0
+            sc = build_scene(small(**kw))
+            assert sc.virgin_residual < 1e-10, kw
+            assert sc.virgin_utilisation < 1.0, kw
+
+
+def test_placement_near_and_far():
+    """Near: the named end (60 deg toe / 120 deg top) 2.5 m from the rib, the line runs away from the
+    opening. Far: the same named end, the line runs toward the rib."""
+    from dem.scenes.mine import resolve
+    h = 4.75
+    dx = h / np.tan(np.radians(60))
+    for ang, named in ((60.0, 0), (120.0, 1)):
+        gn = resolve(MineParams(disl_angle_deg=ang))
+        gf = resolve(MineParams(disl_angle_deg=ang, placement="far"))
+        sn, sf = gn.dislocations[0], gf.dislocations[0]
+        assert sn[named, 0] == pytest.approx(1.5 + 2.5) and sf[named, 0] == pytest.approx(1.5 + 2.5)
+        assert sn[1 - named, 0] == pytest.approx(4.0 + dx) and sf[1 - named, 0] == pytest.approx(4.0 - dx)
+
+
+def test_blocks_partition_and_control_subtraction():
+    from dem.scenes.mine import block_indicators, block_labels, block_names, resolve
+    p = small(n_disl=2, disl_spacing=2.0, disl_first=1.0, disl_angle_deg=120.0, duration=0.002)
+    r = run_scene(p)
+    g = r.scene.geometry
+    lab = r.scene.labels
+    m = r.scene.model
+    assert set(np.unique(lab[m.is_coal & (m.centres[:, 0] > g.rib_x + 0.3)])) == {0, 1, 2}
+    # a wedge cell lies between the rib and the first line at its height
+    (xb, yb), (xt, yt) = g.dislocations[0]
+    w = np.nonzero(lab == 0)[0]
+    xl = xb + (m.centres[w, 1] - yb) / (yt - yb) * (xt - xb)
+    assert np.all(m.centres[w, 0] < xl)
+    names = [b.name for b in r.indicators.blocks]
+    assert names == ["wedge", "block1", "beyond"]
+    ctl = run_scene(p.replace(n_disl=0))
+    lab_c = block_labels(resolve(p), ctl.scene.model.centres, ctl.scene.model.is_coal)
+    assert np.array_equal(lab_c, lab)
+    cb = block_indicators(ctl.scene, ctl.series, lab_c, block_names(2))
+    d = r.indicators.block("wedge").minus(cb[0])
+    assert d.peak_Ek_J_per_m == pytest.approx(r.indicators.blocks[0].peak_Ek_J_per_m - cb[0].peak_Ek_J_per_m)
+    assert r.indicators.as_dict()["blocks"][0]["name"] == "wedge"
+    assert "profile" not in r.indicators.as_dict()
+    prof = r.indicators.profile
+    assert prof.g[0] == 1.0 and prof.g[-2] == 0.0
+    assert prof.syy_Pa[0] == pytest.approx(-25e6, rel=1e-9)      # virgin stage: uniform
+
+
+def test_eigenstrain_gas_loads_the_cells_along_the_dislocation():
+    """The eigenstress p_g on the cells along the dislocation: with it, their mean stress is less
+    compressive than without (the gas pushes), the virgin state stays exact."""
+    from dem.hexagons import cell_stress
+    a = build_scene(small(gas="eigenstrain"))
+    b = build_scene(small(gas="none"))
+    assert a.gassy.sum() > 4 and a.virgin_residual < 1e-12
+    sa = cell_stress(a.model)[a.gassy]
+    sb = cell_stress(b.model)[a.gassy]
+    # the elastic stress of the gassy cells changes by O(p_g) = 1 MPa, toward tension on average
+    dm = 0.5 * (sa[:, 0] + sa[:, 1] - sb[:, 0] - sb[:, 1]).mean()
+    assert 0.1e6 < dm < 1.5e6
+    assert (a.model.pg == 0).all() and (b.model.pg == 0).all()
+
+
+def test_absorbing_boundaries_and_overburden_spring_keep_the_energy_balance():
+    """Elastic instant excavation: the dashpots take energy out (D_damp > 0) and the balance closes
+    within 1 %; the spring's energy is part of U."""
+    base = dict(elastic=True, ramp="instant", n_disl=0, duration=0.02)
+    r0 = run_scene(small(**base))
+    r1 = run_scene(small(**base, absorbing=True, loading="spring", overburden_height=5.0))
+    s = r1.series
+    assert s["D_damp"][-1] > 0.1 * np.abs(s["W_ext"]).max()
+    assert np.abs(s["residual"]).max() < 0.01 * np.abs(s["W_ext"]).max()
+    assert r1.series["Ek"][-1] < 0.5 * r0.series["Ek"][-1]
+    assert np.any(r1.scene.model.kspr > 0)
+
+
+@pytest.mark.parametrize("kw,name", [(dict(placement="middle"), "placement"), (dict(floor="ice"), "floor"),
+                                     (dict(gas=True), "gas"), (dict(coal_c=-1.0), "coal_c"),
+                                     (dict(rock_ft=-5.0), "rock_ft"), (dict(lattice="square"), "lattice"),
+                                     (dict(disl_first=30.0), "disl_first"), (dict(disl_side="left"), "disl_side")])
+def test_bad_readings_name_the_field(kw, name):
+    with pytest.raises(ValueError, match=name):
+        MineParams(**kw).validate()
+
+
+def test_cli_refuses_unknown_reading(capsys):
+    from dem.scenes.mine.__main__ import main
+    with pytest.raises(SystemExit):
+        main(["--set", "loading=soft", "--out", "/tmp/never"])
+    assert "loading" in capsys.readouterr().err
+
+
+def test_study_quick(tmp_path):
+    """The decisive study's quick mode runs end to end (3 runs) and writes a verdict and figures."""
+    import pandas as pd
+    from studies.mine_bumps import main
+    assert main(["--quick", "--out", str(tmp_path), "--no-progress"]) == 0
+    v = pd.read_csv(tmp_path / "verdict.csv")
+    assert len(v) == 1 and v.verdict.iloc[0] in ("120 worse", "60 worse", "no clear difference")
+    assert (tmp_path / "fig_profile_near.png").exists() and (tmp_path / "fig_cracks_near.png").exists()
+    assert main(["--quick", "--out", str(tmp_path), "--no-progress"]) == 0        # resumes: nothing to run
+
+
+@pytest.mark.slow
+def test_verdict_converges_from_1117_to_1527_cells(tmp_path):
+    """The 60/120 verdict on the 1117-cell lattice (inner radius 0.25 m) equals the verdict on the
+    1527-cell lattice (side 0.25 m, the paper's 1532), for the reading where the angle matters most
+    (far placement, roller floor, interface gas: 60 deg worse) and for the paper-closest one."""
+    from studies import mine_bumps as mb
+    from studies.runner import run_cases
+    cs = []
+    for lat in ("inner", "side"):
+        parts = []
+        for r in (dict(mb.BASE, lattice=lat), dict(mb.BASE, lattice=lat, placement="far", gas="interface")):
+            for a in mb.ANGLES:
+                cs.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": 0.1, "out": str(tmp_path)})
+                parts.append([r["placement"], a, 1])
+        cs.append({"role": "control", "reading": mb._control_reading(dict(mb.BASE, lattice=lat)),
+                   "partitions": parts, "duration": 0.1, "out": str(tmp_path)})
+    df = run_cases(mb.run_case, cs, tmp_path / "c.csv", progress=False)
+    vt = mb.verdict_table(cs, df)
+    assert len(vt) == 4
+    assert vt.verdict.iloc[0] == vt.verdict.iloc[2] == "no clear difference", vt[["reading", "verdict"]]
+    assert vt.verdict.iloc[1].startswith("60") and vt.verdict.iloc[3].startswith("60"), vt[["reading", "verdict"]]
