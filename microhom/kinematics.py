@@ -173,10 +173,13 @@ class Assembly:
     dof_map: np.ndarray
 
 
-def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None) -> Assembly:
+def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None,
+             pin: bool = True) -> Assembly:
     """Assemble the reduced Hessian ``H`` (ndof, ndof) [N/m] and load ``F`` (ndof, 3) of a periodic
     network (rattlers removed iteratively with :func:`microhom.structural_sums.rattlers`); see
-    :class:`Assembly`."""
+    :class:`Assembly`. ``pin=False`` keeps every translation (``H`` then has the two global
+    translations as null vectors, orthogonal to ``F``: what an iterative solver wants, since
+    pinning one particle breaks the cell's symmetry)."""
     if network.cell is None:
         raise ValueError("the stiffness problem needs a periodic network (cell is None)")
     N = network.n_particles
@@ -195,7 +198,7 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
     active[1:2 * N:2] = has_t
     active[2 * N:] = has_s & has_t
     pinned = -1
-    if has_t.any():    # pin the global translation: the best-connected particle's u
+    if pin and has_t.any():    # pin the global translation: the best-connected particle's u
         cnt = np.bincount(net.pairs.ravel(), minlength=N)
         pinned = int(np.argmax(np.where(has_t, cnt, -1)))
         active[2 * pinned] = active[2 * pinned + 1] = False

@@ -10,15 +10,18 @@ diameter D with constant contact stiffnesses kn, kt [N/m] (2D moduli are in N/m 
 * ``rho = Nc sum V.W / sum V^2``, modelled (54) as ``cos(pi alpha/2)/(1 - alpha^2)``
 * ``Nbar`` from ``phi = (pi/4)/sin(pi (Nbar-2)/Nbar)`` (branch Nbar >= 4, needs phi >= pi/4)
 
-Everything broadcasts over numpy arrays and pandas Series. This module imports numpy only.
+Everything broadcasts over numpy arrays and pandas Series. ``predict_moduli`` needs numpy only;
+``predict_from_network`` also measures the network (``microhom.structural_sums``) and checks the
+prediction against the rigorous upper bounds of the relaxation hierarchy (``microhom.hierarchy``).
 """
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from .hierarchy import relaxation_hierarchy
 from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
 from .structural_sums import network_statistics
 
@@ -29,7 +32,13 @@ _REASONS = (
     (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
     (2, "first-order correction (softening or stiffening) larger than max_correction of the mean field: "
         "outside the theory's range"),
+    (4, "phi above close packing pi/(2 sqrt 3) (overlaps inflate it): Nbar and the mean field taken "
+        "at close packing"),
+    (8, "near isostatic (Z - Z_iso < 0.5 on the load-bearing particles): the shear modulus vanishes "
+        "at isostaticity and the first-order theory cannot follow"),
+    (16, "prediction above the rigorous upper bound of the relaxation hierarchy: provably too stiff"),
 )
+_N_CODES = 1 << len(_REASONS)
 
 
 def _check(name, x, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
@@ -91,7 +100,7 @@ class Prediction:
     @property
     def reason(self) -> np.ndarray:
         """Why a result is flagged, as text per parameter set ("ok" where valid)."""
-        texts = ["; ".join(t for bit, t in _REASONS if code & bit) or "ok" for code in range(4)]
+        texts = ["; ".join(t for bit, t in _REASONS if code & bit) or "ok" for code in range(_N_CODES)]
         return np.asarray(np.asarray(texts, dtype=object)[np.asarray(self.flags)], dtype=object)
 
     def to_frame(self):
@@ -197,7 +206,7 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
 
 
 def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="exclude", min_contacts=None,
-                         nbar=None, **kwargs) -> Prediction:
+                         nbar=None, check_bounds=True, bound_order=8, **kwargs) -> Prediction:
     """Predict the moduli of a :class:`~microhom.network.ContactNetwork` from its own statistics.
 
     ``kn`` is the mean contact ``kn``; ``kt`` the mean *effective* tangent stiffness (0 for sliding
@@ -205,15 +214,51 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     ``Nc``, ``r`` and ``rho`` are measured (see :func:`microhom.structural_sums.network_statistics`)
     with rattlers excluded (``rattlers="exclude"``, default) or included; ``phi`` is the network's
     solid fraction. With ``measured_rho=False`` the paper's alpha model is used instead.
+
+    It flags (``valid = False``, ``reason``) rather than raising:
+
+    * ``phi`` above close packing (overlapping disks): Nbar and the mean field are taken at close
+      packing (below pi/4 Nbar(phi) does not exist: ValueError asking for ``nbar``, as before);
+    * near-isostatic packings, ``Z - Z_iso < 0.5`` with ``Z`` the mean coordination of the
+      load-bearing particles and ``Z_iso`` = 3 (frictional: some contact has kt_eff > 0) or 4;
+    * with ``check_bounds`` (periodic networks), a K or G above the rigorous upper bound of the
+      relaxation hierarchy after ``bound_order`` CG steps (``microhom.hierarchy``; without
+      pre-stress, as the theory): the prediction is then provably too stiff.
     """
     st = network_statistics(network, min_contacts=min_contacts)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
     if key is None:
         raise ValueError(f"rattlers must be 'exclude' or 'include', got {rattlers!r}")
-    kn = float(np.mean(network.kn))
-    kt = float(np.mean(network.effective_kt))
-    rho = getattr(st, "rho" + key) if measured_rho else None
     if measured_rho and alpha is not None:
         raise ValueError("alpha is only used with measured_rho=False")
-    return predict_moduli(kn, kt, getattr(st, "nc" + key), st.phi, getattr(st, "r" + key), alpha=alpha, rho=rho,
-                          nbar=nbar, diameter=st.diameter, **kwargs)
+    kn = float(np.mean(network.kn)) if network.n_contacts else 1.0
+    kt = float(np.mean(network.effective_kt)) if network.n_contacts else 0.0
+    rho = getattr(st, "rho" + key) if measured_rho else None
+    phi = st.phi
+    extra = 0
+    if phi > PHI_MAX:     # overlaps inflate phi: flag and take Nbar, the mean field at close packing
+        extra |= 4
+        phi = PHI_MAX
+    z_iso = 3.0 if kt > 0 else 4.0
+    if not st.nc - z_iso >= 0.5:   # also NaN: no load-bearing particle
+        extra |= 8
+    nc = getattr(st, "nc" + key)
+    if not nc > 0:  # no load-bearing particle: report the zero network as invalid, not a crash
+        nc, extra = 1e-300, extra | 8
+    warn = kwargs.pop("warn", True)
+    r = getattr(st, "r" + key)
+    p = predict_moduli(kn, kt, nc, phi, r if np.isfinite(r) else 0.0, alpha=alpha,
+                       rho=rho if rho is None or np.isfinite(rho) else 0.0,
+                       nbar=nbar, diameter=st.diameter, warn=False, **kwargs)
+    if check_bounds and network.cell is not None and network.n_contacts:
+        h = relaxation_hierarchy(network, max_order=bound_order, spectral_bound="none",
+                                 min_contacts=min_contacts)
+        tol = 1e-9 * max(h.K.upper, h.G.upper, 1e-300)
+        if not h.unstable and (float(p.K) > h.K.upper + tol or float(p.G) > h.G.upper + tol):
+            extra |= 16
+    if extra:
+        flags = (np.asarray(p.flags) | extra).astype(np.int8)
+        p = replace(p, flags=flags, valid=flags == 0)
+    if warn and not np.all(p.valid):
+        warnings.warn(f"prediction flagged: {p.reason}", RuntimeWarning, stacklevel=2)
+    return p

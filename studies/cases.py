@@ -16,8 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+import dem.packing
 from dem.packing import PackingResult, pack
+from dem.probes import strain_probes
 from dem.stiffness import stiffness
+from microhom.closure import predict_closure
+from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import network_statistics
 
@@ -33,8 +37,6 @@ def cache_dir() -> Path:
 
 def _protocol_tag() -> str:
     """Hash of the packing code: a cached packing is reused only if made by the same protocol."""
-    import dem.packing
-
     return hashlib.sha1(Path(dem.packing.__file__).read_bytes()).hexdigest()[:8]
 
 
@@ -91,6 +93,28 @@ def theory_estimates(stats: dict, kn: float, kt: float, alpha=1.76) -> dict:
     return out
 
 
+def closure_estimate(stats: dict, kt_over_kn: float, dispersity: float) -> dict:
+    """Statistics-only closure (``microhom.closure``) from measured statistics, with its stated
+    error and validity; wall time of the prediction alone."""
+    t0 = time.perf_counter()
+    p = predict_closure(nc=stats["nc"], r=stats["r"], phi=stats["phi"], kt_over_kn=kt_over_kn,
+                        dispersity=dispersity)
+    return {"closure_K": float(p.K), "closure_G": float(p.G), "closure_err_K": float(p.error_K),
+            "closure_err_G": float(p.error_G), "closure_valid": bool(p.valid),
+            "closure_time_s": time.perf_counter() - t0}
+
+
+def hierarchy_estimates(net, prestress: bool, order: int = 16) -> dict:
+    """Relaxation hierarchy after ``order`` CG steps: upper bounds, extrapolated values with their
+    stated errors, and the first-order (single-particle) estimate; wall time."""
+    t0 = time.perf_counter()
+    h = relaxation_hierarchy(net, prestress=prestress, tol=1e-9, max_order=order, spectral_bound="none")
+    return {"hier_upper_K": h.K.upper, "hier_upper_G": h.G.upper, "hier_K": h.K.value, "hier_G": h.G.value,
+            "hier_err_K": h.K.error, "hier_err_G": h.G.error, "hier_order": h.order,
+            "first_order_K": h.K_first_order, "first_order_G": h.G_first_order,
+            "hier_time_s": time.perf_counter() - t0}
+
+
 def packing_case(case: dict) -> dict:
     """Build/load the packing of ``case``, measure it, and compute every estimate of K and G.
 
@@ -119,9 +143,9 @@ def packing_case(case: dict) -> dict:
                 "n_floppy": ex.n_floppy, "exact_rattlers": ex.n_rattlers})
     ex0 = stiffness(net, prestress=False)
     out.update({"exact_noprestress_K": ex0.K, "exact_noprestress_G": ex0.G})
+    out.update(closure_estimate(stats, kt, float(case.get("dispersity", DEFAULTS["dispersity"]))))
+    out.update(hierarchy_estimates(net, prestress=True, order=int(case.get("hierarchy_order", 16))))
     if case.get("probes"):
-        from dem.probes import strain_probes
-
         pr = strain_probes(res.state, res.law, amplitude=case.get("probe_amplitude", 1e-8),
                            tol_unbalanced=case.get("probe_tol", 1e-8))
         out.update({"probe_K": pr.K, "probe_G": pr.G, "probe_time_s": pr.wall_time, "probe_steps": pr.steps,

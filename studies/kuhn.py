@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import brentq
 
 from microhom.moduli import predict_moduli
 from studies import rho_definitions
@@ -49,8 +50,6 @@ def seed_theory():
 
 def fit_alpha(row) -> float:
     """The alpha that makes the corrected shear modulus equal the DEM's (labelled a fit), or NaN."""
-    from scipy.optimize import brentq
-
     def f(a):
         p = predict_moduli(1.0, 1.0, row["nc"], row["phi"], row["r"], alpha=a, nbar=row["nbar_phi"], warn=False)
         return float(p.G) - row["exact_G"]
@@ -70,6 +69,10 @@ def build_table(df: pd.DataFrame) -> pd.DataFrame:
         ("theory: alpha = 1.76 (paper), measured r", "theory_alpha", "theory_time_s"),
         ("theory: measured rho, r (no rattlers)", "theory_rho", "theory_time_s"),
         ("theory: measured rho, r (rattlers incl.)", "theory_rho_all", "theory_time_s"),
+        ("closure: statistics only (microhom.closure)", "closure", "closure_time_s"),
+        ("hierarchy: first order (single-particle relaxation)", "first_order", "hier_time_s"),
+        ("hierarchy: 16 CG steps, upper bound", "hier_upper", "hier_time_s"),
+        ("hierarchy: 16 CG steps, extrapolated", "hier", "hier_time_s"),
         ("DEM: affine tensor of the network", "affine", "exact_time_s"),
         ("DEM: exact linear response (reference)", "exact", "exact_time_s"),
         ("DEM: strain probes", "probe", "probe_time_s"),
@@ -99,13 +102,16 @@ def plot(table: pd.DataFrame, path):
     for ax, mod in zip(axes, ("bulk", "shear")):
         t = table[table.modulus == mod]
         y = np.arange(len(t))
-        ax.barh(y, t.effective, xerr=t.effective_std.fillna(0), color=["C0"] * 4 + ["C1"] * (len(t) - 4))
+        colors = ["C1" if mth.startswith("DEM") else ("C2" if mth.startswith(("hierarchy", "closure")) else "C0")
+                  for mth in t.method]
+        ax.barh(y, t.effective, xerr=t.effective_std.fillna(0), color=colors)
         ax.set_yticks(y, t.method, fontsize=8)
         ax.invert_yaxis()
         ax.set_xlabel(f"{mod} modulus / kn")
         ref = float(t[t.method.str.contains("reference")].effective.iloc[0])
         ax.axvline(ref, color="k", lw=0.8, ls="--")
-    fig.suptitle("Seed conditions (kt = kn, 26 deg friction): theory (blue) against DEM (orange); dashed = exact")
+    fig.suptitle("Seed conditions (kt = kn, 26 deg friction): seed theory (blue), closure and hierarchy (green), "
+                 "DEM (orange); dashed = exact", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)

@@ -16,10 +16,15 @@ from __future__ import annotations
 import argparse
 import time
 
+import warnings
+
 import numpy as np
 import pandas as pd
 
-from studies.cases import DEFAULTS
+from dem.stiffness import stiffness
+from microhom.moduli import predict_moduli
+from microhom.structural_sums import network_statistics
+from studies.cases import DEFAULTS, closure_estimate, get_packing, hierarchy_estimates
 from studies.common import out_dir, write_table
 from studies.runner import run_cases
 
@@ -28,11 +33,6 @@ KT_RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
 
 def sweep_case(case: dict) -> dict:
     """One (packing, kt/kn) case: build/load the packing (kt = kn), analyse with kt = ratio * kn."""
-    from dem.stiffness import stiffness
-    from microhom.moduli import predict_moduli
-    from microhom.structural_sums import network_statistics
-    from studies.cases import get_packing
-
     pack_case = {k: v for k, v in case.items() if k != "kt_ratio"}
     res, t_pack, _ = get_packing(pack_case)
     ratio = float(case["kt_ratio"])
@@ -52,6 +52,8 @@ def sweep_case(case: dict) -> dict:
         out.update({f"theory_{name}_K": float(p.K), f"theory_{name}_G": float(p.G),
                     f"theory_{name}_valid": bool(p.valid)})
     out["theory_time_s"] = time.perf_counter() - t0
+    out.update(closure_estimate(st, ratio, float(case.get("dispersity", DEFAULTS["dispersity"]))))
+    out.update(hierarchy_estimates(net, prestress=False))
     t0 = time.perf_counter()
     # The theory has no pre-stress (geometric) terms, so the sweep's DEM reference is the exact
     # response of the contact stiffnesses alone; with pre-stress, a frictional packing re-analysed
@@ -60,8 +62,6 @@ def sweep_case(case: dict) -> dict:
     out.update({"exact_K": ex.K, "exact_G": ex.G, "affine_K": ex.K_affine, "affine_G": ex.G_affine,
                 "n_floppy": ex.n_floppy, "exact_time_s": time.perf_counter() - t0, "pack_time_s": t_pack,
                 "psi6": float(res.report.get("psi6", np.nan))})
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         exp = stiffness(net, prestress=True)
@@ -93,7 +93,8 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     ok = df[df.status == "ok"]
     keys = ["mu_prep", "p_over_kn", "kt_ratio"]
     cols = ["nc", "r", "rho", "phi", "theory_mf_K", "theory_mf_G", "theory_rho_K", "theory_rho_G",
-            "theory_alpha_K", "theory_alpha_G", "exact_K", "exact_G", "affine_K", "affine_G"]
+            "theory_alpha_K", "theory_alpha_G", "exact_K", "exact_G", "affine_K", "affine_G",
+            "closure_K", "closure_G", "hier_K", "hier_G", "hier_upper_K", "hier_upper_G"]
     g = ok.groupby(keys)[cols]
     mean = g.mean()
     sem = g.std(ddof=1) / np.sqrt(g.count())
@@ -121,6 +122,8 @@ def plot(summary: pd.DataFrame, path):
             c = line[0].get_color()
             ax.plot(g.nc, g[f"theory_mf_{m}"], "--", color=c, lw=1)
             ax.plot(g.nc, g[f"theory_rho_{m}"], ":", color=c, lw=1.5)
+            ax.plot(g.nc, g[f"closure_{m}"], "-.", color=c, lw=1)
+            ax.plot(g.nc, g[f"hier_{m}"], "s", color=c, ms=3, mfc="none")
             ax.set_xlabel("Nc (rattlers excluded)")
             ax.set_ylabel(f"{m} / kn")
             ax2 = axes[1, j]
@@ -128,7 +131,8 @@ def plot(summary: pd.DataFrame, path):
             ax2.plot(g.nc, g[f"drop_{m}_theory"], "x:", color=c)
             ax2.set_xlabel("Nc (rattlers excluded)")
             ax2.set_ylabel(f"fraction change of {m} (1 - value / mean field)")
-    axes[0, 0].legend(fontsize=7, title="solid: DEM, dashed: mean field, dotted: corrected (measured rho)",
+    axes[0, 0].legend(fontsize=7, title="solid: DEM, dashed: mean field, dotted: seed corrected (measured rho), "
+                      "dash-dot: closure, squares: hierarchy 16 steps",
                       title_fontsize=7)
     axes[1, 0].legend(fontsize=7, title="o: DEM, x: theory (measured rho)", title_fontsize=7)
     fig.tight_layout()
@@ -162,14 +166,15 @@ def main(argv=None):
     wall = time.perf_counter() - t0
     n_err = int((df.status != "ok").sum())
     summary = summarise(df)
-    summary.to_csv(out / "summary.csv", index=False)
     show = summary[["mu_prep", "p_over_kn", "kt_ratio", "n_seeds", "nc", "r", "rho", "exact_K", "exact_K_sem",
-                    "theory_rho_K", "exact_G", "exact_G_sem", "theory_rho_G", "drop_G_dem", "drop_G_theory"]]
+                    "theory_rho_K", "closure_K", "hier_K", "exact_G", "exact_G_sem", "theory_rho_G", "closure_G",
+                    "hier_G", "drop_G_dem", "drop_G_theory"]]
     pd.set_option("display.width", 220)
     print(show.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     md = write_table(show, out, "summary", "Sweep: theory (measured rho) against DEM exact",
                      f"{len(df)} cases ({n_err} failed, see sweep.csv), scheduler {sched}, wall {wall:.0f} s. "
                      "Means over seeds with standard errors (_sem).")
+    summary.to_csv(out / "summary.csv", index=False)   # after write_table, which writes the shown columns
     plot(summary, out / "sweep.png")
     print(f"written: {md}, {out / 'sweep.csv'}, {out / 'sweep.png'}; {n_err} failed cases; wall {wall:.0f} s")
 

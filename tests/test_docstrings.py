@@ -36,7 +36,7 @@ MODULES = _public_modules()
 PENDING = {
     "microhom.hierarchy", "microhom.closure", "microhom.moduli",
     "dem.stiffness", "dem.packing", "dem.state",
-    "dem.hexmine", "dem.hexagons", "dem.scenes",
+    "dem.hexagons", "dem.scenes",
 }
 
 

@@ -70,10 +70,22 @@ def test_alpha_at_and_around_one():
 
 
 def test_phi_at_close_packing_and_explicit_nbar():
+    # at close packing Nbar(phi) = 6 exactly; alpha = 1 gives rho = pi/4 (the 0/0 point of (54)):
+    # x = r (Nbar/Nc) rho = 0.1 pi/4, drops 4/(3+1) x (bulk) and 2 (2+1)/(3+1) x (shear), by hand
     p = predict_moduli(1.0, 1.0, 6.0, PHI_MAX, 0.1, alpha=1.0)
-    assert np.isfinite(float(p.K))
-    q = predict_moduli(1.0, 1.0, 3.5, 0.5, 0.1, nbar=4.5, alpha=1.0)  # loose: Nbar given
-    assert np.isfinite(float(q.K))
+    x = 0.1 * (6.0 / 6.0) * math.pi / 4
+    assert float(p.nbar) == pytest.approx(6.0, rel=1e-12)
+    assert float(p.K_mf) == pytest.approx(math.sqrt(3) / 2, rel=1e-14)   # 6 phi/(2 pi), phi = pi/(2 sqrt3)
+    assert float(p.K) == pytest.approx(math.sqrt(3) / 2 * (1 - x), rel=1e-13)
+    assert float(p.G) == pytest.approx(math.sqrt(3) / 2 * (1 - 1.5 * x), rel=1e-13)
+    # below pi/4 Nbar(phi) does not exist: the explicit nbar is what the correction uses
+    q = predict_moduli(1.0, 1.0, 3.5, 0.5, 0.1, nbar=4.5, alpha=1.0)
+    xq = 0.1 * (4.5 / 3.5) * math.pi / 4
+    assert float(q.nbar) == 4.5
+    assert float(q.K) == pytest.approx(3.5 * 0.5 / (2 * math.pi) * (1 - xq), rel=1e-13)
+    assert float(q.drop_G) == pytest.approx(1.5 * xq, rel=1e-13)
+    with pytest.raises(ValueError, match="nbar explicitly"):
+        predict_moduli(1.0, 1.0, 3.5, 0.5, 0.1, alpha=1.0)
 
 
 @pytest.mark.parametrize("kwargs, name", [
@@ -122,3 +134,49 @@ def test_import_does_not_import_sympy_or_pandas():
            "print('sympy' in sys.modules, 'pandas' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "False"]
+
+
+# ---- predict_from_network: flags instead of errors, and never valid near jamming --------------
+def test_overlapping_network_flagged_not_raised():
+    from microhom import lattices
+    from microhom.moduli import predict_from_network
+    from microhom.network import from_overlaps
+
+    lat = lattices.triangular(6, 6)
+    net = from_overlaps(lat.positions, 0.56, lat.cell)   # overlaps: phi = 0.907 * 1.12^2 > close packing
+    assert net.solid_fraction > PHI_MAX
+    with pytest.warns(RuntimeWarning, match="close packing"):
+        p = predict_from_network(net)
+    assert not bool(p.valid) and "close packing" in str(p.reason)
+    assert np.isfinite(float(p.K)) and float(p.nbar) == pytest.approx(6.0)
+
+
+def test_perfect_lattice_prediction_is_valid_and_equals_the_bound():
+    from microhom import lattices
+    from microhom.moduli import predict_from_network
+
+    p = predict_from_network(lattices.triangular(6, 6, kt=0.4))
+    assert bool(p.valid), p.reason
+    assert float(p.G) == pytest.approx(math.sqrt(3) / 4 * 1.4, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def near_jamming():
+    """Frictionless polydisperse packing at p/kn = 1e-4: exact G/G_affine is a few per cent."""
+    from dem.packing import pack
+    return pack(200, p_over_kn=1e-4, kt=0.0, mu=0.0, mu_prep=0.0, dispersity=0.2, seed=2).to_network()
+
+
+def test_near_jamming_never_valid(near_jamming):
+    from dem.stiffness import stiffness
+    from microhom.moduli import predict_from_network
+
+    ex = stiffness(near_jamming)
+    assert ex.G < 0.1 * ex.G_affine            # the case the issue names: G -> 0 near jamming
+    with pytest.warns(RuntimeWarning):
+        p = predict_from_network(near_jamming)
+    assert float(p.G) > 5 * ex.G                # the first-order theory is far too stiff here...
+    assert not bool(p.valid)                    # ...and says so
+    assert "isostatic" in str(p.reason) or "upper bound" in str(p.reason)
+    q = predict_from_network(near_jamming, warn=False)
+    assert "upper bound" in str(q.reason)       # the rigorous hierarchy bound alone catches it too

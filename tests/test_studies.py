@@ -29,6 +29,9 @@ def test_kuhn_quick(tmp_path, capsys):
     assert (probe.error_vs_DEM.abs() < 1e-3).all()  # two independent DEM routes agree
     mf = t[t.method == "theory: mean field"]
     assert (mf.error_vs_DEM > 0).all()  # the mean field over-predicts, as the paper says
+    up = t[t.method.str.contains("upper bound")]
+    assert len(up) == 2 and (up.error_vs_DEM >= -1e-9).all()  # the hierarchy's bound holds
+    assert (t[t.method.str.contains("closure")].error_vs_DEM.abs() < 0.3).all()
     assert (tmp_path / "moduli.png").stat().st_size > 10_000
 
 
@@ -39,6 +42,9 @@ def test_error_vs_runtime_quick(tmp_path):
     t = pd.read_csv(tmp_path / "error_vs_runtime.csv")
     best_probe = t[t.method == "strain probes"].sort_values("err_G").iloc[0]
     assert best_probe.err_G < 1e-3 and best_probe.contact_events == 0
+    up = t[t.method == "hierarchy: upper bound"]
+    assert (up.K >= t.K.iloc[0] * (1 - 1e-9)).all() and (up.G >= t.G.iloc[0] * (1 - 1e-9)).all()
+    assert (up.G.diff().dropna() <= 1e-12).all()  # monotone in the number of steps
     assert (tmp_path / "error_vs_runtime.png").exists()
 
 
@@ -65,3 +71,25 @@ def test_stability_has_no_wrong_case(tmp_path):
     t = pd.read_csv(tmp_path / "stability.csv")
     assert (t.outcome != "WRONG").all()
     assert set(t.outcome) >= {"ok", "error", "flagged"}
+
+
+@pytest.mark.slow
+def test_bench_hierarchy_validate_quick(tmp_path):
+    from studies import bench_hierarchy
+
+    bench_hierarchy.main(["validate", "--quick", "--out", str(tmp_path)])
+    t = pd.read_csv(tmp_path / "validation.csv")
+    assert len(t) == 3 and t.exact_inside_all_intervals.all()
+    assert t.K_ext16_holds.all() and t.G_ext16_holds.all()
+
+
+@pytest.mark.slow
+def test_closure_fit_quick(tmp_path, capsys):
+    from studies import closure_fit
+
+    closure_fit.main(["--quick", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "COEF_K =" in out and "validation (not fitted)" in out
+    t = pd.read_csv(tmp_path / "validation_full.csv")
+    assert len(t) == 2 and t.closure_valid.all()
+    assert (t.err_K.abs() < 0.2).all() and (t.err_G.abs() < 0.3).all()  # a 4-packing refit, loosely
