@@ -69,9 +69,11 @@ def atomic_write(path, write, binary=True):
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError):   # name the file the caller asked for, not the temporary
+            raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
         raise
 
 
