@@ -108,6 +108,8 @@ class StiffnessResult(Result):
     stress0_mandel: np.ndarray | None = None
     flags: tuple = ()
     stiffness_scale: float = 1.0
+    count_method: str = "pivots"   # how the floppy modes were counted (see count_modes)
+    step_times: dict = field(default_factory=dict)   # wall time of each named step [s]
     u: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})      # (3, N, 2)
     omega: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})  # (3, N)
     rattler_mask: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})
@@ -282,31 +284,37 @@ def particle_ordering(red, pairs, n_particles, method="auto"):
 
 class _Cholmod:
     """CHOLMOD supernodal Cholesky LL^T (scikit-sparse) of the SPD M = H + eta diag(H), ordered
-    on the particle graph. Raises :class:`NotPositiveDefinite` when M is not SPD (pre-stress
-    with negative modes); the caller falls back to SuperLU, whose pivots count them."""
+    on the particle graph (H is permuted once; a re-factorisation with another shift reuses the
+    permuted matrix and the symbolic analysis). Raises :class:`NotPositiveDefinite` when M is
+    not SPD (pre-stress with negative modes); the caller falls back to SuperLU, whose pivots
+    count them."""
 
     name = "cholmod"
 
-    def __init__(self, M, perm):
+    def __init__(self, H, d, eta, perm, _base=None):
         self.perm = perm
-        Mp = M[perm][:, perm].tocsc()
+        if _base is None:
+            self._Hp = H[perm][:, perm].tocsc()
+            self._dp = d[perm]
+        else:
+            self._Hp, self._dp = _base._Hp, _base._dp
+        Mp = (self._Hp + sp.diags(eta * self._dp)).tocsc()
         self._diag = Mp.diagonal()
-        self.f = _cholmod.analyze(Mp, mode="supernodal", ordering_method="natural")
-        self._Mp = Mp
+        if _base is None:
+            self.f = _cholmod.analyze(Mp, mode="supernodal", ordering_method="natural")
+        else:
+            self.f = _base.f.copy()
         try:
             self.f.cholesky_inplace(Mp)
         except _cholmod.CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
 
-    def refactor(self, M):
-        """Same pattern, new values (the symbolic analysis is reused)."""
-        new = object.__new__(_Cholmod)
-        new.perm = self.perm
-        Mp = M[self.perm][:, self.perm].tocsc()
-        new._diag = Mp.diagonal()
-        new.f = self.f.copy()
-        new.f.cholesky_inplace(Mp)
-        return new
+    def refactor(self, eta):
+        """The factor of H + eta diag(H) on the same pattern (or None if it is not SPD)."""
+        try:
+            return _Cholmod(None, None, eta, self.perm, _base=self)
+        except NotPositiveDefinite:
+            return None
 
     def pivots(self):
         """(relative pivots, reliable?): D of LDL^T = diag(L)^2 over the matching diagonal of M."""
@@ -329,14 +337,17 @@ class _SuperLU:
 
     name = "splu"
 
-    def __init__(self, M):
+    def __init__(self, H, d, eta):
+        self._H, self._d = H, d
+        M = (H + sp.diags(eta * d)).tocsc()
         self.lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options=dict(SymmetricMode=True))
         self.symmetric = bool(np.array_equal(self.lu.perm_r, self.lu.perm_c))
         self._M = M
 
-    def refactor(self, M):
-        new = _SuperLU(M)
+    def refactor(self, eta):
+        """The factor with another shift, or None if SuperLU chose another ordering."""
+        new = _SuperLU(self._H, self._d, eta)
         return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
 
     def pivots(self):
@@ -372,13 +383,12 @@ def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="aut
     if solver == "cholmod" and _cholmod is None:
         raise RuntimeError("solver='cholmod' needs scikit-sparse (CHOLMOD): apt-get install "
                            "libsuitesparse-dev, then pip install 'scikit-sparse==0.4.16'")
-    M = (red.H + sp.diags(eta * red.d)).tocsc()
     if solver in ("auto", "cholmod") and _cholmod is not None and pairs is not None:
         try:
-            return _Cholmod(M, particle_ordering(red, pairs, n_particles, ordering))
+            return _Cholmod(red.H, red.d, eta, particle_ordering(red, pairs, n_particles, ordering))
         except NotPositiveDefinite:
             pass
-    return _SuperLU(M)
+    return _SuperLU(red.H, red.d, eta)
 
 
 # ---- step 4: count the modes -----------------------------------------------------------------
@@ -426,7 +436,7 @@ def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
     if count == "auto":
         count = "rescale" if np.any((a > _AMBIGUOUS[0]) & (a < _AMBIGUOUS[1])) else "pivots"
     if count == "rescale":
-        f2 = factor.refactor((red.H + sp.diags(1e-2 * eta * red.d)).tocsc())
+        f2 = factor.refactor(1e-2 * eta)
         if f2 is not None:
             piv2, ok2 = f2.pivots()
             if ok2:
@@ -547,13 +557,21 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     t_asm = time.perf_counter() - t0
 
     t1 = time.perf_counter()
+    steps = {"assemble": t_asm}
     red = reduce_system(asm)
+    steps["reduce"] = time.perf_counter() - t1
     factor = None
+    tc = time.perf_counter()
     if red.H.shape[0]:
         factor = factorise(red, solver, pairs=asm.net.pairs, n_particles=net.n_particles,
                            ordering=ordering)
+    steps["factorise"] = time.perf_counter() - tc
+    tc = time.perf_counter()
     modes = count_modes(factor, red, count)
+    steps["count"] = time.perf_counter() - tc
+    tc = time.perf_counter()
     Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+    steps["relax"] = time.perf_counter() - tc
     used = factor.name if factor is not None else ("splu" if solver == "splu" or not have_cholmod()
                                                    else "cholmod")
     del factor
@@ -564,7 +582,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         flags.append(f"inaccurate: the relaxation solve did not converge (relative residual "
                      f"{resid:.2e})")
 
+    tc = time.perf_counter()
     c_rel, consistency = relaxed_tensor(asm, Q, net.area)
+    steps["tensor"] = time.perf_counter() - tc
     if prestress:
         c_rel = c_rel + prestress_correction(sigma0)
     flags += degeneracy_flags(c_rel, c_aff, modes, net.n_particles, int(asm.rattlers.sum()),
@@ -587,7 +607,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         prestress=bool(prestress), solver=used, residual=resid,
         consistency=consistency, n_refine=n_ref, pivot_gap=modes.gap,
         stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0) * s,
-        flags=tuple(flags), stiffness_scale=s, u=u_f, omega=w_f, rattler_mask=asm.rattlers)
+        flags=tuple(flags), stiffness_scale=s, count_method=modes.method, step_times=steps, u=u_f, omega=w_f, rattler_mask=asm.rattlers)
 
 
 def stress_increment(network, grad, u=None, omega=None) -> np.ndarray:

@@ -140,7 +140,8 @@ def one_run(n, solver):
     return dict(n=net.n_particles, solver=r.solver, dof=r.n_dof, rattlers=r.n_rattlers,
                 floppy=r.n_floppy, K_ratio=r.K / r.K_affine, G_ratio=r.G / r.G_affine,
                 assembly=r.assembly_time, solve=r.solve_time, total=tt, build=t_net,
-                residual=r.residual, C=r.C_mandel.tolist(),
+                residual=r.residual, C=r.C_mandel.tolist(), count=r.count_method,
+                steps={k: round(v, 3) for k, v in r.step_times.items()},
                 peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
 
 
@@ -184,7 +185,7 @@ def main(argv=None):
                 print(f"{r['n']:>8} {r['solver']:>8} {r['dof']:>8} {r['rattlers']:>6} {r['floppy']:>5} "
                       f"{r['K_ratio']:>9.6f} {r['G_ratio']:>9.6f} {r['assembly']:>10.3f} "
                       f"{r['solve']:>8.3f} {r['total']:>8.3f} {r['peak_gb']:>8.2f} "
-                      f"{r['residual']:>8.1e}", flush=True)
+                      f"{r['residual']:>8.1e}  count {r['count']}, steps {r['steps']}", flush=True)
         tot = {s: [r["total"] for r in v] for s, v in runs.items()}
         line = ", ".join(f"{s} {min(v):.3f}-{max(v):.3f} s" for s, v in tot.items())
         if len(runs) == 2:
