@@ -8,7 +8,10 @@
    = 1, branch vectors from the jittered positions. It is rigid (z > 3 for frictional disks) apart
    from a handful of local zero modes, which the solver reports.
    Solvers: CHOLMOD (scikit-sparse, when installed) beside scipy SuperLU (always installed), in
-   the same run, interleaved, each run in its own process (peak memory from getrusage).
+   the same run, interleaved, each run in its own process (peak memory from getrusage). Printed:
+   wall time of the assembly, of the solve (factorisation, mode count, refinement) and in total,
+   the CPU time of the call (user + system, all threads: less sensitive to other processes'
+   load than the wall time), the time of each named step, and the floppy-count rule used.
 2. Frictionless harmonic soft disks, bidisperse 1:1.4, phi = 0.88, minimised with scipy L-BFGS:
    exact moduli with pre-stress vs jax-md ``elasticity.athermal_moduli`` (if ``import jax_md``
    works), after the conversion K = B_jaxmd + p/2, G = G_jaxmd - p/2 (full tensor: C = C_jaxmd +
@@ -134,12 +137,15 @@ def one_run(n, solver):
     t0 = time.perf_counter()
     net = diluted_triangular(n)
     t_net = time.perf_counter() - t0
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
     r = stiffness(net, solver=solver)
     tt = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     return dict(n=net.n_particles, solver=r.solver, dof=r.n_dof, rattlers=r.n_rattlers,
                 floppy=r.n_floppy, K_ratio=r.K / r.K_affine, G_ratio=r.G / r.G_affine,
-                assembly=r.assembly_time, solve=r.solve_time, total=tt, build=t_net,
+                assembly=r.assembly_time, solve=r.solve_time, total=tt, build=t_net, cpu=cpu,
                 residual=r.residual, C=r.C_mandel.tolist(), count=r.count_method,
                 steps={k: round(v, 3) for k, v in r.step_times.items()},
                 peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
@@ -174,7 +180,7 @@ def main(argv=None):
     print(f"load average {os.getloadavg()} on {os.cpu_count()} cores; each run in its own process; "
           f"runs interleaved (new solver, SuperLU, new, SuperLU ...)")
     print(f"{'N':>8} {'solver':>8} {'dof':>8} {'ratt':>6} {'flop':>5} {'K/K_aff':>9} {'G/G_aff':>9} "
-          f"{'assembly s':>10} {'solve s':>8} {'total s':>8} {'peak GB':>8} {'resid':>8}")
+          f"{'assembly s':>10} {'solve s':>8} {'total s':>8} {'cpu s':>8} {'peak GB':>8} {'resid':>8}")
     for n in sizes:
         runs = {}
         solvers = [s for s in _solvers() if s != "splu" or n <= a.splu_max]
@@ -184,7 +190,7 @@ def main(argv=None):
                 runs.setdefault(s, []).append(r)
                 print(f"{r['n']:>8} {r['solver']:>8} {r['dof']:>8} {r['rattlers']:>6} {r['floppy']:>5} "
                       f"{r['K_ratio']:>9.6f} {r['G_ratio']:>9.6f} {r['assembly']:>10.3f} "
-                      f"{r['solve']:>8.3f} {r['total']:>8.3f} {r['peak_gb']:>8.2f} "
+                      f"{r['solve']:>8.3f} {r['total']:>8.3f} {r['cpu']:>8.2f} {r['peak_gb']:>8.2f} "
                       f"{r['residual']:>8.1e}  count {r['count']}, steps {r['steps']}", flush=True)
         tot = {s: [r["total"] for r in v] for s, v in runs.items()}
         line = ", ".join(f"{s} {min(v):.3f}-{max(v):.3f} s" for s, v in tot.items())
