@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import dem.__main__ as cli
+import dem.plot
 from dem import runtime
 from dem.integrate import Simulation
 from dem.packing import BYTES_PER_PARTICLE, PackingResult, pack
@@ -122,8 +123,6 @@ def test_full_disk_during_the_run_keeps_the_checkpoint(tmp_path, monkeypatch, ca
 def test_full_disk_while_writing_outputs_then_resume(tmp_path, monkeypatch, capsys):
     """Row 1 variant: the PNG cannot be written (disk full) -> exit 5 with the checkpoint kept;
     after space is freed, --resume finishes with the stored criteria."""
-    import dem.plot
-
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "p.png"))
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+import dem.stiffness
 from dem.stiffness import (StiffnessResult, affine_stiffness, count_modes, factorise, have_cholmod,
-                           isotropic_moduli,
-                           mandel_to_strain, mandel_to_tensor, mandel_to_voigt, reduce_system, relax,
+                           isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt, reduce_system, relax,
                            relaxed_tensor, stiffness, strain_to_mandel, stress_increment,
                            tensor_to_mandel, voigt_to_mandel)
 from microhom.kinematics import assemble
@@ -359,8 +359,7 @@ def test_cholmod_agrees_with_superlu():
 
 
 def test_superlu_fallback_without_cholmod(monkeypatch):
-    import dem.stiffness as S
-    monkeypatch.setattr(S, "_cholmod", None)
+    monkeypatch.setattr(dem.stiffness, "_cholmod", None)
     r = stiffness(lattices.triangular(6, 6, kn=1.0, kt=0.5))
     assert r.solver == "splu" and close(r.K, S3 / 2)
     with pytest.raises(RuntimeError, match="libsuitesparse-dev"):
