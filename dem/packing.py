@@ -284,8 +284,10 @@ class PackReport(Result):
         return [f.name for f in fields(cls)]
 
     def scalars(self) -> dict:
-        """The scalar fields (what travels in the npz meta, NaN kept)."""
-        return {k: v for k, v in self.items() if isinstance(v, (int, float, str, bool)) or v is None}
+        """The scalar fields (what travels in the npz meta, NaN kept; ``already_converged`` is
+        a property of a resumed call, not of the packing, and stays out)."""
+        return {k: v for k, v in self.items() if (isinstance(v, (int, float, str, bool)) or v is None)
+                and k != "already_converged"}
 
     @classmethod
     def from_dict(cls, d):

@@ -1,5 +1,7 @@
 """Packing generator: stop criteria met and reported, bit-identical with the same seed, resumable
 from a checkpoint, ContactNetwork hand-over consistent with the engine's own stress."""
+import csv
+import json
 import math
 
 import numpy as np
@@ -7,9 +9,10 @@ import pytest
 
 from scipy.spatial import Delaunay
 
+import dem.__main__ as cli
 from dem import measure
 from dem.integrate import InstabilityError, Simulation
-from dem.packing import PackingResult, hexatic_psi6, network_from_state, pack, random_gas
+from dem.packing import PackingResult, PackReport, hexatic_psi6, network_from_state, pack, random_gas
 from dem.scenes import isotropic
 from dem.state import State
 from microhom import lattices
@@ -186,3 +189,42 @@ def test_compaction_phase_then_equilibrium_damping(small_packing):
     assert old.report["compaction_steps"] is None
     with pytest.raises(ValueError, match="damping_compaction"):
         pack(60, damping_compaction=1.0)
+
+
+# the npz meta and the summary CSV of `python -m dem pack` as they were before the report became
+# a dataclass (keys and order): the output a user's scripts read must not change
+META_KEYS = ['source', 'note', 'timestep', 'n', 'seed', 'converged', 'steps', 'compaction_steps',
+             'wall_s', 'resumed', 'p_target', 'pressure', 'rel_p_err', 'p_over_kn', 'unbalanced',
+             'unbalanced_max', 'ke_rel', 'kinetic_energy', 'kinetic_energy_in_contact',
+             'elastic_energy', 'phi', 'n_contacts', 'Z', 'sliding_fraction', 'dt', 'dt_over_dtcrit',
+             'mu', 'mu_prep', 'kn', 'kt', 'tol_p', 'tol_unbalanced', 'tol_ke', 'damping',
+             'damping_compaction', 'damping_work', 'psi6', 'psi6_local', 'timing',
+             'particle_steps_per_s', 'law']
+CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_per_s', 'n', 'seed',
+            'p_target', 'pressure', 'p_over_kn', 'rel_p_err', 'tol_p', 'unbalanced',
+            'unbalanced_max', 'tol_unbalanced', 'ke_rel', 'tol_ke', 'phi', 'Z', 'n_contacts',
+            'psi6', 'psi6_local', 'sliding_fraction', 'mu_prep', 'mu', 'kn', 'kt', 'dt',
+            'dt_over_dtcrit', 'damping_compaction', 'damping', 'damping_work', 'resumed',
+            'phase_steps']
+
+
+def test_cli_outputs_keep_their_schema(tmp_path):
+    out = tmp_path / "p.npz"
+    assert cli.main(["pack", "--n", "40", "--pressure", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
+                     "--seed", "2", "--tol-unbalanced", "1e-3", "--no-progress",
+                     "--out", str(out)]) == 0
+    with np.load(out) as z:
+        meta = json.loads(str(z["meta_json"]))
+    assert list(meta) == META_KEYS
+    with open(tmp_path / "p_summary.csv") as fh:
+        rows = [r for r in csv.reader(fh)][1:]
+    assert [k for s, k, _ in rows if s == "packing"] == CSV_KEYS
+    rep = PackingResult.load(out).report
+    assert isinstance(rep, PackReport)
+    for s, k, v in rows:
+        if s == "packing" and k != "phase_steps":
+            assert v == (repr(rep[k]) if isinstance(rep[k], float) else str(rep[k])), k
+            assert meta[k] == rep[k] or (rep[k] != rep[k] and meta[k] != meta[k]), k
+    assert json.loads(json.dumps(rep.as_dict()))["steps"] == rep.steps   # JSON-ready
+    with pytest.raises(Exception):
+        rep.steps = 0                                                    # frozen
