@@ -218,7 +218,9 @@ class PackReport(Result):
     ``damping_work`` [J/m].
 
     For the code written against the earlier dict report, ``report["key"]``, ``key in report``,
-    ``report.get`` and ``report.items()`` read the fields.
+    ``report.get`` and ``report.items()`` read the fields; ``report["new_key"] = value`` adds a
+    caller's annotation to ``extra`` (saved with the packing, as the dict's keys were), and
+    assigning a field raises.
     """
 
     n: int
@@ -260,28 +262,37 @@ class PackReport(Result):
     timing: str = ""
     particle_steps_per_s: float = float("nan")
     already_converged: bool = False
+    #: the caller's own annotations (``report["wall_time"] = ...``): scalars that travel with the
+    #: packing in its npz, as keys of the earlier dict report did
+    extra: dict = field(default_factory=dict, metadata={"export": False})
 
     # ---- read access of the earlier dict report ------------------------------------------------
     def __getitem__(self, key):
-        if key not in self._names():
-            raise KeyError(key)
-        return getattr(self, key)
+        if key in self._names():
+            return getattr(self, key)
+        return self.extra[key]
+
+    def __setitem__(self, key, value):
+        if key in self._names():
+            raise TypeError(f"PackReport.{key} is read-only (dataclasses.replace makes a copy); "
+                            f"only new keys can be added as annotations")
+        self.extra[key] = value
 
     def __contains__(self, key):
-        return key in self._names()
+        return key in self._names() or key in self.extra
 
     def get(self, key, default=None):
-        return getattr(self, key) if key in self._names() else default
+        return self[key] if key in self else default
 
     def keys(self):
-        return list(self._names())
+        return self._names() + list(self.extra)
 
     def items(self):
-        return [(k, getattr(self, k)) for k in self._names()]
+        return [(k, self[k]) for k in self.keys()]
 
     @classmethod
     def _names(cls):
-        return [f.name for f in fields(cls)]
+        return [f.name for f in fields(cls) if f.name != "extra"]
 
     def scalars(self) -> dict:
         """The scalar fields (what travels in the npz meta, NaN kept; ``already_converged`` is
@@ -294,6 +305,7 @@ class PackReport(Result):
         """From a stored (possibly partial) report dict; unknown keys are ignored."""
         names = set(cls._names())
         kw = {k: v for k, v in d.items() if k in names}
+        kw["extra"] = {k: v for k, v in d.items() if k not in names}
         kw.setdefault("n", 0)
         kw.setdefault("seed", 0)
         kw.setdefault("converged", False)

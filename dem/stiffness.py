@@ -513,7 +513,7 @@ def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
         flags.append(f"not jammed: the relaxed tensor vanishes (largest eigenvalue {w.max():.3g}, "
                      f"affine scale {scale:.3g}) with {modes.n_floppy} floppy mode(s) and "
                      f"{n_rattlers} rattler(s) of {n_particles}")
-    elif scale > 0 and w.min() <= 1e-10 * scale and w.min() >= -1e-10 * scale:
+    elif scale > 0 and not flags and -1e-10 * scale <= w.min() <= 1e-10 * scale:
         flags.append(f"floppy: the relaxed tensor has a zero eigenvalue ({modes.n_floppy} floppy "
                      f"mode(s)); a deformation mode costs no energy")
     if modes.n_unstable:

@@ -228,3 +228,8 @@ def test_cli_outputs_keep_their_schema(tmp_path):
     assert json.loads(json.dumps(rep.as_dict()))["steps"] == rep.steps   # JSON-ready
     with pytest.raises(Exception):
         rep.steps = 0                                                    # frozen
+    with pytest.raises(TypeError, match="read-only"):
+        rep["steps"] = 0
+    rep["wall_time"] = 1.5                   # a caller's annotation travels with the packing
+    PackingResult(PackingResult.load(out).state, PackingResult.load(out).law, rep).save(out)
+    assert PackingResult.load(out).report["wall_time"] == 1.5
