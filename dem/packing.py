@@ -55,6 +55,9 @@ Same seed, same parameters -> bit-identical packing (serial kernels, fixed summa
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (:meth:`PackingResult.load`)
 and a ``dem.io`` configuration (:func:`dem.io.read`).
+The phases are objects (:class:`Grow`, :class:`Compact`, :class:`Equilibrate`), each with its own
+parameters and stop criterion; :func:`pack` runs them in order and reports them in
+:class:`PackReport` (``phase_steps``).
 ``pack(..., checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and/or
 every ``checkpoint_seconds`` of wall time (only at check points, after the instability guard
 passed, so a checkpoint is always a good state) and resumes from ``path`` if it exists: the
@@ -497,9 +500,16 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         ``r_i (1 + g u_i)``, ``u_i`` uniform in [-1, 1], masses of the final disks), removed in
         ``restore_increments`` steps of ``check_every`` steps once the target pressure is first
         reached (within 5 %); 0 disables it.
-    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` steps
-        and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed from if
-        it exists). Either trigger may be None.
+    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` time
+        steps and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed
+        from if it exists; the CLI's ``--checkpoint-every`` and ``--checkpoint-seconds`` have the
+        same units). Either trigger may be None. The final checkpoint of a converged run holds
+        its report: resuming it returns that report with ``already_converged=True``. Temporary
+        files of a killed checkpoint write are removed on resume.
+
+    The run is a sequence of named phases (:class:`Grow`, :class:`Compact`,
+    :class:`Equilibrate` "prep" and "test"), each with its own parameters and stop criterion.
+    ``n`` is checked against the available memory first (:func:`check_memory`, ValueError).
     progress : optional ``progress(info)`` called at every check with a dict (``step``,
         ``max_steps``, ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` — None
         when not evaluated at this check —, ``checkpoint_step``).

@@ -263,6 +263,9 @@ def have_cholmod() -> bool:
     return _cholmod is not None
 
 
+ORDERINGS = ("auto", "amd", "metis", "nesdis")
+
+
 def particle_ordering(red, pairs, n_particles, method="auto"):
     """Fill-reducing ordering of the unknowns computed on the particle contact graph (N nodes,
     3x fewer than the unknowns, 9x fewer non-zeros), each particle's unknowns kept together.
@@ -270,6 +273,8 @@ def particle_ordering(red, pairs, n_particles, method="auto"):
     method: ``"amd"``, ``"metis"`` (nested dissection; less fill on large 2D networks) or
     ``"auto"`` (amd below 2e5 particles, metis above: measured in ``docs/stiffness.md``).
     Returns a permutation ``perm`` of the reduced unknowns (new position -> old index)."""
+    if method not in ORDERINGS:
+        raise ValueError(f"unknown ordering {method!r}; allowed: {', '.join(ORDERINGS)}")
     if method == "auto":
         method = "amd" if n_particles < 200_000 else "metis"
     i, j = pairs[:, 0], pairs[:, 1]
@@ -555,6 +560,10 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     t0 = time.perf_counter()
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
+    if ordering not in ORDERINGS:
+        raise ValueError(f"unknown ordering {ordering!r}; allowed: {', '.join(ORDERINGS)}")
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
