@@ -301,25 +301,30 @@ class _Cholmod:
         if _base is None:
             self._Hp = H[perm][:, perm].tocsc()
             self._dp = d[perm]
-        else:
-            self._Hp, self._dp = _base._Hp, _base._dp
+            self.f = None
+        else:   # take over the base's permuted matrix and factor (numeric values replaced)
+            self._Hp, self._dp, self.f = _base._Hp, _base._dp, _base.f
+        self.eta = eta
         Mp = (self._Hp + sp.diags(eta * self._dp)).tocsc()
         self._diag = Mp.diagonal()
-        if _base is None:
+        if self.f is None:
             self.f = _cholmod.analyze(Mp, mode="supernodal", ordering_method="natural")
-        else:
-            self.f = _base.f.copy()
         try:
             self.f.cholesky_inplace(Mp)
         except _cholmod.CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
 
     def refactor(self, eta):
-        """The factor of H + eta diag(H) on the same pattern (or None if it is not SPD)."""
+        """The factor of H + eta diag(H) on the same pattern, computed *in place*: the symbolic
+        analysis and the memory are reused and this object must not be used afterwards. Returns
+        None (and this object refactored back to its own shift) if the new matrix is not SPD."""
         try:
-            return _Cholmod(None, None, eta, self.perm, _base=self)
+            new = _Cholmod(None, None, eta, self.perm, _base=self)
         except NotPositiveDefinite:
+            _Cholmod(None, None, self.eta, self.perm, _base=self)
             return None
+        self.f = None
+        return new
 
     def pivots(self):
         """(relative pivots, reliable?): D of LDL^T = diag(L)^2 over the matching diagonal of M."""
@@ -351,7 +356,8 @@ class _SuperLU:
         self._M = M
 
     def refactor(self, eta):
-        """The factor with another shift, or None if SuperLU chose another ordering."""
+        """The factor with another shift (a new object), or None if SuperLU chose another
+        ordering."""
         new = _SuperLU(self._H, self._d, eta)
         return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
 
@@ -415,6 +421,9 @@ class ModeCount:
     n_unstable: int
     gap: tuple
     method: str
+    #: the factor to solve with: the rescaled one when ``method == "rescale"`` replaced the input
+    #: factor in place (CHOLMOD), else None (keep using the input factor)
+    factor: object = field(default=None, repr=False, compare=False)
 
 
 COUNTS = ("auto", "pivots", "rescale")
@@ -429,7 +438,9 @@ def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
 
     ``count="pivots"``: a relative pivot below 1e-8 is a zero mode. ``"rescale"``: a second
     factorisation with a 100x smaller shift; a pivot belongs to a zero mode iff it scales with
-    the shift (no threshold to tune; used automatically on ill-conditioned networks).
+    the shift (no threshold to tune; used automatically on ill-conditioned networks). With
+    CHOLMOD the second factorisation replaces the first in place (memory reused): solve with
+    ``ModeCount.factor`` then.
     ``"auto"`` (default): ``"pivots"``, switching to ``"rescale"`` when a relative pivot falls in
     the ambiguous band 1e-10..1e-6 (measured: a zero mode spread over a 1e5-disk network had a
     pivot of 1.2e-8, above the 1e-8 threshold)."""
@@ -447,18 +458,20 @@ def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
     a = np.abs(piv)
     if count == "auto":
         count = "rescale" if np.any((a > _AMBIGUOUS[0]) & (a < _AMBIGUOUS[1])) else "pivots"
+    f2 = None
     if count == "rescale":
         f2 = factor.refactor(1e-2 * eta)
         if f2 is not None:
             piv2, ok2 = f2.pivots()
             if ok2:
                 small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
-        del f2
+        if not isinstance(f2, _Cholmod):   # SuperLU: a separate object, the input stays valid
+            f2 = None
     nf = int(small.sum())
     nu = int(((piv < 0) & ~small).sum())
     gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
            float(np.abs(piv[~small]).min()) if (~small).any() else np.inf)
-    return ModeCount(red.n_zero + nf, nu, gap, count)
+    return ModeCount(red.n_zero + nf, nu, gap, count, factor=f2)
 
 
 # ---- step 5: solve ---------------------------------------------------------------------------
@@ -584,6 +597,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
     modes = count_modes(factor, red, count)
+    if modes.factor is not None:      # CHOLMOD refactored in place with the smaller shift
+        factor = modes.factor
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
     Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)

@@ -368,16 +368,20 @@ def test_superlu_fallback_without_cholmod(monkeypatch):
         stiffness(lattices.triangular(6, 6), solver="umfpack")
 
 
-@pytest.mark.parametrize("solver", ["splu", "auto"])
+@pytest.mark.parametrize("solver", ["splu", "auto", "cholmod"])
 def test_count_modes_step_on_the_frictionless_square(solver):
     """nx + ny - 2 sliding modes of the 5x6 frictionless square lattice, from the pivots of
-    either factor, with both counting rules."""
+    either factor, with each counting rule."""
+    if solver == "cholmod" and not have_cholmod():
+        pytest.skip("scikit-sparse (CHOLMOD) not installed")
     asm = assemble(lattices.square(5, 6, kn=3.0, kt=0.0))
     red = reduce_system(asm)
-    f = factorise(red, solver, pairs=asm.net.pairs, n_particles=30)
     for rule in ("pivots", "rescale", "auto"):
+        f = factorise(red, solver, pairs=asm.net.pairs, n_particles=30)
         m = count_modes(f, red, rule)
         assert m.n_floppy == 5 + 6 - 2 and m.n_unstable == 0, (rule, m)
+        Q, res, _ = relax(m.factor or f, red, asm.F_scale)     # the factor to solve with
+        assert res < 1e-12
 
 
 @pytest.mark.parametrize("ratio", [1e4, 1e7, 1e8])
