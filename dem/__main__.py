@@ -39,6 +39,8 @@ import sys
 import tempfile
 import time
 
+from tqdm import tqdm
+
 from . import io as dio
 from . import measure
 from .integrate import InstabilityError
@@ -339,7 +341,6 @@ def cmd_pack(args) -> int:
 
     bar = None
     if not args.no_progress:
-        from tqdm import tqdm
         bar = tqdm(total=args.max_steps, unit="step", mininterval=1.0, dynamic_ncols=True,
                    desc="pack", file=sys.stderr)
     ke_seen = ["-"]
