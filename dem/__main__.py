@@ -46,6 +46,7 @@ from . import measure
 from .integrate import InstabilityError
 from .io import Configuration
 from .packing import check_memory, pack
+from .runtime import remove_stale_temporaries
 from .state import State
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
@@ -329,6 +330,7 @@ def cmd_pack(args) -> int:
     except ValueError as exc:
         raise BadInput(f"--n: {exc}") from None
     _writable(folder)
+    remove_stale_temporaries(paths["npz"])    # left by a run killed while writing its packing
 
     kw = dict(kn=prm["kn"], kt=prm["kt"], mu=prm["mu"], mu_prep=prm["mu_prep"],
               dispersity=prm["dispersity"], seed=prm["seed"], tol_unbalanced=prm["tol_unbalanced"],

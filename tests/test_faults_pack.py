@@ -173,6 +173,11 @@ def test_orphan_temporaries_of_a_killed_write_are_removed_on_resume(tmp_path):
     assert not [f for f in os.listdir(tmp_path) if f.startswith(".tmp_ck.npz.")]
     assert other.exists()
     assert State.load(ck).step == 1100
+    # the CLI also removes those of its packing file (a kill while the outputs were written)
+    orphan = tmp_path / ".tmp_p.npz.xyz.npz"
+    orphan.write_bytes(b"half a packing")
+    assert cli.main(["pack", *BASE, "--out", str(tmp_path / "p.npz")]) == 0
+    assert not orphan.exists() and other.exists()
 
 
 @pytest.mark.parametrize("mask", [0o022, 0o002, 0o077])
