@@ -1,6 +1,7 @@
-"""Command line of the disk DEM.
+"""Command line of the disk DEM (also installed as the ``dem`` console script).
 
     python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 --out packing.npz
+    python -m dem analyse packing.npz                 # or any file dem.io reads (see dem.analyse_cli)
 
 ``pack`` builds a dense random packing with :func:`dem.packing.pack` (random gas -> compaction
 under the pressure servo -> equilibrium at the preparation friction -> equilibrium at the test
@@ -19,14 +20,23 @@ friction) and writes, next to ``--out`` (``packing.npz`` below):
   ``checkpoint_seconds`` and ``checkpoint_every`` of :func:`dem.packing.pack`); removed after a
   converged run, kept otherwise for ``--resume``.
 
-Exit codes: 0 converged (also: ``--resume`` of a run that had already converged, whose outputs
-are written again); 2 bad input (the message names the option and its allowed range; this
-includes a packing too large for the available memory, about 211 B per particle); 3 not converged
-within ``--max-steps`` (outputs written, flagged ``converged = False``; continue with ``--resume
---max-steps M``); 4 unstable run (reason printed, last good checkpoint kept); 5 an output or the
-checkpoint cannot be written (read-only folder, full disk: one line with the path; checked
-before computing where possible; the last checkpoint is kept); 130 interrupted (Ctrl-C; the last
-checkpoint is kept).
+Exit codes of ``pack``: 0 converged (also: ``--resume`` of a run that had already converged,
+whose stored report and outputs are written again); 2 bad input (the message names the option and
+its allowed range; this includes a packing too large for the available memory, about 211 B per
+particle); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
+False``; continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good
+checkpoint kept); 1 an output or the checkpoint cannot be written (a folder that cannot be
+created or written is found before computing; a full disk during the run or the outputs: one
+line with the path, the last checkpoint kept); 130 interrupted (Ctrl-C; the last checkpoint is
+kept).
+
+Exit codes of ``analyse``: 0 analysed (a degenerate result is flagged in the report, with its
+reason); 2 bad input (an option out of range, a missing or malformed file: one line naming the
+file, line and field).
+
+Every command: 1 the machine's state (a file that cannot be read or written, a full disk, out of
+memory: one line, no traceback); 130 interrupted; 141 the output pipe was closed (``| head``):
+silent, as Unix tools are.
 """
 from __future__ import annotations
 
@@ -41,16 +51,17 @@ import time
 
 from tqdm import tqdm
 
+from . import analyse_cli
 from . import io as dio
 from . import measure
 from .integrate import InstabilityError
-from .io import Configuration
+from .io import Configuration, FormatError
 from .packing import check_memory, pack
 from .runtime import remove_stale_temporaries
 from .state import State
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
-EXIT_WRITE = 5
+EXIT_MACHINE, EXIT_BROKEN_PIPE = 1, 141
 
 #: physics options of ``pack``: (default, allowed range text, check). A resumed run keeps the
 #: values stored in its checkpoint; giving a different one is refused.
@@ -73,8 +84,14 @@ class BadInput(ValueError):
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m dem", description="Disk DEM command line.")
+    ap = argparse.ArgumentParser(
+        prog="python -m dem", description="Disk DEM command line: pack (build a packing), "
+        "analyse (measure a packing file against the theory).",
+        epilog="exit codes (every command): 0 done, 2 bad input, 1 the machine's state (file "
+               "cannot be read or written, disk full, out of memory), 130 interrupted, 141 output "
+               "pipe closed; pack also 3 not converged, 4 unstable (see python -m dem pack -h)")
     sub = ap.add_subparsers(dest="command", required=True)
+    analyse_cli.add_parser(sub)
     p = sub.add_parser(
         "pack", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="build a dense random disk packing at a target pressure",
@@ -99,7 +116,7 @@ def _parser():
             "exit codes:\n"
             "  0 converged (or already converged on --resume), 2 bad input (incl. too many disks\n"
             "  for the available memory), 3 not converged within --max-steps (outputs written,\n"
-            "  flagged converged=False), 4 unstable (last good checkpoint kept), 5 an output or\n"
+            "  flagged converged=False), 4 unstable (last good checkpoint kept), 1 an output or\n"
             "  the checkpoint cannot be written (read-only folder, full disk; checkpoint kept),\n"
             "  130 interrupted\n"
             "example:\n"
@@ -224,7 +241,7 @@ def _summary_rows(res, net):
             v = rep[k]
             rows.append(("packing", k, v.item() if hasattr(v, "item") else v))
     rows.append(("packing", "phase_steps", json.dumps(rep.get("phase_steps", []))))
-    for k, v in measure.summary(net).items():
+    for k, v in measure.summary(net).table().items():
         if hasattr(v, "item"):
             v = v.item()
         rows.append(("measure", k, v))
@@ -275,7 +292,7 @@ def _print_table(rows, stream):
 
 
 class WriteError(OSError):
-    """An output or the checkpoint cannot be written (exit code 5)."""
+    """An output folder cannot be created or written (exit code 1, the machine's state)."""
 
 
 def _writable(folder):
@@ -406,7 +423,7 @@ def _write_failed(exc, ck, log):
     kept = (f"the last checkpoint {ck} is kept: free space or fix the folder, then --resume"
             if os.path.exists(ck) else "no checkpoint had been written")
     log(f"error: cannot write {where or 'an output'}: {exc.strerror or exc}; {kept}")
-    return EXIT_WRITE
+    return EXIT_MACHINE
 
 
 def _join_negative_numbers(argv):
@@ -430,18 +447,43 @@ def _join_negative_numbers(argv):
     return out
 
 
+def _silence_stdout():
+    """After a closed pipe: point stdout at /dev/null so the interpreter's final flush is silent."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv=None) -> int:
     ap = _parser()
     args = ap.parse_args(_join_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
     try:
         if args.command == "pack":
             return cmd_pack(args)
-    except BadInput as exc:
+        if args.command == "analyse":
+            return analyse_cli.run(args, sys.stdout)
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (BadInput, FormatError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except WriteError as exc:
+    except MemoryError:
+        print("error: out of memory (try a smaller input)", file=sys.stderr)
+        return EXIT_MACHINE
+    except OSError as exc:  # permissions, full disk, read-only folder: the machine's state
         print(f"error: {exc}", file=sys.stderr)
-        return EXIT_WRITE
+        return EXIT_MACHINE
+    except (ValueError, IndexError) as exc:
+        if args.command != "analyse":  # pack validates its own options (BadInput)
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     ap.error(f"unknown command {args.command}")
     return EXIT_BAD_INPUT
 

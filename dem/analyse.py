@@ -1,6 +1,6 @@
 """Analyse a packing file: contacts, structural sums, theory beside the exact stiffness.
 
-The engine behind ``python -m microhom analyse FILE`` (see ``docs/scale_out.md``):
+The engine behind ``python -m dem analyse FILE`` (see ``docs/scale_out.md``):
 
 * :func:`load_network` reads any supported file — LAMMPS dump/data, OVAL D-file, dem.io npz/CSV
   (:func:`dem.io.read`), the packing npz of :meth:`dem.packing.PackingResult.save`, or a LAMMPS
@@ -13,23 +13,93 @@ The engine behind ``python -m microhom analyse FILE`` (see ``docs/scale_out.md``
   known, the theory's predictions (mean field; corrected with the measured rho; corrected with the
   alignment model at ``alpha``), and the exact stiffness tensor of :func:`dem.stiffness.stiffness`
   (with the pre-stress terms when asked).
-* :func:`format_table`, :func:`flatten` render the result as text or as one flat record.
+* :class:`AnalysisResult` holds the result (frozen; ``as_dict()`` is the JSON of the command
+  line, NaN as ``null``); :func:`format_table`, :func:`flatten` render it as text or as one flat
+  record (the CSV row).
 
 Units: whatever the file's (lengths) and kn's (N/m); 2D moduli and stresses in N/m (force per
-length). A section that cannot be computed (e.g. the theory below phi = pi/4, the stiffness of an
-open packing) holds ``{"error": "..."}`` instead of failing the whole analysis.
+length); vbar, ebar in N m (kn times a length squared). A section that cannot be computed (e.g.
+the theory below phi = pi/4, the stiffness of an open packing, any statistic of a network whose
+particles are all rattlers) holds ``{"error": "..."}`` with the reason instead of failing the
+whole analysis or reporting a 0/0 as a number.
 """
 from __future__ import annotations
 
 import math
-import os
+import time
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS"]
+from microhom.moduli import predict_from_network
+from microhom.results import Result
+from microhom.structural_sums import network_statistics
+
+from . import io
+from .lammps import read_run
+from .measure import coordination, stress
+from .packing import PackingResult
+from .stiffness import stiffness
+
+__all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS",
+           "AnalysisResult", "NOT_JAMMED"]
+
+#: the reason given for every statistic of a network without a contact between non-rattlers
+NOT_JAMMED = ("not jammed: every particle is a rattler (no contact left once particles with fewer "
+              "than min_contacts contacts are removed), so Nc, r, rho and the theory are 0/0")
+#: radii spread (max/min) above which the identical-disk theory gets a note
+DISPERSITY_NOTE = 1.0 + 1e-6
+
+
+@dataclass(frozen=True)
+class AnalysisResult(Result):
+    """What ``python -m dem analyse`` reports on one packing file (:func:`analyse_file`).
+
+    Every field is one section of the report, a mapping of plain values (``{"error": reason}``
+    when the section cannot be computed); ``as_dict()`` is the command line's JSON (NaN -> null).
+
+    file : ``source``, ``format``, ``forces`` ("from file" or None), ``kn``, ``kt`` (mean contact
+        stiffnesses used [N/m]), ``branch_length``, ``read_s``, ``analyse_s`` (wall times [s]).
+    network : ``n_particles``, ``n_contacts``, ``periodic``, ``kn_mean``, ``kt_mean`` [N/m],
+        ``forces`` (bool).
+    coordination : ``z_all``, ``z`` (mean contacts per particle with / without rattlers),
+        ``n_rattlers``, ``rattler_fraction``, ``hist_all``, ``hist`` (contact-count histograms).
+    structural : the statistics of :func:`microhom.structural_sums.network_statistics`
+        (``nc``, ``r``, ``rho`` with and without rattlers, ``phi``, ``nbar_phi``, ``diameter`` [m],
+        ``sliding_fraction``, ``vbar``, ``ebar`` measured and ``*_theory`` (37) [N m],
+        ``odd_norm``); ``r``, ``rho`` are ``None`` (not 0) when no particle is left.
+    stress : Love-Weber stress [N/m], tension positive: ``sxx``, ``syy``, ``sxy``, ``pressure``
+        (-tr/2) and ``p_over_kn`` [m].
+    theory : moduli of :mod:`microhom.moduli` [N/m]: mean field ``K_mf``, ``G_mf``; corrected with
+        the measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment
+        model ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
+    stiffness : :func:`dem.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
+        ``C_mandel`` (3x3 [N/m]), ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
+        ``n_dof``, ``residual``, ``time_s`` [s].
+    comparison : ``{K,G}_{mf,rho,alpha}_over_exact`` ratios.
+    notes : list of text: the assumptions made (kn, kt, frame) and what the reader warned.
+    """
+
+    file: dict = field(default_factory=dict)
+    network: dict = field(default_factory=dict)
+    coordination: dict = field(default_factory=dict)
+    structural: dict = field(default_factory=dict)
+    stress: dict = field(default_factory=dict)
+    theory: dict = field(default_factory=dict)
+    stiffness: dict = field(default_factory=dict)
+    comparison: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    def sections(self) -> dict:
+        """The sections as they are (numpy scalars and NaN kept), in report order."""
+        return {name: getattr(self, name) for name in self.__dataclass_fields__}
+
+    @property
+    def jammed(self) -> bool:
+        """False when no contact is left between non-rattlers (see :data:`NOT_JAMMED`)."""
+        return self.structural.get("error") != NOT_JAMMED
 
 #: accepted ``format`` names: dem.io's plus the packing checkpoint and a LAMMPS run folder
 FORMATS = ("lammps-data", "lammps-dump", "oval", "npz", "csv", "vtk", "packing", "lammps-run")
@@ -52,19 +122,20 @@ def _with_branch_length(net, branch_length):
     return replace(net, branch=net.branch * (rs / net.lengths)[:, None])
 
 
-def load_network(path, format=None, *, kn=None, kt=None, kn_convention=None, branch_length="distance",
-                 frame=0, mu=None):
+def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
+                 branch_length="distance", frame=-1, mu=None, radius=None):
     """Read ``path`` and build its contact network.
 
     Returns ``(network, info)``; ``info`` has ``source``, ``format``, ``kn``, ``kt``,
     ``forces`` ("from file" or None) and ``notes`` (list of text). ``kn``/``kt``: contact
-    stiffnesses [N/m] for files without them (default kn = 1, kt = kn); ``kn_convention`` as
-    :meth:`dem.io.Configuration.network`; ``branch_length`` ``"distance"`` or ``"radii"``;
-    ``frame``: dump frame; ``mu``: friction for sliding flags of a LAMMPS run folder (default:
-    the run's). Raises :class:`dem.io.FormatError` / ``ValueError`` / ``FileNotFoundError``.
+    stiffnesses [N/m] for files without them (default kn = 1, kt = kn, said in the notes);
+    ``kt_ratio``: kt = kt_ratio * kn instead (LAMMPS gran/hooke/history's default is 2/7);
+    ``kn_convention`` as :meth:`dem.io.Configuration.network`; ``branch_length`` ``"distance"`` or
+    ``"radii"``; ``frame``: dump frame (default the last; the notes say which); ``radius``: a
+    constant radius for dumps without a radius column; ``mu``: friction for sliding flags of a
+    LAMMPS run folder (default: the run's).
+    Raises :class:`dem.io.FormatError` / ``ValueError`` / ``FileNotFoundError``.
     """
-    from dem import io
-
     path = Path(path)
     notes = []
     if not path.exists():
@@ -80,7 +151,6 @@ def load_network(path, format=None, *, kn=None, kt=None, kn_convention=None, bra
         raise ValueError(f"unknown format {format!r}; known: {list(FORMATS)}")
     forces = None
     if format == "packing":
-        from dem.packing import PackingResult
         try:
             res = PackingResult.load(path)
         except (KeyError, ValueError, OSError) as exc:
@@ -88,24 +158,47 @@ def load_network(path, format=None, *, kn=None, kt=None, kn_convention=None, bra
         net = res.to_network()
         forces = "from file"
         law = res.law.to_meta() if hasattr(res.law, "to_meta") else {}
-        if kn is not None or kt is not None:
+        if kn is not None or kt is not None or kt_ratio is not None:
             notes.append("--kn/--kt ignored: a packing file carries its own contact law "
-                         f"({law.get('kind', type(res.law).__name__)})")
+                         f"({law.get('law', type(res.law).__name__)})")
     elif format == "lammps-run":
-        from dem.lammps import read_run
+        if not path.is_dir() or not (path / "in.packing").is_file():
+            raise io.FormatError(path, None, None, "not a LAMMPS run folder (no in.packing: the "
+                                 "folder dem.lammps.pack_lammps writes holds in.packing, "
+                                 "final.dump and contacts.dump)")
         run = read_run(path)
         net = run.network
         forces = "from file"
         if mu is not None:
             net = replace(net, sliding=np.abs(net.ft) >= mu * net.fn * (1 - 1e-9))
-        if kn is not None or kt is not None:
+        if kn is not None or kt is not None or kt_ratio is not None:
             notes.append("--kn/--kt ignored: the run's kn, kt are used")
     else:
-        kw = {"frame": frame} if format == "lammps-dump" else {}
-        cfg = io.read(path, format=format, **kw)
+        kw = {"frame": frame, "radius": radius} if format == "lammps-dump" else {}
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            cfg = io.read(path, format=format, **kw)
+        notes += [str(w.message) for w in caught]
+        if format == "lammps-dump":
+            m = cfg.meta
+            notes.append(f"LAMMPS dump: analysed frame {m['frame'] + 1} of {m.get('n_frames', '?')} "
+                         f"(timestep {m.get('timestep', '?')})"
+                         + ("; --frame N picks another (1 = first, -1 = last)"
+                            if m.get("n_frames", 1) > 1 else ""))
         if kn is None:
             kn = 1.0
             notes.append("kn not given: kn = 1, moduli and stiffnesses are in units of kn")
+        if kt is not None and kt_ratio is not None:
+            raise ValueError("give --kt or --kt-ratio, not both")
+        if kt_ratio is not None:
+            if not (math.isfinite(kt_ratio) and kt_ratio >= 0):
+                raise ValueError(f"--kt-ratio must be finite and >= 0, got {kt_ratio!r}")
+            # the ratio is of the physical stiffnesses: OVAL's kn multiplies half the overlap, its
+            # force per unit overlap (the network's kn) is kn/2, and kt is never converted
+            kt = kt_ratio * (kn / 2.0 if kn_convention == "oval" else kn)
+        elif kt is None:
+            notes.append("kt not given: kt = kn assumed (LAMMPS gran/hooke/history defaults to "
+                         "kt = 2/7 kn: give --kt or --kt-ratio 0.2857 for such a run)")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             net = cfg.network(kn=kn, kt=kt, kn_convention=kn_convention)
@@ -136,31 +229,43 @@ def _section(fn, *args, **kwargs):
         return {"error": str(exc)}
 
 
+def _get(obj, key):
+    """``obj[key]`` for a dict, ``obj.key`` for a result dataclass (either shape is accepted)."""
+    return obj[key] if isinstance(obj, dict) else getattr(obj, key)
+
+
 def _coordination(net, min_contacts):
-    from dem.measure import coordination
     c = coordination(net, min_contacts)
-    return {"z_all": c["z_all"], "z": c["z"], "n_rattlers": c["n_rattlers"],
-            "rattler_fraction": c["rattler_fraction"], "hist_all": c["hist_all"].tolist(),
-            "hist": c["hist"].tolist()}
+    return {"z_all": _get(c, "z_all"), "z": _get(c, "z"), "n_rattlers": _get(c, "n_rattlers"),
+            "rattler_fraction": _get(c, "rattler_fraction"),
+            "hist_all": np.asarray(_get(c, "hist_all")).tolist(),
+            "hist": np.asarray(_get(c, "hist")).tolist()}
+
+
+_STAT_KEYS = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi",
+              "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
+              "ebar_theory", "odd_norm")
 
 
 def _statistics(net, min_contacts):
-    from microhom.structural_sums import network_statistics
     st = network_statistics(net, min_contacts)
-    keys = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi", "nbar_phi",
-            "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory", "ebar_theory", "odd_norm")
-    return {k: st.get(k) for k in keys}
+    get = (lambda k: st.get(k)) if isinstance(st, dict) else (lambda k: getattr(st, k, None))
+    out = {k: get(k) for k in _STAT_KEYS}
+    # r = var/mean^2 and rho = sum V.W / sum V^2 are 0/0 without contacts: None, never 0
+    if not out["nc_all"]:
+        out["r_all"] = out["rho_all"] = None
+    if not out["nc"]:
+        out["r"] = out["rho"] = None
+    return out
 
 
 def _stress(net):
-    from dem.measure import stress
     s = stress(net)
     return {"pressure": float(-np.trace(s) / 2), "sxx": float(s[0, 0]), "syy": float(s[1, 1]),
             "sxy": float(s[0, 1]), "p_over_kn": float(-np.trace(s) / 2 / np.mean(net.kn))}
 
 
 def _theory(net, alpha, min_contacts):
-    from microhom.moduli import predict_from_network
     p = predict_from_network(net, warn=False, min_contacts=min_contacts)
     out = {"K_mf": float(p.K_mf), "G_mf": float(p.G_mf), "K_rho": float(p.K), "G_rho": float(p.G),
            "rho": float(p.rho), "nbar": float(p.nbar), "valid_rho": bool(p.valid),
@@ -173,7 +278,6 @@ def _theory(net, alpha, min_contacts):
 
 
 def _stiffness(net, prestress, min_contacts):
-    from dem.stiffness import stiffness
     r = stiffness(net, prestress=prestress, min_contacts=min_contacts)
     return {"K": r.K, "G": r.G, "K_affine": r.K_affine, "G_affine": r.G_affine,
             "C_mandel": np.asarray(r.C_mandel).tolist(), "prestress": r.prestress,
@@ -181,7 +285,7 @@ def _stiffness(net, prestress, min_contacts):
             "n_dof": r.n_dof, "residual": r.residual, "time_s": r.assembly_time + r.solve_time}
 
 
-def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) -> dict:
+def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) -> AnalysisResult:
     """All measurements and predictions of one network (see the module docstring).
 
     alpha : alignment width for the model-rho prediction, in [0, 2] (None: the paper's
@@ -189,58 +293,72 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) 
         normal forces are the network's ``fn`` or, if it has none, ``kn * overlap``.
     min_contacts : rattler threshold (None: 2 with friction, 3 without). exact : compute the
         exact stiffness (one sparse factorisation).
-    Returns a dict of sections: ``network``, ``coordination``, ``structural``, ``stress``,
-    ``theory``, ``stiffness``, ``comparison``, ``notes``.
+    Returns an :class:`AnalysisResult` (its ``file`` section empty). A network without a contact
+    between non-rattlers is not jammed: its statistics, theory and stiffness sections hold
+    ``{"error": NOT_JAMMED}`` instead of 0/0 values.
     """
     notes = []
-    out = {"network": {"n_particles": net.n_particles, "n_contacts": net.n_contacts,
-                       "periodic": net.cell is not None,
-                       "kn_mean": float(np.mean(net.kn)) if net.n_contacts else None,
-                       "kt_mean": float(np.mean(net.kt)) if net.n_contacts else None,
-                       "forces": net.fn is not None}}
-    out["coordination"] = _section(_coordination, net, min_contacts)
-    out["structural"] = _section(_statistics, net, min_contacts)
-    out["stress"] = _section(_stress, net) if net.fn is not None else {"error": "no contact forces in the file"}
-    out["theory"] = _section(_theory, net, alpha, min_contacts)
-    if exact:
+    network = {"n_particles": net.n_particles, "n_contacts": net.n_contacts,
+               "periodic": net.cell is not None,
+               "kn_mean": float(np.mean(net.kn)) if net.n_contacts else None,
+               "kt_mean": float(np.mean(net.kt)) if net.n_contacts else None,
+               "forces": net.fn is not None}
+    coord = _section(_coordination, net, min_contacts)
+    jammed = "error" in coord or coord["n_rattlers"] < net.n_particles
+    if not jammed:
+        coord["z"] = None  # the mean over no particle
+    structural = _section(_statistics, net, min_contacts) if jammed else {"error": NOT_JAMMED}
+    stress_ = (_section(_stress, net) if net.fn is not None and net.n_contacts
+               else {"error": "no contact forces in the file" if net.fn is None else "no contacts"})
+    theory = _section(_theory, net, alpha, min_contacts) if jammed else {"error": NOT_JAMMED}
+    if not exact:
+        stiff = {"error": "not computed"}
+    elif not jammed:
+        stiff = {"error": NOT_JAMMED}
+    else:
         snet = net
         if prestress and net.fn is None:
             snet = replace(net, fn=_elastic_normal_forces(net))
             notes.append("--prestress: the file has no contact forces; fn = kn * overlap (linear law)")
-        out["stiffness"] = _section(_stiffness, snet, prestress, min_contacts)
-    else:
-        out["stiffness"] = {"error": "not computed"}
+        stiff = _section(_stiffness, snet, prestress, min_contacts)
+    if not jammed:
+        notes.append(NOT_JAMMED)
+    if net.n_particles and net.radii.max() > DISPERSITY_NOTE * net.radii.min():
+        notes.append(f"the radii differ (max/min = {net.radii.max() / net.radii.min():.3g}, "
+                     f"relative spread {np.std(net.radii) / np.mean(net.radii):.3g}): the theory "
+                     "is for identical disks, its moduli are a reference for this packing")
     cmp = {}
-    th, ex = out["theory"], out["stiffness"]
-    if "error" not in th and "error" not in ex:
+    if "error" not in theory and "error" not in stiff:
         for k in ("K", "G"):
             for lab in ("mf", "rho", "alpha"):
-                if ex[k] != 0:
-                    cmp[f"{k}_{lab}_over_exact"] = th[f"{k}_{lab}"] / ex[k]
-    out["comparison"] = cmp
-    out["notes"] = notes
-    return out
+                if stiff[k] != 0:
+                    cmp[f"{k}_{lab}_over_exact"] = theory[f"{k}_{lab}"] / stiff[k]
+    return AnalysisResult(network=network, coordination=coord, structural=structural,
+                          stress=stress_, theory=theory, stiffness=stiff, comparison=cmp,
+                          notes=notes)
 
 
-def analyse_file(path, format=None, *, kn=None, kt=None, kn_convention=None, branch_length="distance",
-                 alpha=None, prestress=False, min_contacts=None, frame=0, exact=True) -> dict:
-    """:func:`load_network` then :func:`analyse`; the result has an extra ``file`` section."""
-    import time
-
+def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
+                 branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
+                 radius=None, exact=True) -> AnalysisResult:
+    """:func:`load_network` then :func:`analyse`; the result's ``file`` section says what was read
+    and how long it took, its notes start with the assumptions made while reading."""
     t0 = time.perf_counter()
-    net, info = load_network(path, format, kn=kn, kt=kt, kn_convention=kn_convention,
-                             branch_length=branch_length, frame=frame)
+    net, info = load_network(path, format, kn=kn, kt=kt, kt_ratio=kt_ratio,
+                             kn_convention=kn_convention, branch_length=branch_length,
+                             frame=frame, radius=radius)
     t1 = time.perf_counter()
     res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact)
-    res["notes"] = info.pop("notes") + res["notes"]
-    res["file"] = {**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1}
-    return {"file": res.pop("file"), **res}
+    notes = info.pop("notes") + res.notes
+    return replace(res, file={**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1},
+                   notes=notes)
 
 
-def flatten(res: dict) -> dict:
+def flatten(res) -> dict:
     """One flat record ``section.key -> scalar`` (lists joined with spaces), for CSV/JSON rows."""
+    sections = res.sections() if isinstance(res, AnalysisResult) else res
     flat = {}
-    for sec, d in res.items():
+    for sec, d in sections.items():
         if isinstance(d, dict):
             for k, v in d.items():
                 if isinstance(v, (list, tuple)):
@@ -261,8 +379,10 @@ def _g(x, fmt=".6g"):
     return format(x, fmt) if isinstance(x, (int, float, np.floating, np.integer)) else str(x)
 
 
-def format_table(res: dict) -> str:
-    """The readable report of :func:`analyse_file`."""
+def format_table(res) -> str:
+    """The readable report of :func:`analyse_file` (an :class:`AnalysisResult`)."""
+    if isinstance(res, AnalysisResult):
+        res = res.sections()
     L = []
     f = res.get("file", {})
     nw = res["network"]
@@ -295,7 +415,7 @@ def format_table(res: dict) -> str:
         for k in ("vbar", "ebar"):
             m, t = s.get(k), s.get(k + "_theory")
             ratio = (m / t) if (m is not None and t) else None
-            L.append(f"  {k:10}{_g(m):>14}{_g(t):>14}{_g(ratio, '.4f'):>10}")
+            L.append(f"  {k + ' [N m]':10}{_g(m):>14}{_g(t):>14}{_g(ratio, '.4f'):>10}")
         L.append(f"  phi = {_g(s['phi'], '.5f')}, Nbar(phi) = {_g(s['nbar_phi'], '.4f')}, "
                  f"mean D = {_g(s['diameter'], '.5g')}, sliding fraction = {_g(s['sliding_fraction'], '.4f')}, "
                  f"odd-sum norm |A3|/(kn D) = {_g(s.get('odd_norm'), '.4g')}")
@@ -310,7 +430,7 @@ def format_table(res: dict) -> str:
     th, ex = res["theory"], res["stiffness"]
     L.append("")
     L.append("moduli (2D, force/length)")
-    L.append(f"  {'estimate':44}{'K':>14}{'G':>14}{'K/exact':>10}{'G/exact':>10}")
+    L.append(f"  {'estimate':44}{'K [N/m]':>14}{'G [N/m]':>14}{'K/exact':>10}{'G/exact':>10}")
     cmp = res.get("comparison", {})
     if "error" in th:
         L.append(f"  theory: n/a ({th['error']})")

@@ -2,7 +2,7 @@
 
 The cell is the parallelogram spanned by the columns of the shape matrix ``h`` (2x2) [m], with its
 origin at (0, 0). Fractional coordinates are ``s = h^{-1} x``; a position is wrapped by ``s -> s -
-floor(s)``. The cell deforms with the velocity gradient ``L`` [1/s]: ``dh/dt = L h``. Particle
+floor(s)`` (``heights``, ``fractional`` and ``wrap`` are those of :mod:`microhom.periodic`). The cell deforms with the velocity gradient ``L`` [1/s]: ``dh/dt = L h``. Particle
 velocities are stored as fluctuations about the affine field (total velocity ``v + L x``, Yade
 ``homoDeform`` style) and one explicit step maps both the cell and the positions with the same
 operator ``(I + dt L)``, so branch vectors ``x_j + h s - x_i`` are identical whichever image
@@ -25,42 +25,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["heights", "wrap", "fractional", "StrainRate", "PressureServo", "rotation", "lammps_box"]
+from microhom.periodic import fractional, heights, wrap  # noqa: F401  (the cell's geometry, re-exported)
 
-
-def heights(h) -> np.ndarray:
-    """Perpendicular widths of the cell across its two pairs of faces [m]: (A/|a2|, A/|a1|)."""
-    h = np.asarray(h, dtype=float)
-    a = abs(np.linalg.det(h))
-    return np.array([a / np.hypot(*h[:, 1]), a / np.hypot(*h[:, 0])])
-
-
-def fractional(x, h) -> np.ndarray:
-    """Fractional coordinates s = h^{-1} x of positions x (N, 2)."""
-    return np.linalg.solve(np.asarray(h, float), np.asarray(x, float).T).T
-
-
-def wrap(x, h):
-    """Wrap positions into the cell. Returns (x_wrapped, k) with x = x_wrapped + h k, k integer (N, 2)."""
-    s = fractional(x, h)
-    k = np.floor(s)
-    return (s - k) @ np.asarray(h, float).T, k.astype(np.int64)
+__all__ = ["heights", "wrap", "fractional", "StrainRate", "PressureServo", "rotation"]
 
 
 def rotation(angle) -> np.ndarray:
+    """(2, 2) rotation matrix by ``angle`` [rad], counter-clockwise."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s], [s, c]])
-
-
-def lammps_box(h):
-    """(lx, ly, xy) of a LAMMPS/freud triclinic box equivalent to h (after a rigid rotation making
-    the first cell vector horizontal)."""
-    h = np.asarray(h, float)
-    a1, a2 = h[:, 0], h[:, 1]
-    lx = float(np.hypot(*a1))
-    xy = float(a2 @ a1 / lx)
-    ly = float(np.linalg.det(h) / lx)
-    return lx, ly, xy
 
 
 @dataclass

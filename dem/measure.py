@@ -12,17 +12,112 @@ forces are needed. 2D: stresses are force per length (N/m per unit thickness), t
 * :func:`delaunay_neighbours` — periodic Delaunay neighbours (mean degree exactly 6 in a periodic
   cell, by Euler's formula) and near neighbours within a gap, to set beside ``Nbar`` from phi.
 * :func:`hexatic_order` — psi6 over Delaunay neighbours (global and mean local modulus).
-* :func:`summary` — everything in one flat dict (the packing's summary table).
+* :func:`summary` — everything in one :class:`PackingSummary`; its ``table()`` is the flat dict of
+  scalars of the packing's summary table (``packing_summary.csv``).
+
+Results are frozen dataclasses (:class:`Fabric`, :class:`ForceStatistics`, :class:`Coordination`,
+:class:`DelaunayNeighbours`, :class:`HexaticOrder`, :class:`PackingSummary`) with ``as_dict()``
+and ``to_frame()`` (:class:`microhom.results.Result`).
 """
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass, field
+
 import numpy as np
+from scipy.spatial import Delaunay
 
 from microhom.network import ContactNetwork
+from microhom.periodic import boundary_images
+from microhom.results import Result
 from microhom.structural_sums import network_statistics, rattlers
 
-__all__ = ["stress", "pressure", "fabric", "force_statistics", "coordination", "delaunay_neighbours",
-           "hexatic_order", "summary"]
+__all__ = ["stress", "pressure", "contact_forces", "fabric", "force_statistics", "coordination",
+           "delaunay_neighbours", "hexatic_order", "summary", "Fabric", "ForceStatistics",
+           "Coordination", "DelaunayNeighbours", "HexaticOrder", "PackingSummary"]
+
+
+@dataclass(frozen=True, eq=False)
+class Fabric(Result):
+    """Fabric of the (active) contacts.
+
+    F : (2, 2) fabric tensor ``(1/C) sum n n`` (dimensionless, trace 1; NaN without contacts);
+    anisotropy : ``2 (F1 - F2)`` from its principal values (0 isotropic);
+    direction : angle of the major principal direction [rad] in (-pi, pi].
+    """
+
+    F: np.ndarray
+    anisotropy: float
+    direction: float
+
+
+@dataclass(frozen=True)
+class ForceStatistics(Result):
+    """Contact force statistics (forces per unit thickness [N/m]).
+
+    fn_mean, fn_std, fn_max : normal force mean, standard deviation, maximum [N/m];
+    ft_over_fn_mean : mean mobilised friction |ft|/fn over the contacts (0 where fn <= 0);
+    sliding_fraction : fraction of contacts flagged sliding; tension_contacts : contacts with fn < 0;
+    fraction_above_mean : fraction of contacts with fn above the mean.
+    """
+
+    fn_mean: float
+    fn_std: float
+    fn_max: float
+    ft_over_fn_mean: float
+    sliding_fraction: float
+    tension_contacts: int
+    fraction_above_mean: float
+
+
+@dataclass(frozen=True, eq=False)
+class Coordination(Result):
+    """Coordination numbers with and without rattlers (iterative removal).
+
+    z_all : mean contacts per particle, all particles; z : mean over non-rattlers, counting only
+    contacts between non-rattlers (0 if all are rattlers);
+    hist_all, hist : (zmax + 1,) int histograms of the contact counts (index = count);
+    n_rattlers : rattlers removed; rattler_fraction : n_rattlers / N.
+    """
+
+    z_all: float
+    z: float
+    hist_all: np.ndarray
+    hist: np.ndarray
+    n_rattlers: int
+    rattler_fraction: float
+
+
+@dataclass(frozen=True, eq=False)
+class DelaunayNeighbours(Result):
+    """Periodic Delaunay neighbours of the particle centres.
+
+    pairs : (E, 2) int unique neighbour pairs (i < j, one per image pair; not exported);
+    branch : (E, 2) branch vectors x_j - x_i to the neighbouring image [m] (not exported);
+    degree : (N,) int neighbours per particle (not exported);
+    mean_degree : mean degree (exactly 6 in a periodic cell, Euler's formula);
+    gap : surface gap threshold [m] of the near neighbours, or None;
+    near_degree_mean : mean number of Delaunay neighbours with ``|c| - r_i - r_j <= gap``, or None.
+    """
+
+    pairs: np.ndarray = field(metadata={"export": False})
+    branch: np.ndarray = field(metadata={"export": False})
+    degree: np.ndarray = field(metadata={"export": False})
+    mean_degree: float = 0.0
+    gap: float | None = None
+    near_degree_mean: float | None = None
+
+
+@dataclass(frozen=True)
+class HexaticOrder(Result):
+    """Hexatic bond-orientational order (dimensionless, in [0, 1]).
+
+    psi6 : global order ``|mean_i psi6_i|`` (1 for a perfect triangular crystal);
+    psi6_local : mean local modulus ``mean_i |psi6_i|``.
+    """
+
+    psi6: float
+    psi6_local: float
 
 
 def _require_forces(net: ContactNetwork):
@@ -58,87 +153,60 @@ def pressure(net: ContactNetwork) -> float:
     return float(-np.trace(stress(net)) / 2)
 
 
-def fabric(net: ContactNetwork, active=None) -> dict:
+def fabric(net: ContactNetwork, active=None) -> Fabric:
     """Fabric tensor ``F = (1/C) sum n n`` over the (active) contacts, its principal values and the
     anisotropy ``a = 2 (F1 - F2)`` (0 isotropic) with the major direction [rad]."""
     n = net.normals if active is None else net.normals[active]
     if len(n) == 0:
-        return {"F": np.full((2, 2), np.nan), "anisotropy": 0.0, "direction": 0.0}
+        return Fabric(F=np.full((2, 2), np.nan), anisotropy=0.0, direction=0.0)
     F = np.einsum("ci,cj->ij", n, n) / len(n)
     w, v = np.linalg.eigh(F)
-    return {"F": F, "anisotropy": float(2 * (w[1] - w[0])), "direction": float(np.arctan2(v[1, 1], v[0, 1]))}
+    return Fabric(F=F, anisotropy=float(2 * (w[1] - w[0])), direction=float(np.arctan2(v[1, 1], v[0, 1])))
 
 
-def force_statistics(net: ContactNetwork) -> dict:
+def force_statistics(net: ContactNetwork) -> ForceStatistics:
     """Normal and tangential contact force statistics [N/m], and the sliding fraction."""
     fn, ft = _require_forces(net)
     if len(fn) == 0:
-        return {"fn_mean": 0.0, "fn_std": 0.0, "fn_max": 0.0, "ft_over_fn_mean": 0.0, "sliding_fraction": 0.0,
-                "tension_contacts": 0, "fraction_above_mean": 0.0}
+        return ForceStatistics(fn_mean=0.0, fn_std=0.0, fn_max=0.0, ft_over_fn_mean=0.0,
+                               sliding_fraction=0.0, tension_contacts=0, fraction_above_mean=0.0)
     m = fn.mean()
     with np.errstate(divide="ignore", invalid="ignore"):
         mob = np.where(fn > 0, np.abs(ft) / fn, 0.0)
-    return {"fn_mean": float(m), "fn_std": float(fn.std()), "fn_max": float(fn.max()),
-            "ft_over_fn_mean": float(mob.mean()), "sliding_fraction": float(net.sliding.mean()),
-            "tension_contacts": int(np.sum(fn < 0)), "fraction_above_mean": float(np.mean(fn > m))}
+    return ForceStatistics(fn_mean=float(m), fn_std=float(fn.std()), fn_max=float(fn.max()),
+                           ft_over_fn_mean=float(mob.mean()), sliding_fraction=float(net.sliding.mean()),
+                           tension_contacts=int(np.sum(fn < 0)), fraction_above_mean=float(np.mean(fn > m)))
 
 
-def coordination(net: ContactNetwork, min_contacts=None) -> dict:
+def coordination(net: ContactNetwork, min_contacts=None) -> Coordination:
     """Coordination number mean and distribution with and without rattlers (iterative removal)."""
     rat, active = rattlers(net, min_contacts)
     counts_all = net.contact_counts()
     counts = np.bincount(net.pairs[active].ravel(), minlength=net.n_particles)[~rat]
     top = int(counts_all.max(initial=0)) + 1
-    return {"z_all": float(counts_all.mean()), "z": float(counts.mean()) if len(counts) else 0.0,
-            "hist_all": np.bincount(counts_all, minlength=top), "hist": np.bincount(counts, minlength=top),
-            "n_rattlers": int(rat.sum()), "rattler_fraction": float(rat.mean())}
+    return Coordination(z_all=float(counts_all.mean()), z=float(counts.mean()) if len(counts) else 0.0,
+                        hist_all=np.bincount(counts_all, minlength=top),
+                        hist=np.bincount(counts, minlength=top), n_rattlers=int(rat.sum()),
+                        rattler_fraction=float(rat.mean()))
 
 
-def _periodic_images(net: ContactNetwork, margin: float):
-    """Positions wrapped into the cell plus the images within ``margin`` of its boundary.
-
-    Returns (points (M, 2), owner (M,) original particle index)."""
-    h = net.cell
-    frac = np.linalg.solve(h, (net.positions - net.origin).T).T
-    frac -= np.floor(frac)
-    heights = abs(np.linalg.det(h)) / np.linalg.norm(h[:, ::-1], axis=0)
-    fm = margin / heights  # margin in fractional units, per direction
-    pts, owner = [], []
-    n = net.n_particles
-    for a in (-1, 0, 1):
-        for b in (-1, 0, 1):
-            f = frac + np.array([a, b])
-            keep = np.all((f > -fm) & (f < 1 + fm), axis=1)
-            pts.append(net.origin + f[keep] @ h.T)
-            owner.append(np.arange(n)[keep])
-    return np.concatenate(pts), np.concatenate(owner)
-
-
-def delaunay_neighbours(net: ContactNetwork, gap=None):
+def delaunay_neighbours(net: ContactNetwork, gap=None) -> DelaunayNeighbours:
     """Periodic Delaunay neighbours (scipy.spatial.Delaunay on the cell plus a margin of images).
 
-    Returns a dict with ``pairs`` (E, 2) unique neighbour pairs (i < j, one per image pair),
-    ``branch`` (E, 2), ``degree`` (N,), ``mean_degree`` (6 in a periodic cell, Euler's formula) and,
-    if ``gap`` is given, ``near_degree_mean``: mean number of Delaunay neighbours whose surface gap
-    ``|c| - r_i - r_j`` is at most ``gap`` [m] (touching or nearly touching neighbours).
+    ``gap`` [m]: also count, per particle, the Delaunay neighbours whose surface gap
+    ``|c| - r_i - r_j`` is at most ``gap`` (touching or nearly touching neighbours).
     """
-    from scipy.spatial import Delaunay
-
     if net.cell is None:
         raise ValueError("delaunay_neighbours needs a periodic cell")
     margin = 4.0 * 2 * net.radii.max() * 2
-    pts, owner = _periodic_images(net, margin)
     n = net.n_particles
+    pts, owner = boundary_images(net.positions, net.cell, net.origin, margin)
     tri = Delaunay(pts)
     s = tri.simplices
     e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
-    # keep edges with their first end in the primary cell copy (image index < n, a=b=0 block)
-    primary = np.zeros(len(pts), dtype=bool)
-    h = net.cell
-    f = np.linalg.solve(h, (pts - net.origin).T).T
-    primary[np.all((f >= 0) & (f < 1), axis=1)] = True
+    # keep edges with their first end in the primary cell copy (the first n points)
     e = np.concatenate([e, e[:, ::-1]])
-    e = e[primary[e[:, 0]]]
+    e = e[e[:, 0] < n]
     i, j = owner[e[:, 0]], owner[e[:, 1]]
     d = pts[e[:, 1]] - pts[e[:, 0]]
     # unique undirected pairs with their image: key on (min, max, rounded branch sign-normalised)
@@ -149,15 +217,17 @@ def delaunay_neighbours(net: ContactNetwork, gap=None):
     _, first = np.unique(np.stack([a, b, key[:, 0], key[:, 1]], 1), axis=0, return_index=True)
     a, b, d = a[first], b[first], d[first]
     degree = np.bincount(np.concatenate([a, b]), minlength=n)
-    out = {"pairs": np.stack([a, b], 1), "branch": d, "degree": degree, "mean_degree": float(degree.mean())}
+    near = None
     if gap is not None:
         g = np.hypot(d[:, 0], d[:, 1]) - net.radii[a] - net.radii[b]
-        near = g <= gap
-        out["near_degree_mean"] = float(np.bincount(np.concatenate([a[near], b[near]]), minlength=n).mean())
-    return out
+        m = g <= gap
+        near = float(np.bincount(np.concatenate([a[m], b[m]]), minlength=n).mean())
+    return DelaunayNeighbours(pairs=np.stack([a, b], 1), branch=d, degree=degree,
+                              mean_degree=float(degree.mean()), gap=None if gap is None else float(gap),
+                              near_degree_mean=near)
 
 
-def hexatic_order(net: ContactNetwork, neighbours=None) -> dict:
+def hexatic_order(net: ContactNetwork, neighbours: DelaunayNeighbours | None = None) -> HexaticOrder:
     """Hexatic bond-orientational order psi6.
 
     ``psi6_i = (1/n_i) sum_j exp(6 i theta_ij)`` over Delaunay neighbours (default); returns the
@@ -165,32 +235,84 @@ def hexatic_order(net: ContactNetwork, neighbours=None) -> dict:
     polycrystalline packing) and the mean local modulus ``mean_i |psi6_i|``.
     """
     nb = delaunay_neighbours(net) if neighbours is None else neighbours
-    a, b = nb["pairs"][:, 0], nb["pairs"][:, 1]
-    th = np.arctan2(nb["branch"][:, 1], nb["branch"][:, 0])
+    a, b = nb.pairs[:, 0], nb.pairs[:, 1]
+    th = np.arctan2(nb.branch[:, 1], nb.branch[:, 0])
     z = np.exp(6j * th)  # the same from both ends (theta + pi)
     n = net.n_particles
     s = np.bincount(a, weights=z.real, minlength=n) + np.bincount(b, weights=z.real, minlength=n) \
         + 1j * (np.bincount(a, weights=z.imag, minlength=n) + np.bincount(b, weights=z.imag, minlength=n))
     deg = np.maximum(np.bincount(np.concatenate([a, b]), minlength=n), 1)
     loc = s / deg
-    return {"psi6": float(abs(loc.mean())), "psi6_local": float(np.abs(loc).mean())}
+    return HexaticOrder(psi6=float(abs(loc.mean())), psi6_local=float(np.abs(loc).mean()))
 
 
-def summary(net: ContactNetwork, min_contacts=None, near_gap_fraction=0.1) -> dict:
-    """All packing measurements in one flat dict of scalars (for tables and CSV)."""
-    out = {}
-    st = network_statistics(net, min_contacts)
-    out.update({k: v for k, v in st.items() if np.isscalar(v) or v is None})
+def _scalars(obj) -> dict:
+    """The scalar (or None) entries of a result dataclass or a dict, raw values, in field order."""
+    if dataclasses.is_dataclass(obj):
+        items = [(f.name, getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                 if f.metadata.get("export", True)]
+    else:
+        items = list(obj.items())
+    return {k: v for k, v in items if np.isscalar(v) or v is None}
+
+
+@dataclass(frozen=True, eq=False)
+class PackingSummary(Result):
+    """All packing measurements of :func:`summary`.
+
+    statistics : the theory's input statistics (:func:`microhom.structural_sums.network_statistics`);
+    stress : (2, 2) Love-Weber stress [N/m], tension positive, or None (no forces or no cell);
+    pressure : ``-tr(stress)/2`` [N/m] or None; shear_stress : ``sqrt(((sxx-syy)/2)^2 + sxy^2)``
+    [N/m] or None; forces : :class:`ForceStatistics` or None; fabric : :class:`Fabric`;
+    near_gap_fraction : gap, in mean diameters, of the near-neighbour count;
+    nbar_delaunay : mean Delaunay degree or None; nbar_near : mean number of Delaunay neighbours
+    within the gap, or None; hexatic : :class:`HexaticOrder` or None (no cell or N < 3).
+    """
+
+    statistics: object
+    stress: np.ndarray | None
+    pressure: float | None
+    shear_stress: float | None
+    forces: ForceStatistics | None
+    fabric: Fabric
+    near_gap_fraction: float
+    nbar_delaunay: float | None
+    nbar_near: float | None
+    hexatic: HexaticOrder | None
+
+    def table(self) -> dict:
+        """The flat dict of scalars of the packing's summary table (``packing_summary.csv``):
+        the statistics' scalars, ``sxx syy sxy pressure shear_stress``, the force statistics,
+        ``fabric_anisotropy``, ``nbar_delaunay``, ``nbar_near_<g>D``, ``psi6``, ``psi6_local``
+        (entries that were not measured are absent)."""
+        out = _scalars(self.statistics)
+        if self.stress is not None:
+            s = self.stress
+            out.update({"sxx": s[0, 0], "syy": s[1, 1], "sxy": s[0, 1], "pressure": self.pressure,
+                        "shear_stress": self.shear_stress})
+        if self.forces is not None:
+            out.update(_scalars(self.forces))
+        out["fabric_anisotropy"] = self.fabric.anisotropy
+        if self.hexatic is not None:
+            out["nbar_delaunay"] = self.nbar_delaunay
+            out[f"nbar_near_{self.near_gap_fraction:g}D"] = self.nbar_near
+            out.update(_scalars(self.hexatic))
+        return out
+
+
+def summary(net: ContactNetwork, min_contacts=None, near_gap_fraction=0.1) -> PackingSummary:
+    """All packing measurements (see :class:`PackingSummary`; ``table()`` for the flat table)."""
+    s = p = tau = forces = nbar = near = hx = None
     if net.fn is not None and net.cell is not None:
         s = stress(net)
-        out.update({"sxx": s[0, 0], "syy": s[1, 1], "sxy": s[0, 1], "pressure": float(-np.trace(s) / 2),
-                    "shear_stress": float(np.sqrt(((s[0, 0] - s[1, 1]) / 2) ** 2 + s[0, 1] ** 2))})
-        out.update(force_statistics(net))
-    fab = fabric(net)
-    out["fabric_anisotropy"] = fab["anisotropy"]
+        p = float(-np.trace(s) / 2)
+        tau = float(np.sqrt(((s[0, 0] - s[1, 1]) / 2) ** 2 + s[0, 1] ** 2))
+        forces = force_statistics(net)
     if net.cell is not None and net.n_particles >= 3:
-        nb = delaunay_neighbours(net, gap=near_gap_fraction * out.get("diameter", 1.0))
-        out["nbar_delaunay"] = nb["mean_degree"]
-        out[f"nbar_near_{near_gap_fraction:g}D"] = nb["near_degree_mean"]
-        out.update(hexatic_order(net, nb))
-    return out
+        nb = delaunay_neighbours(net, gap=near_gap_fraction * float(2 * net.radii.mean()))
+        nbar, near = nb.mean_degree, nb.near_degree_mean
+        hx = hexatic_order(net, nb)
+    return PackingSummary(statistics=network_statistics(net, min_contacts), stress=s, pressure=p,
+                          shear_stress=tau, forces=forces, fabric=fabric(net),
+                          near_gap_fraction=float(near_gap_fraction), nbar_delaunay=nbar,
+                          nbar_near=near, hexatic=hx)

@@ -168,10 +168,7 @@ def network_from_state(state, law):
 
 def hexatic_psi6(net) -> dict:
     """psi6 (global |mean|) and mean local |psi6_i| over periodic Delaunay neighbours (dict)."""
-    hx = hexatic_order(net)
-    if isinstance(hx, dict):
-        return hx
-    return {"psi6": float(hx.psi6), "psi6_local": float(hx.psi6_local)}
+    return hexatic_order(net).as_dict()
 
 
 _CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the cell, in the "

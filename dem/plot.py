@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from microhom.network import ContactNetwork
+from microhom.periodic import wrap
 from microhom.structural_sums import rattlers
 
 
@@ -26,8 +27,7 @@ def plot_packing(net: ContactNetwork, path, *, title=None, max_width=3.0, dpi=15
 
     pos = np.asarray(net.positions, dtype=float)
     if net.cell is not None:
-        frac = np.linalg.solve(net.cell, (pos - net.origin).T).T
-        pos = net.origin + (frac - np.floor(frac)) @ net.cell.T
+        pos, _ = wrap(pos, net.cell, net.origin)
     rat, _ = rattlers(net)
     n_ext = max(np.ptp(pos[:, 0]), np.ptp(pos[:, 1]), 1e-12)
     size = 7.0 if net.n_particles < 20000 else 12.0

@@ -19,15 +19,16 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
+from .structural_sums import network_statistics
+
 __all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
            "PHI_MAX", "PHI_MIN_NBAR"]
 
-PHI_MAX = np.pi / (2 * np.sqrt(3))  # triangular close packing
-PHI_MIN_NBAR = np.pi / 4  # below this phi the Nbar(phi) relation has no solution
-
 _REASONS = (
     (1, "correction exceeds the mean field (negative modulus): first-order theory invalid"),
-    (2, "first-order correction larger than max_correction of the mean field: outside the theory's range"),
+    (2, "first-order correction (softening or stiffening) larger than max_correction of the mean field: "
+        "outside the theory's range"),
 )
 
 
@@ -58,16 +59,6 @@ def rho_from_alpha(alpha):
     """
     a = _check("alpha", alpha, 0.0, 2.0)
     return 0.5 * np.pi * np.sinc(0.5 * (1.0 - a)) / (1.0 + a)
-
-
-def nbar_from_phi(phi):
-    """Mean number of near neighbours Nbar from the solid fraction (section 6).
-
-    Inverts ``phi = (pi/4)/sin(pi (Nbar - 2)/Nbar)`` on the branch Nbar in [4, 6]:
-    ``Nbar = 2 pi / arcsin(pi/(4 phi))``. phi must lie in [pi/4, pi/(2 sqrt 3)].
-    """
-    p = _check("phi", phi, PHI_MIN_NBAR * (1 - 1e-12), PHI_MAX * (1 + 1e-12))
-    return 2.0 * np.pi / np.arcsin(np.minimum(np.pi / (4.0 * p), 1.0))
 
 
 @dataclass
@@ -187,7 +178,8 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     G = G_mf * (1.0 - drop_G)
     drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
     big = np.maximum(drop_K, drop_G)
-    flags = np.where(big >= 1.0, 1, 0) | np.where(big > max_correction, 2, 0)
+    size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
+    flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
     flags = flags.astype(np.int8)
     valid = flags == 0
     if warn and not np.all(valid):
@@ -214,16 +206,14 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     with rattlers excluded (``rattlers="exclude"``, default) or included; ``phi`` is the network's
     solid fraction. With ``measured_rho=False`` the paper's alpha model is used instead.
     """
-    from .structural_sums import network_statistics
-
     st = network_statistics(network, min_contacts=min_contacts)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
     if key is None:
         raise ValueError(f"rattlers must be 'exclude' or 'include', got {rattlers!r}")
     kn = float(np.mean(network.kn))
     kt = float(np.mean(network.effective_kt))
-    rho = st["rho" + key] if measured_rho else None
+    rho = getattr(st, "rho" + key) if measured_rho else None
     if measured_rho and alpha is not None:
         raise ValueError("alpha is only used with measured_rho=False")
-    return predict_moduli(kn, kt, st["nc" + key], st["phi"], st["r" + key], alpha=alpha, rho=rho,
-                          nbar=nbar, diameter=st["diameter"], **kwargs)
+    return predict_moduli(kn, kt, getattr(st, "nc" + key), st.phi, getattr(st, "r" + key), alpha=alpha, rho=rho,
+                          nbar=nbar, diameter=st.diameter, **kwargs)

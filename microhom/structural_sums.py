@@ -15,18 +15,28 @@ Per particle (arrays with the particle index first):
 * ``W[mu] = (1/pi) sum_nu n^{mu nu}``                  odd part of mu's contact density, so that
   the model (43) ``A_ijk = pi D W_p [...]`` is exact for a particle with first-harmonic density
 * ``V[mu] = (1/pi) sum_nu Nc^nu n^{mu nu}``            odd angular distribution of the contact
-  numbers of mu's contacting neighbours (41); ``V = Nc W`` when all neighbours have Nc contacts,
-  so that ``rho = Nc sum V.W / sum V^2`` is 1 for perfect correlation, the paper's alpha -> 0 limit.
+  numbers of mu's neighbours (41). ``ParticleSums.V`` sums over the contacting neighbours;
+  :func:`neighbour_vector` over any neighbour set, e.g. the paper's N̄ near neighbours of (39)
+  (:func:`microhom.neighbourhood.near_neighbours`); ``network_statistics(rho_neighbours=...)``
+  chooses, and :func:`rho_definitions` compares both with a shuffled-Nc null model.
 
-The choices for V and W (contacting neighbours, full ``Nc^nu``) are explained in docs/theory.md.
+The choices for V and W are explained in docs/theory.md §7, the measurements in docs/results/rho.md.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
+from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, near_neighbours, nbar_from_phi
 from .network import ContactNetwork
+from .results import Result
 
-__all__ = ["particle_sums", "ParticleSums", "rattlers", "network_statistics", "isotropic_fit"]
+__all__ = ["particle_sums", "ParticleSums", "rattlers", "network_statistics", "NetworkStatistics",
+           "isotropic_fit", "neighbour_vector", "rho_statistic", "rho_definitions", "RhoDefinitions",
+           "RHO_NEIGHBOURS"]
+
+RHO_NEIGHBOURS = ("contacts", "near")  # the neighbourhoods V can be summed over (see neighbour_vector)
 
 _EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])  # 2D Levi-Civita eps_ij3
 
@@ -66,8 +76,7 @@ class ParticleSums:
         self.A4 = _scatter(n, net.pairs, Kcc, Kcc)
         nrm = net.normals
         self.W = _scatter(n, net.pairs, nrm, -nrm) / np.pi
-        cnt = self.counts.astype(float)
-        self.V = _scatter(n, net.pairs, cnt[net.pairs[:, 1], None] * nrm, -cnt[net.pairs[:, 0], None] * nrm) / np.pi
+        self.V = neighbour_vector(self.counts, net.pairs, net.branch, n)
 
     @property
     def B(self) -> np.ndarray:
@@ -144,54 +153,197 @@ def isotropic_fit(A4):
     return coef[0].reshape(lead), coef[1].reshape(lead)
 
 
-def _rho(sums: ParticleSums, mask):
-    V, W = sums.V[mask], sums.W[mask]
+def neighbour_vector(counts, pairs, branch, n=None):
+    """V^mu = (1/pi) sum_nu Nc^nu n^{mu nu} over the given neighbour pairs (41): (N, 2).
+
+    counts : (N,) contact numbers Nc^nu of the particles (the summand is the neighbour's own
+        contact number, whether or not the neighbour touches mu).
+    pairs : (E, 2) int neighbour pairs, each once; branch : (E, 2) ``x_j - x_i`` [m].
+    Each pair adds ``Nc^j n`` to V^i and ``-Nc^i n`` to V^j (n = branch/|branch|).
+    """
+    counts = np.asarray(counts, dtype=float)
+    n = len(counts) if n is None else n
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    branch = np.asarray(branch, dtype=float).reshape(-1, 2)
+    nrm = branch / np.hypot(branch[:, 0], branch[:, 1])[:, None]
+    return _scatter(n, pairs, counts[pairs[:, 1], None] * nrm, -counts[pairs[:, 0], None] * nrm) / np.pi
+
+
+def rho_statistic(V, W, counts, mask=None) -> float:
+    """rho = Nc sum V.W / sum V^2 over the particles in ``mask`` (all if None); Nc = mean counts[mask].
+
+    Returns 0 where there is no odd structure (sum V^2 at round-off level, e.g. a perfect lattice):
+    nothing for the correction to act on.
+    """
+    mask = np.ones(len(counts), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    V, W = np.asarray(V)[mask], np.asarray(W)[mask]
     vv = float(np.sum(V * V))
-    nc = float(np.mean(sums.counts[mask])) if np.any(mask) else 0.0
+    nc = float(np.mean(np.asarray(counts)[mask])) if np.any(mask) else 0.0
     if vv <= 1e-24 * max(nc, 1.0) ** 2 * max(len(V), 1):
-        return 0.0  # no odd structure (perfect lattice; V is round-off): nothing for the correction to act on
+        return 0.0
     return nc * float(np.sum(V * W)) / vv
 
 
-def network_statistics(network: ContactNetwork, min_contacts=None) -> dict:
-    """The statistics the theory takes as input, with and without rattlers.
+def _near_pairs(network, nbar):
+    nb = near_neighbours(network, nbar=nbar)
+    return nb.pairs, nb.branch
 
-    Keys (``*_all`` = all particles, rattlers included; without suffix = rattlers removed):
-    ``nc``, ``r`` (= var(Nc)/Nc^2), ``rho`` (= Nc sum V.W / sum V^2), ``n_particles``,
-    ``n_rattlers``, ``rattler_fraction``, ``phi``, ``nbar_phi`` (Nbar from phi; None below pi/4),
-    ``diameter`` (mean), ``sliding_fraction``, ``vbar``, ``ebar`` (isotropic fit of the mean A4
-    over non-rattlers), ``vbar_theory``, ``ebar_theory`` (37) with the measured Nc and mean kn, kt,
-    ``odd_norm`` (mean Frobenius norm of A3 over non-rattlers, in units of kn D).
+
+def _nbar_or_raise(network, nbar):
+    if nbar is not None:
+        return float(nbar)
+    phi = network.solid_fraction
+    if not (PHI_MIN_NBAR <= phi <= PHI_MAX * (1 + 1e-12)):
+        raise ValueError(f"the near neighbourhood needs Nbar: phi = {phi:.4f} is outside [pi/4, pi/(2 sqrt 3)], "
+                         "so pass nbar explicitly")
+    return float(nbar_from_phi(phi))
+
+
+@dataclass(frozen=True)
+class NetworkStatistics(Result):
+    """The statistics of a contact network that the theory takes as input (:func:`network_statistics`).
+
+    Suffix ``_all``: all particles, rattlers included; no suffix: rattlers removed (iteratively,
+    see :func:`rattlers`). Lengths in the unit of the positions [m]; ``vbar``, ``ebar`` and their
+    ``_theory`` values in N m (stiffness [N/m] times length squared); the rest is dimensionless. Fields that need non-rattlers are NaN when every particle is
+    a rattler. ``as_dict()`` gives the same keys, in the same order, as the dict this function
+    returned before it was typed (NaN -> None).
     """
-    from .moduli import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
 
+    n_particles: int  #: number of particles N
+    n_contacts: int  #: number of contacts C
+    n_rattlers: int  #: particles removed as rattlers
+    rattler_fraction: float  #: n_rattlers / N
+    nc_all: float  #: mean contacts per particle, all particles
+    r_all: float  #: var(Nc)/mean(Nc)^2, all particles (the paper's mean(Nc'^2)/Nc^2)
+    rho_all: float  #: Nc sum V.W / sum V^2, all particles (V over ``rho_neighbours``)
+    nc: float  #: mean contacts per non-rattler, counting only contacts between non-rattlers
+    r: float  #: var(Nc)/mean(Nc)^2 over non-rattlers
+    rho: float  #: Nc sum V.W / sum V^2 over non-rattlers (V over ``rho_neighbours``)
+    phi: float  #: solid (area) fraction
+    nbar_phi: float | None  #: N̄ from phi (section 6); None outside [pi/4, pi/(2 sqrt 3)]
+    diameter: float  #: mean particle diameter [m]
+    sliding_fraction: float  #: fraction of contacts at the Coulomb limit
+    vbar: float = float("nan")  #: isotropic fit (37) of the mean A4 over non-rattlers [N m]
+    ebar: float = float("nan")  #: idem, the (d_pr d_qs + d_ps d_qr) coefficient [N m]
+    vbar_theory: float = float("nan")  #: (37) with the measured Nc, mean D^2, kn, kt [N m]
+    ebar_theory: float = float("nan")  #: (37) idem [N m]
+    odd_norm: float = float("nan")  #: mean Frobenius norm of A3 over non-rattlers / (kn D)
+    #: the neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that ``as_dict()``
+    #: keeps the keys the command-line tools have always written
+    rho_neighbours: str = field(default="contacts", metadata={"export": False})
+
+
+def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbours="contacts",
+                       nbar=None) -> NetworkStatistics:
+    """The statistics the theory takes as input, with and without rattlers (:class:`NetworkStatistics`).
+
+    rho_neighbours : the neighbourhood the vector V of (41) is summed over.
+        ``"contacts"`` (default; the definition used so far): mu's contacting neighbours only.
+        ``"near"``: the paper's neighbourhood of (39), the N̄ near neighbours of mu whether or not
+        they touch it (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless
+        ``nbar`` is given. ``docs/results/rho.md`` compares the two with a null model.
+    nbar : mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
+    """
+    if rho_neighbours not in RHO_NEIGHBOURS:
+        raise ValueError(f"rho_neighbours must be one of {RHO_NEIGHBOURS}, got {rho_neighbours!r}")
     rat, active = rattlers(network, min_contacts)
     all_sums = ParticleSums(network)
     sums = ParticleSums(network, active)
     keep = ~rat
-    out = {"n_particles": network.n_particles, "n_contacts": network.n_contacts,
-           "n_rattlers": int(rat.sum()), "rattler_fraction": float(rat.mean()) if len(rat) else 0.0}
+    n = network.n_particles
     c_all = all_sums.counts.astype(float)
-    out["nc_all"] = float(c_all.mean())
-    out["r_all"] = float(c_all.var() / c_all.mean() ** 2) if c_all.mean() > 0 else 0.0
-    out["rho_all"] = _rho(all_sums, np.ones(network.n_particles, dtype=bool))
     c = sums.counts[keep].astype(float)
-    out["nc"] = float(c.mean()) if len(c) else 0.0
-    out["r"] = float(c.var() / c.mean() ** 2) if len(c) and c.mean() > 0 else 0.0
-    out["rho"] = _rho(sums, keep)
+    if rho_neighbours == "near":
+        pairs, branch = _near_pairs(network, _nbar_or_raise(network, nbar))
+        V_all = neighbour_vector(all_sums.counts, pairs, branch)
+        V = neighbour_vector(sums.counts, pairs, branch)
+    else:
+        V_all, V = all_sums.V, sums.V
     phi = network.solid_fraction
-    out["phi"] = phi
-    out["nbar_phi"] = float(nbar_from_phi(phi)) if PHI_MIN_NBAR <= phi <= PHI_MAX * (1 + 1e-12) else None
-    out["diameter"] = float(2 * network.radii.mean())
-    out["sliding_fraction"] = float(network.sliding.mean()) if network.n_contacts else 0.0
+    vals = dict(
+        n_particles=n, n_contacts=network.n_contacts, n_rattlers=int(rat.sum()),
+        rattler_fraction=float(rat.mean()) if len(rat) else 0.0,
+        nc_all=float(c_all.mean()),
+        r_all=float(c_all.var() / c_all.mean() ** 2) if c_all.mean() > 0 else 0.0,
+        rho_all=rho_statistic(V_all, all_sums.W, all_sums.counts),
+        nc=float(c.mean()) if len(c) else 0.0,
+        r=float(c.var() / c.mean() ** 2) if len(c) and c.mean() > 0 else 0.0,
+        rho=rho_statistic(V, sums.W, sums.counts, keep),
+        phi=phi,
+        nbar_phi=float(nbar_from_phi(phi)) if PHI_MIN_NBAR <= phi <= PHI_MAX * (1 + 1e-12) else None,
+        diameter=float(2 * network.radii.mean()),
+        sliding_fraction=float(network.sliding.mean()) if network.n_contacts else 0.0,
+        rho_neighbours=rho_neighbours)
     if np.any(keep):
         vb, eb = isotropic_fit(sums.A4[keep].mean(axis=0))
-        out["vbar"], out["ebar"] = float(vb), float(eb)
         d2 = float(np.mean(network.lengths[active] ** 2)) if np.any(active) else 0.0
         knm = float(network.kn[active].mean()) if np.any(active) else 0.0
         ktm = float(network.effective_kt[active].mean()) if np.any(active) else 0.0
-        out["vbar_theory"] = d2 * out["nc"] * (knm + 3 * ktm) / 8
-        out["ebar_theory"] = d2 * out["nc"] * (knm - ktm) / 8
-        scale = (network.kn.mean() * out["diameter"]) if network.n_contacts else 1.0
-        out["odd_norm"] = float(np.mean(np.sqrt(np.sum(sums.A3[keep] ** 2, axis=(1, 2, 3))))) / scale
-    return out
+        scale = (network.kn.mean() * vals["diameter"]) if network.n_contacts else 1.0
+        vals.update(vbar=float(vb), ebar=float(eb),
+                      vbar_theory=d2 * vals["nc"] * (knm + 3 * ktm) / 8,
+                      ebar_theory=d2 * vals["nc"] * (knm - ktm) / 8,
+                      odd_norm=float(np.mean(np.sqrt(np.sum(sums.A3[keep] ** 2, axis=(1, 2, 3))))) / scale)
+    return NetworkStatistics(**vals)
+
+
+@dataclass(frozen=True)
+class RhoDefinitions(Result):
+    """rho = Nc sum V.W / sum V^2 under each definition of V, with its null model (:func:`rho_definitions`).
+
+    Every value is over non-rattlers (contacts between non-rattlers; Nc^nu = active contact numbers).
+    ``rho[name]`` is the measured value for the neighbourhood ``name``; ``null_mean[name]`` and
+    ``null_std[name]`` the mean and standard deviation over ``n_null`` random permutations of the
+    contact numbers Nc^nu among the non-rattlers (geometry, W and the neighbourhoods unchanged):
+    the value the definition gives when the neighbours' contact numbers carry no correlation with
+    mu at all. ``mean_degree[name]`` is the mean number of neighbours per particle in that
+    neighbourhood. Dimensionless throughout.
+    """
+
+    rho: dict
+    null_mean: dict
+    null_std: dict
+    mean_degree: dict
+    nc: float
+    r: float
+    nbar: float
+    n_null: int
+
+
+def rho_definitions(network: ContactNetwork, min_contacts=None, nbar=None, extra=None, n_null=20,
+                    seed=0) -> RhoDefinitions:
+    """rho measured with V over several neighbourhoods, each beside its shuffled-Nc null model.
+
+    Neighbourhoods: ``"contacts"`` (mu's contacting neighbours), ``"near"`` (the N̄ near
+    neighbours of (39), N̄ = ``nbar`` or from phi), plus ``extra``: a dict name -> (pairs (E, 2),
+    branch (E, 2)) of other neighbour sets (e.g. Delaunay neighbours measured elsewhere).
+    n_null : number of random permutations for the null model (>= 2); seed : their RNG seed.
+    """
+    if int(n_null) != n_null or n_null < 2:
+        raise ValueError(f"n_null must be an integer >= 2, got {n_null!r}")
+    rat, active = rattlers(network, min_contacts)
+    sums = ParticleSums(network, active)
+    keep = ~rat
+    nb = _nbar_or_raise(network, nbar)
+    hoods = {"contacts": (sums.network.pairs, sums.network.branch), "near": _near_pairs(network, nb)}
+    hoods.update(extra or {})
+    counts = sums.counts
+    idx = np.flatnonzero(keep)
+    rng = np.random.default_rng(seed)
+    perms = [rng.permutation(idx) for _ in range(int(n_null))]
+    out = {k: {} for k in ("rho", "null_mean", "null_std", "mean_degree")}
+    for name, (pairs, branch) in hoods.items():
+        out["rho"][name] = rho_statistic(neighbour_vector(counts, pairs, branch), sums.W, counts, keep)
+        nulls = []
+        for p in perms:
+            shuffled = counts.copy()
+            shuffled[idx] = counts[p]
+            nulls.append(rho_statistic(neighbour_vector(shuffled, pairs, branch), sums.W, counts, keep))
+        out["null_mean"][name] = float(np.mean(nulls))
+        out["null_std"][name] = float(np.std(nulls, ddof=1))
+        out["mean_degree"][name] = 2.0 * len(np.asarray(pairs).reshape(-1, 2)) / network.n_particles
+    c = counts[keep].astype(float)
+    return RhoDefinitions(**out, nc=float(c.mean()) if len(c) else 0.0,
+                          r=float(c.var() / c.mean() ** 2) if len(c) and c.mean() > 0 else 0.0,
+                          nbar=nb, n_null=int(n_null))

@@ -1,8 +1,12 @@
 """Sympy derivations of the homogenisation formulas: the single source of truth.
 
 Every closed form used by :mod:`microhom.moduli` is *derived* here by sympy from the paper's
-starting points, and compared with what the paper prints. Equation numbers ``(n)`` refer to the
-seed paper *The incremental response of random aggregates of identical round particles*.
+starting points: its definitions (structural sums (10), spin elimination (15)-(16), stress (17),
+X and Y (45)-(46)) and its modelling assumptions (the isotropic forms (21), (24), (32), the angular
+integral (36), the models (41)-(43), the alignment density (52), the local estimate (29)).
+The paper's printed results live in :mod:`microhom.printed` and are never imported here: they
+are only the targets :mod:`microhom.derivations` compares with. Equation numbers ``(n)`` refer to
+the seed paper *The incremental response of random aggregates of identical round particles*.
 
 Derivation chain (see ``docs/theory.md``):
 
@@ -10,12 +14,16 @@ Derivation chain (see ``docs/theory.md``):
    density ``p = Nc/(2 pi)``, giving ``vbar``, ``ebar``; the mean stress (17) then gives ``K_mf``,
    ``G_mf``.
 2. (15)-(16): spin elimination for an isotropic structural sum: ``B``, ``T``, ``Z``.
-3. (33)-(34) with the isotropic fluctuation model (32) and constant contact stiffnesses (42)-(44):
-   the moduli depend on the lambdas only through ``X``, ``Y`` (45)-(46), giving (50)-(51).
-4. (40)-(43): the least-squares functional for ``X``, ``Y``, its normal equations (48) and their
+3. (22) -> (26) -> (27) -> (29)-(30) -> (31) with (32) -> (33)-(34): the Kroener estimate. The
+   operator of (26) from the isotropic mean (24), its inverse in Fourier space (27), the local part
+   (29) as the angular mean (a lemma proved with the Green's functions), and the mean stress (31).
+4. (36) with Nc' -> (44); (33)-(34) with constant stiffnesses: the moduli depend on the lambdas
+   only through ``X``, ``Y`` (45)-(46), giving (50)-(51).
+5. (38)-(43): the least-squares functional for ``X``, ``Y``, its normal equations (48) and their
    solution (49).
-5. (52)-(54): the alignment model for ``sum V.W / sum V^2`` and its limit at ``alpha = 1``.
-6. The final working formulas, the limits (55), the frictionless pair and ``Delta``.
+6. (52)-(53): the alignment model for ``sum V.W / sum V^2`` and its limit at ``alpha = 1``.
+7. The final working formulas, the limits (55), the frictionless pair and ``Delta``. The
+   geometry phi(Nbar) of section 6 is derived in :func:`microhom.neighbourhood.derive_phi_of_nbar`.
 
 This module imports sympy; ``import microhom`` does not import it.
 """
@@ -57,6 +65,26 @@ def _levi3(i, j, k):
     return sp.LeviCivita(i, j, k)
 
 
+@lru_cache(maxsize=None)
+def _angular_moment(a, b):
+    """(1/2pi) int_0^2pi cos^a sin^b dtheta, by sympy (cached: only a handful of (a, b) occur)."""
+    return sp.integrate(sp.cos(theta) ** a * sp.sin(theta) ** b, (theta, 0, 2 * sp.pi)) / (2 * sp.pi)
+
+
+def circle_integral(expr):
+    """int_0^2pi expr dtheta for an expression polynomial in cos(theta), sin(theta).
+
+    The expression is expanded into monomials ``cos^a sin^b`` (coefficients free of theta), each
+    integrated once by sympy (:func:`_angular_moment`): the same integral as
+    ``sp.integrate(expr, (theta, 0, 2 pi))``, many times faster.
+    """
+    c, s_ = sp.cos(theta), sp.sin(theta)
+    poly = sp.Poly(sp.expand(expr), c, s_)
+    if any(theta in coef.free_symbols for coef in poly.coeffs()):
+        raise ValueError("circle_integral needs a polynomial in cos(theta), sin(theta)")
+    return sp.expand(2 * sp.pi * sum(coef * _angular_moment(*mono) for mono, coef in poly.terms()))
+
+
 # ---- 1. mean structural sum (36) -> (37) and the mean field ------------------------------------
 @lru_cache(maxsize=None)
 def mean_structural_sum():
@@ -69,7 +97,7 @@ def mean_structural_sum():
     A = {}
     for a, b, c, d in itertools.product(_R2, repeat=4):
         K_ab = kn * n[a] * n[b] + kt * (_d(a, b) - n[a] * n[b])
-        A[(a, b, c, d)] = sp.simplify(sp.integrate(p * K_ab * D * n[c] * D * n[d], (theta, 0, 2 * sp.pi)))
+        A[(a, b, c, d)] = sp.factor(circle_integral(p * K_ab * D * n[c] * D * n[d]))
     vb, eb = sp.symbols("vbar ebar")
     form = _iso4(vb, eb)
     sol = sp.solve([A[k] - form[k] for k in A], [vb, eb], dict=True)
@@ -134,24 +162,197 @@ def spin_elimination(A):
     return B, T, Z
 
 
-# ---- 3. Kroener correction (33)-(34) -> (50)-(51) ---------------------------------------------
-def kroner_33_34(vbar, ebar, v2, e2, ev, l=lam):
-    """The bulk and shear moduli exactly as printed in (33) and (34).
+# ---- 3. Kroener correction: (22) -> (26) -> (27) -> (29)-(30) -> (31) with (32) -> (33)-(34) ------
+k_vec = sp.symbols("k1 k2", real=True)  # wave vector of the Fourier transform (27)
+vbar_s, ebar_s = sp.symbols("vbar ebar", positive=True)  # the isotropic mean (24)
+vprime, eprime = sp.symbols("v' epsilon'", real=True)  # the isotropic fluctuation model (32)
+v2, e2, ev = sp.symbols("mean(v'^2) mean(epsilon'^2) mean(epsilon'v')", real=True)
 
-    ``v2 = mean(v'^2)``, ``e2 = mean(eps'^2)``, ``ev = mean(eps' v')``; ``l`` = (lambda1..4).
-    """
+
+def iso_A(vb, eb):
+    """(24)/(32): ``A_pijk = vb d_pi d_jk + eb (d_pk d_ij + d_pj d_ik)``: (p, i) stiffness, (j, k) branch."""
+    return _iso4(vb, eb)
+
+
+def Lambda_21(l=lam):
+    """(21): the isotropic sixth-rank Lambda_ijklmn as a function (i, j, k, l, m, n) -> expr (a model, typed in)."""
     l1, l2, l3, l4 = l
-    K = (ebar * 3 + vbar) / (2 * v) / 2 - 1 / (2 * v) / (2 * ebar + vbar) * (
-        3 * e2 * (l1 + 3 * (l2 + l3 + l4)) + 2 * ev * (2 * l1 + 3 * (l2 + 2 * l3 + l4))
-        + v2 * (l1 + l2 + 3 * l3 + l4))
-    G = (ebar + vbar) / (2 * v) / 2 - (5 * ebar + 3 * vbar) / (2 * v) / (
-        2 * (ebar + vbar) * (2 * ebar + vbar)) * (
-        e2 * (l1 + 3 * l2 + l3 + l4) + 2 * ev * (l1 + 2 * l2 + l3 + l4) + v2 * (l1 + l2 + l3 + l4))
-    return K, G
+
+    def Lam(i, j, k, ll, m, n):
+        return (l1 * _d(i, j) * _d(ll, m) * _d(k, n) + l2 * _d(i, j) * (_d(k, ll) * _d(m, n) + _d(k, m) * _d(ll, n))
+                + l3 * _d(ll, m) * (_d(i, k) * _d(j, n) + _d(j, k) * _d(i, n))
+                + l4 * _d(k, n) * (_d(i, ll) * _d(j, m) + _d(i, m) * _d(j, ll)))
+    return Lam
+
+
+@lru_cache(maxsize=None)
+def kroner_operator():
+    """The operator of (26), derived from the left side of (22) with the isotropic mean (24).
+
+    ``Abar_pijk T_ijst dE'_st/dx_k`` with ``Tbar E = E`` (check ``spin_T_isotropic``) and
+    ``E' = sym grad u'`` (23) becomes, in Fourier space (d/dx -> i k),
+    ``-L_pr(k) u_hat_r`` with ``L_pr = 1/2 Abar_pijk k_k (k_j d_ir + k_i d_jr)``. Returns L (2x2 Matrix).
+    """
+    A = iso_A(vbar_s, ebar_s)
+    k = k_vec
+    return sp.Matrix(2, 2, lambda p, rr: sp.expand(sum(
+        A[(p, i, j, kk)] * k[kk] * (k[j] * _d(i, rr) + k[i] * _d(j, rr)) for i in _R2 for j in _R2 for kk in _R2) / 2))
+
+
+@lru_cache(maxsize=None)
+def kroner_kernel():
+    """(27) derived: solve (26) in Fourier space for the displacement-gradient fluctuation.
+
+    (26) reads ``-L u_hat + i k_q S_hat_rijq E_ij = 0`` (the forcing ``dS'_pijq/dx_q E_ij``), so
+    ``i k_s u_hat_p = i k_s L^-1_pr i k_q S_hat_rijq E_ij = -k_s k_q L^-1_pr S_hat_rijq E_ij``.
+    Returns a dict (p, s, r, q) -> ``-k_s k_q L^-1_pr`` (the factor ``i * i = -1`` included).
+    """
+    Linv = sp.simplify(kroner_operator().inv())
+    k = k_vec
+    return {(p, s_, rr, q): sp.factor(-k[s_] * k[q] * Linv[p, rr]) for p, s_, rr, q in itertools.product(_R2, repeat=4)}
+
+
+def angular_mean(expr):
+    """Mean over the directions of k of a degree-0 homogeneous rational function of ``k_vec``.
+
+    The expression is written as N(k)/(k^2)^m with N homogeneous of degree 2m; on the unit
+    circle the denominator is 1 and the mean of N is a sum of moments ``<cos^a sin^b>``.
+    """
+    k1, k2 = k_vec
+    num, den = sp.fraction(sp.factor(expr))
+    m = sp.Poly(den, k1, k2).total_degree() // 2
+    if sp.expand(den - sp.LC(sp.Poly(den, k1, k2)) * (k1 ** 2 + k2 ** 2) ** m) != 0:
+        raise ValueError("denominator is not a power of k^2")
+    c = sp.LC(sp.Poly(den, k1, k2))
+    return sp.simplify(sum(coef * _angular_moment(*mono) for mono, coef in sp.Poly(num, k1, k2).terms()) / c)
+
+
+@lru_cache(maxsize=None)
+def local_part_lemma():
+    """The 'local' contribution (29): the integral over a small circle R of the inverse transform of
+    a degree-0 kernel equals the kernel's angular mean. Derived with the Green's functions.
+
+    With ``f(y) = (2pi)^-2 int F(k) e^{ik.y} d^2k``: the inverse transform of 1/k^2 is
+    ``g2 = -log(r)/(2pi)`` and of 1/k^4 is ``g4 = r^2 (log r - 1)/(8pi)`` (sympy checks
+    ``lap g4 = -g2`` and the unit flux of ``-grad g2``). Then ``k_q k_s/k^2 -> -d_q d_s g2`` and
+    ``k_p k_r k_q k_s/k^4 -> d_p d_r d_q d_s g4``, and Gauss' theorem over the disk of radius R
+    turns their integrals into ``-(circle) n_q d_s g2`` and ``(circle) n_p d_r d_q d_s g4``.
+    Returns True when every such integral equals the angular mean of its monomial, for any R.
+    """
+    y1, y2 = sp.symbols("y1 y2", real=True)
+    Rr = sp.symbols("R", positive=True)
+    rr = sp.sqrt(y1 ** 2 + y2 ** 2)
+    g2 = -sp.log(rr) / (2 * sp.pi)
+    g4 = rr ** 2 * (sp.log(rr) - 1) / (8 * sp.pi)
+    y = (y1, y2)
+    polar = {y1: Rr * sp.cos(theta), y2: Rr * sp.sin(theta)}
+
+    def on_circle(expr):  # the expression at y = R n(theta), as a polynomial in cos, sin
+        return sp.expand_trig(sp.trigsimp(sp.simplify(expr.subs(polar))))
+    normal = (sp.cos(theta), sp.sin(theta))
+    lap = sp.diff(g4, y1, 2) + sp.diff(g4, y2, 2)
+    ok = sp.simplify(lap + g2) == 0
+    flux = circle_integral(on_circle(sum(-normal[i] * sp.diff(g2, y[i]) for i in _R2)) * Rr)
+    ok = ok and sp.simplify(flux - 1) == 0
+    k1, k2 = k_vec
+    for q, s_ in itertools.product(_R2, repeat=2):
+        local = circle_integral(on_circle(-normal[q] * sp.diff(g2, y[s_])) * Rr)
+        ok = ok and sp.simplify(local - angular_mean(k_vec[q] * k_vec[s_] / (k1 ** 2 + k2 ** 2))) == 0
+    for p, rrr, q, s_ in itertools.product(_R2, repeat=4):
+        local = circle_integral(on_circle(normal[p] * sp.diff(g4, y[rrr], y[q], y[s_])) * Rr)
+        mono = k_vec[p] * k_vec[rrr] * k_vec[q] * k_vec[s_] / (k1 ** 2 + k2 ** 2) ** 2
+        ok = ok and sp.simplify(local - angular_mean(mono)) == 0
+    return bool(ok)
+
+
+@lru_cache(maxsize=None)
+def kroner_local():
+    """(30) derived: the local part (29) of the kernel of (27), i.e. its angular mean (lemma above).
+
+    Returns a dict (a, b, p, q) -> expr with ``du'_a/dx_b = sum local[a,b,p,q] S'_pijq E_ij``.
+    """
+    return {key: angular_mean(val) for key, val in kroner_kernel().items()}
+
+
+@lru_cache(maxsize=None)
+def kroner_moduli():
+    """(33)-(34) derived from (31) with the fluctuation model (32), the local estimate (30) and (21).
+
+    * (32): ``A = Abar + A'`` with ``A' = iso_A(v', eps')``; the spin elimination (15)-(16) of
+      this isotropic A gives a T independent of v', eps' (so ``T' = 0`` and the first term of S'
+      (25) drops), and a Z with ``Z' E' = A' E'`` on symmetric E' (both checked here);
+    * (25): ``S'_pijq = Lambda_pijlmn (A'_lmnq + A'_lmqn)``;
+    * (30): ``du'_a/dx_b = local[a,b,p,q] S'_pijq E_ij``, ``E' = sym grad u'``;
+    * (31): ``sigma_rq = (2v)^-1 [Abar_rijq E_ij + mean(A'_rijq E'_ij)]``, where the mean replaces
+      ``v'^2, eps'^2, eps' v'`` by their averages ``v2, e2, ev``;
+    * K from ``E = e I`` (sigma = 2 K e I), G from ``E_12 = E_21 = e`` (sigma_12 = 2 G e).
+
+    Returns dict with ``K``, ``G`` (in vbar, ebar, v2, e2, ev, lambda1..4 and v), ``T_const``,
+    ``Z_is_A``.
+    """
+    Abar = iso_A(vbar_s, ebar_s)
+    Ap = iso_A(vprime, eprime)
+    Afull = {key: Abar[key] + Ap[key] for key in Abar}
+    # spin elimination of the isotropic A = Abar + A' (A_rijq ordering: r,i stiffness; j,q branch)
+    _, T, Z = spin_elimination(Afull)
+    T_const = all(not ({vprime, eprime} & sp.simplify(T[key]).free_symbols) for key in T)
+    e11, e22, e12 = sp.symbols("e11 e22 e12")
+    Es = [[e11, e12], [e12, e22]]
+    Z_is_A = all(sp.simplify(sum((Z[(p, k, a, b)] - Afull[(p, a, b, k)]) * Es[a][b] for a in _R2 for b in _R2)) == 0
+                 for p in _R2 for k in _R2)
+    Lam = Lambda_21()
+    Sp = {(p, i, j, q): sp.expand(sum(Lam(p, i, j, ll, m, n) * (Ap[(ll, m, n, q)] + Ap[(ll, m, q, n)])
+                                      for ll in _R2 for m in _R2 for n in _R2))
+          for p, i, j, q in itertools.product(_R2, repeat=4)}
+    loc = kroner_local()
+
+    def mean_stress(E):
+        grad = {(a, b): sp.expand(sum(loc[(a, b, p, q)] * Sp[(p, i, j, q)] * E[i][j]
+                                      for p in _R2 for q in _R2 for i in _R2 for j in _R2)) for a in _R2 for b in _R2}
+        Ep = {(i, j): (grad[(i, j)] + grad[(j, i)]) / 2 for i in _R2 for j in _R2}
+        sig = {}
+        for rr, q in itertools.product(_R2, repeat=2):
+            fluct = sp.Poly(sp.expand(sum(Ap[(rr, i, j, q)] * Ep[(i, j)] for i in _R2 for j in _R2)), vprime, eprime)
+            avg = 0
+            for mono, coef in fluct.terms():
+                if coef == 0:
+                    continue
+                if mono not in ((2, 0), (0, 2), (1, 1)):
+                    raise RuntimeError(f"mean(Z' E') has a term of order {mono} in (v', eps')")
+                avg += coef * {(2, 0): v2, (0, 2): e2, (1, 1): ev}[mono]
+            sig[(rr, q)] = (sum(Abar[(rr, i, j, q)] * E[i][j] for i in _R2 for j in _R2) + avg) / (2 * v)
+        return sig
+
+    e = sp.symbols("e")
+    K = sp.simplify(mean_stress([[e, 0], [0, e]])[(0, 0)] / (2 * e))
+    G = sp.simplify(mean_stress([[0, e], [e, 0]])[(0, 1)] / (2 * e))
+    return {"K": K, "G": G, "T_const": bool(T_const), "Z_is_A": bool(Z_is_A)}
+
+
+# ---- 4. constant stiffnesses: (36) with Nc' (41)-(42) -> (44); (33)-(34) -> (50)-(51) -----------
+Ncp = sp.symbols("N_c'", real=True)  # contact-number fluctuation Nc^nu - Nc
+
+
+@lru_cache(maxsize=None)
+def fluctuation_sums():
+    """v' and eps' of the constant-stiffness model: the integral (36) with density Nc'/(2 pi).
+
+    (41)-(42) model A^nu as the isotropic integral (36) with ``p^nu = Nc^nu/(2 pi)``; the
+    fluctuation ``A' = A^nu - Abar`` is then the same integral with ``Nc -> Nc'`` (it is linear in
+    the density). We reuse :func:`mean_structural_sum` with ``Nc -> Nc'`` and identify
+    ``v'``, ``eps'``. Returns dict ``A`` (the tensor), ``v``, ``eps``, ``ratio = eps'/v'``.
+    """
+    m = mean_structural_sum()
+    A = {key: val.subs(Nc, Ncp) for key, val in m["A"].items()}
+    vp, ep = m["vbar"].subs(Nc, Ncp), m["ebar"].subs(Nc, Ncp)
+    form = _iso4(vp, ep)
+    if any(sp.simplify(A[key] - form[key]) != 0 for key in A):
+        raise RuntimeError("the fluctuation integral is not of the isotropic form (32)")
+    return {"A": A, "v": vp, "eps": ep, "ratio": sp.simplify(ep / vp)}
 
 
 def X_Y_definitions(l=lam):
-    """X and Y as defined in (45)-(46)."""
+    """X and Y as the paper defines them in (45)-(46) (definitions: starting points, not results)."""
     l1, l2, l3, l4 = l
     Xd = kn * (2 * l1 + 4 * l2 + 4 * l3 + 3 * l4) + kt * (2 * l1 + 4 * l3 + l4)
     Yd = kn * (2 * l3 + l4) + kt * (2 * l3 - l4)
@@ -160,26 +361,23 @@ def X_Y_definitions(l=lam):
 
 @lru_cache(maxsize=None)
 def constant_stiffness_moduli():
-    """Substitute the constant-stiffness fluctuation model into (33)-(34).
+    """Substitute the constant-stiffness fluctuation model into the *derived* (33)-(34).
 
-    (42) with ``Nc^nu -> Nc'`` gives ``v' = Nc' D^2 (kn + 3 kt)/8``, ``eps' = Nc' D^2 (kn - kt)/8``
-    (so (44) ``eps' = v' (kn - kt)/(kn + 3 kt)``), hence with ``mean(Nc'^2) = r Nc^2``
-    the three correlations. The lambdas are then eliminated in favour of X, Y (45)-(46): we solve
-    (45)-(46) for lambda1 and lambda3 and check that lambda2, lambda4 drop out.
+    ``v'``, ``eps'`` from :func:`fluctuation_sums` (the integral (36) with Nc'), with
+    ``mean(Nc'^2) = r Nc^2``, give the three correlations. The lambdas are then eliminated in
+    favour of X, Y (45)-(46): we solve (45)-(46) for lambda1 and lambda3 and check that lambda2,
+    lambda4 drop out.
 
-    Returns (K, G) as functions of X, Y, and the intermediate ``eps'/v'`` ratio.
+    Returns (K, G) as functions of X, Y (and D, Nc, kn, kt, r, v), and the ratio ``eps'/v'``.
     """
     m = mean_structural_sum()
-    vbar, ebar = m["vbar"], m["ebar"]
-    Ncp = sp.symbols("N_c'", real=True)
-    vp = Ncp * D ** 2 * (kn + 3 * kt) / 8
-    ep = Ncp * D ** 2 * (kn - kt) / 8
-    ratio = sp.simplify(ep / vp)
+    fl = fluctuation_sums()
     msq = r * Nc ** 2  # mean(Nc'^2)
-    v2 = sp.expand(vp ** 2).subs(Ncp ** 2, msq)
-    e2 = sp.expand(ep ** 2).subs(Ncp ** 2, msq)
-    ev = sp.expand(ep * vp).subs(Ncp ** 2, msq)
-    K, G = kroner_33_34(vbar, ebar, v2, e2, ev)
+    corr = {v2: sp.expand(fl["v"] ** 2).subs(Ncp ** 2, msq), e2: sp.expand(fl["eps"] ** 2).subs(Ncp ** 2, msq),
+            ev: sp.expand(fl["eps"] * fl["v"]).subs(Ncp ** 2, msq)}
+    km = kroner_moduli()
+    sub = {vbar_s: m["vbar"], ebar_s: m["ebar"], **corr}
+    K, G = km["K"].subs(sub), km["G"].subs(sub)
     Xd, Yd = X_Y_definitions()
     sol = sp.solve([Xd - X, Yd - Y], [lam[0], lam[2]], dict=True)[0]
     K = sp.simplify(K.subs(sol))
@@ -187,47 +385,58 @@ def constant_stiffness_moduli():
     for expr in (K, G):
         if any(sym in expr.free_symbols for sym in (lam[1], lam[3])):
             raise RuntimeError("the moduli do not depend on the lambdas through X and Y only")
-    return K, G, ratio
+    return K, G, fl["ratio"]
 
 
-def printed_50_51():
-    """(50)-(51) as printed, with ``mean(Nc'^2) = r Nc^2``."""
-    K = D ** 2 * Nc * kn / (4 * 2 * v) - D ** 2 * r * Nc ** 2 * kn * (X + Y) / (2 * v * 2 * Nc * (3 * kn + kt))
-    G = D ** 2 * Nc * (kn + kt) / (8 * 2 * v) - D ** 2 * r * Nc ** 2 * (2 * kn + kt) * (X - Y) / (
-        2 * v * 4 * Nc * (3 * kn + kt))
-    return K, G
+# ---- 5. least squares (38)-(43) -> (48)-(49) ------------------------------------------------------
+Vvec = sp.symbols("V1 V2", real=True)  # odd angular distribution of the neighbours' contact numbers
+Wvec = sp.symbols("W1 W2", real=True)  # odd angular distribution of mu's own contacts
 
 
-# ---- 4. least squares (40)-(49) ----------------------------------------------------------------
+@lru_cache(maxsize=None)
+def odd_and_neighbour_sums():
+    """The models (41)-(43) for one particle, as integrals (no bracket typed in).
+
+    * (43), odd sum: mu's contacts with the first-harmonic density ``W.n(theta)``:
+      ``A_ijk = int (W.n) K_ij(n) D n_k dtheta``; returned divided by ``pi D`` as ``odd[i,j,k]``
+      (so that ``D A_ijk = pi D^2 odd_ijk``).
+    * (41)-(42), neighbour sum: each neighbour's ``A^nu`` is the integral (36) with density
+      ``Nc^nu/(2 pi)`` (:func:`mean_structural_sum` with Nc -> Nc^nu), and the neighbours' contact
+      numbers have the odd angular distribution ``V.n(theta)``:
+      ``sum_nu n_p (A^nu_lmnp + A^nu_lmpn) -> int (V.n) n_p (a_lmnp + a_lmpn) dtheta`` with
+      ``a = A^nu / Nc^nu``; returned divided by ``pi D^2`` as ``nb[l,m,n]``.
+    """
+    n = (sp.cos(theta), sp.sin(theta))
+    Wn = sum(Wvec[i] * n[i] for i in _R2)
+    Vn = sum(Vvec[i] * n[i] for i in _R2)
+    odd = {}
+    for i, j, k in itertools.product(_R2, repeat=3):
+        K_ij = kn * n[i] * n[j] + kt * (_d(i, j) - n[i] * n[j])
+        odd[(i, j, k)] = sp.expand(circle_integral(Wn * K_ij * D * n[k]) / (sp.pi * D))
+    a = {key: sp.simplify(val / Nc) for key, val in mean_structural_sum()["A"].items()}  # A^nu per contact
+    nb = {}
+    for ll, m, nn in itertools.product(_R2, repeat=3):
+        integrand = sum(Vn * n[p] * (a[(ll, m, nn, p)] + a[(ll, m, p, nn)]) for p in _R2)
+        nb[(ll, m, nn)] = sp.expand(circle_integral(integrand) / (sp.pi * D ** 2))
+    return odd, nb
+
+
 @lru_cache(maxsize=None)
 def least_squares_XY():
     """Derive X, Y from the functional (40) with the models (21), (41)-(43).
 
-    For one particle mu, with V = V^mu and W = W^mu (2-vectors):
+    For one particle mu, with V = V^mu and W = W^mu (2-vectors) and the sums of
+    :func:`odd_and_neighbour_sums` (both divided by ``pi D^2``), the residual of (40) is
+    ``odd_ijk - (1/Nbar) Lambda_ijklmn nb_lmn`` ((39) with N^mu -> Nbar).
 
-    * odd sum (43): ``D A_ijk = pi D^2 W_p [ (kn-kt)/4 (d_ij d_kp + d_ip d_jk + d_ik d_jp) + kt d_ij d_kp ]``
-    * neighbour sum (41): ``sum_nu n_p (A_lmnp + A_lmpn) = pi D^2 [ ... ]_lmnp V_p``
-    * residual of (40): ``D A_ijk - (1/Nbar) Lambda_ijklmn (41)_lmn``.
-
-    We check that ``Lambda . (41)`` depends on the lambdas only through X, Y, minimise
+    We check that ``Lambda . nb`` depends on the lambdas only through X, Y (45)-(46), minimise
     ``sum_mu |residual|^2`` over X and Y (the terms in |W|^2 do not depend on them), and return
     the normal equations and the solution in terms of ``S = sum V.W / sum V^2``.
     """
-    l1, l2, l3, l4 = lam
-    Vv = sp.symbols("V1 V2", real=True)
-    Wv = sp.symbols("W1 W2", real=True)
-
-    def Lam(i, j, k, l, m, n):  # (21)
-        return (l1 * _d(i, j) * _d(l, m) * _d(k, n) + l2 * _d(i, j) * (_d(k, l) * _d(m, n) + _d(k, m) * _d(l, n))
-                + l3 * _d(l, m) * (_d(i, k) * _d(j, n) + _d(j, k) * _d(i, n))
-                + l4 * _d(k, n) * (_d(i, l) * _d(j, m) + _d(i, m) * _d(j, l)))
-
-    def bracket(l, m, n, p):  # the bracket of (41)-(43)
-        return (kn - kt) / 4 * (_d(l, m) * _d(n, p) + _d(l, n) * _d(m, p) + _d(l, p) * _d(m, n)) \
-            + kt * _d(l, m) * _d(n, p)
-
+    Vv, Wv = Vvec, Wvec
+    Lam = Lambda_21()
+    odd, nb = odd_and_neighbour_sums()
     idx3 = list(itertools.product(_R2, repeat=3))
-    nb = {(l, m, n): sum(bracket(l, m, n, p) * Vv[p] for p in _R2) for (l, m, n) in idx3}
     lamterm = {(i, j, k): sp.expand(sum(Lam(i, j, k, *lmn) * nb[lmn] for lmn in idx3)) for (i, j, k) in idx3}
     # Lambda . (41) == 1/2 [ (X - 2Y) d_ij V_k + Y (d_ik V_j + d_jk V_i) ]  with X, Y of (45)-(46)
     Xd, Yd = X_Y_definitions()
@@ -235,7 +444,6 @@ def least_squares_XY():
                                                + Y * (_d(i, k) * Vv[j] + _d(j, k) * Vv[i]))
                for (i, j, k) in idx3}
     depends_on_XY_only = all(sp.expand(lamterm[key] - xy_form[key].subs({X: Xd, Y: Yd})) == 0 for key in idx3)
-    odd = {(i, j, k): sum(bracket(i, j, k, p) * Wv[p] for p in _R2) for (i, j, k) in idx3}
     residual2 = sp.expand(sum((odd[key] - xy_form[key] / Nbar) ** 2 for key in idx3))  # / (pi D^2)^2
     # The squared residual is a quadratic form in (V, W). It must be rotation invariant, i.e.
     # c_VV |V|^2 + c_VW V.W + c_WW |W|^2 with no other monomials; summing over the particles mu
@@ -253,13 +461,11 @@ def least_squares_XY():
     sol = sp.solve(normal, [X, Y], dict=True)[0]
     Xs = sp.factor(sol[X].subs(VW, S * VV))
     Ys = sp.factor(sol[Y].subs(VW, S * VV))
-    printed_48 = [(X - Y) * VV - Nbar * (kn + kt) * VW, (X - 3 * Y) * VV - 2 * Nbar * kt * VW]
     return {"depends_on_XY_only": depends_on_XY_only, "invariant": invariant,
-            "normal_equations": normal, "X": Xs, "Y": Ys, "printed_48": printed_48,
-            "VV": VV, "VW": VW}
+            "normal_equations": normal, "X": Xs, "Y": Ys, "VV": VV, "VW": VW}
 
 
-# ---- 5. alignment model (52)-(54) ---------------------------------------------------------------
+# ---- 6. alignment model (52)-(54) ---------------------------------------------------------------
 @lru_cache(maxsize=None)
 def alignment_integral():
     """(53): (1/(2 alpha)) int_{-alpha pi/2}^{alpha pi/2} cos(u) cos(u/alpha) du, for alpha != 1."""
@@ -268,13 +474,8 @@ def alignment_integral():
                                     conds="none") / (2 * alpha))
 
 
-def rho_model(a=alpha):
-    """(54) as printed: rho = Nc * sum V.W / sum V^2 = cos(pi alpha / 2) / (1 - alpha^2)."""
-    return sp.cos(sp.pi * a / 2) / (1 - a ** 2)
-
-
 def rho_model_stable(a=alpha):
-    """The same function written without the 0/0 at alpha = 1 (used by the numeric code).
+    """The alignment function (54) written without the 0/0 at alpha = 1 (used by the numeric code).
 
     With t = 1 - alpha: cos(pi alpha/2) = sin(pi t/2) and 1 - alpha^2 = t (1 + alpha), so
     rho = (pi/2) sinc(t/2) / (1 + alpha) with sinc(x) = sin(pi x)/(pi x) (numpy's sinc).
@@ -283,7 +484,7 @@ def rho_model_stable(a=alpha):
     return sp.pi / 2 * sp.sinc(sp.pi * t / 2) / (1 + a)
 
 
-# ---- 6. final formulas ------------------------------------------------------------------------
+# ---- 7. final formulas ------------------------------------------------------------------------
 @dataclass(frozen=True)
 class FinalFormulas:
     K_mf: sp.Expr
@@ -306,11 +507,6 @@ def final_formulas() -> FinalFormulas:
     Kmf, Gmf = mean_field_moduli()
     return FinalFormulas(K_mf=Kmf, G_mf=Gmf, K=K, G=G,
                          drop_K=sp.simplify(1 - K / Kmf), drop_G=sp.simplify(1 - G / Gmf))
-
-
-def nbar_phi_relation(n=Nbar):
-    """phi(Nbar) = (pi/4) / sin(pi (Nbar - 2)/Nbar) (section 6)."""
-    return sp.pi / 4 / sp.sin(sp.pi * (n - 2) / n)
 
 
 def biaxial_delta(K, G):

@@ -33,7 +33,7 @@ def _noop(x):
 
 
 def _cluster_startup(workers):
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client, LocalCluster  # optional dependency (extra "dist")
     t0 = time.perf_counter()
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
     client = Client(cluster)

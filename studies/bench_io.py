@@ -22,10 +22,11 @@ import warnings
 
 import numpy as np
 
+from dem import io
+from dem.io import Configuration
+
 
 def packing(n, sheared, seed=0):
-    from dem.io import Configuration
-
     nx = int(round(np.sqrt(n / (np.sqrt(3) / 2)) / 2)) * 2  # near-square cell
     ny = max(2, (n // nx) // 2 * 2)
     rng = np.random.default_rng(seed)
@@ -46,7 +47,7 @@ def timed(fn, *args, **kw):
 
 
 def parser_candidates(path):
-    import pandas as pd
+    import pandas as pd  # heavy import, only for the parser comparison
 
     data = open(path, "rb").read()
     start = data.index(b"ITEM: ATOMS")
@@ -65,8 +66,6 @@ def parser_candidates(path):
 
 
 def main(argv=None):
-    from dem import io
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--keep", default=None, help="directory to keep the generated files in")

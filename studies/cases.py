@@ -104,7 +104,7 @@ def packing_case(case: dict) -> dict:
            "psi6": float(res.report.get("psi6", np.nan)), "converged": bool(res.report.get("converged", True))}
     t0 = time.perf_counter()
     net = res.to_network()
-    stats = network_statistics(net)
+    stats = network_statistics(net).as_dict()
     out["stats_time_s"] = time.perf_counter() - t0
     for k in ("nc", "nc_all", "r", "r_all", "rho", "rho_all", "phi", "nbar_phi", "rattler_fraction",
               "sliding_fraction", "vbar", "ebar", "vbar_theory", "ebar_theory"):

@@ -56,7 +56,7 @@ def main(argv=None):
     rows = [_row("exact linear response", f"N = {n_ref} (reference)", ref.K, ref.G, ref, t_ref, t_pack)]
 
     t0 = time.perf_counter()
-    st = network_statistics(net)
+    st = network_statistics(net).as_dict()
     t_stats = time.perf_counter() - t0
     for label, kw in (("theory: mean field", dict(r=0.0)),
                       ("theory: corrected, measured rho", dict(r=st["r"], rho=st["rho"])),

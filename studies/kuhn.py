@@ -31,8 +31,9 @@ import numpy as np
 import pandas as pd
 
 from microhom.moduli import predict_moduli
+from studies import rho_definitions
 from studies.cases import DEFAULTS, packing_case
-from studies.common import markdown_table, out_dir, write_table
+from studies.common import cli_out_dir, markdown_table, write_table
 
 SEED = {"nc": 4.1, "phi": 0.82, "r": 0.35, "nbar": 5.0, "alpha": 1.76,
         "K_mf": 2.8e7, "K": 2.3e7, "drop_K": 0.18, "G_mf": 2.6e7, "G": 1.9e7, "drop_G": 0.28}
@@ -122,7 +123,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     n = args.n or (300 if args.quick else 1000)
     seeds = args.seeds or ([1] if args.quick else [1, 2, 3, 4, 5])
-    out = out_dir(args.out)
+    out = cli_out_dir(args.out)  # checked before computing; the packing cache follows it
     t_all = time.perf_counter()
 
     seed_p = seed_theory()
@@ -179,6 +180,7 @@ def main(argv=None):
              f"The r the theory would need to match the DEM: {r_need_K:.3f} (bulk), {r_need_G:.3f} (shear). "
              f"Total wall time {time.perf_counter() - t_all:.0f} s.")
     md = write_table(table, out, "table", "Seed conditions: theory against DEM", notes)
+    rho_definitions.report(n, seeds, args.mu_prep, out / "rho")  # rho per definition of V, with its null model
     plot(table, out / "moduli.png")
     print(f"\nwritten: {md}, {out / 'cases.csv'}, {out / 'moduli.png'} "
           f"(total {time.perf_counter() - t_all:.0f} s)")

@@ -3,7 +3,7 @@
 A *case* is a dict of JSON-serialisable parameters (including its seed). Its key ``case_id`` is a
 hash of the canonical JSON of the dict, so a re-run recognises finished cases and skips them: an
 interrupted sweep resumes where it stopped. Each finished case is written to the CSV at once
-(atomically: temporary file + ``os.replace``). A case that raises is recorded with
+(atomically, through :func:`dem.runtime.atomic_write`). A case that raises is recorded with
 ``status="error"`` and its message, and does not stop the others (it is retried on the next run).
 
 The returned table is ordered like the case list, whatever order the cases finished in, so a run on
@@ -25,6 +25,11 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
+
+from dem.runtime import atomic_write
+from microhom.moduli import predict_from_network
+from microhom.network import from_overlaps
 
 TIMING_COLUMNS = ("wall_time_s",)
 
@@ -52,9 +57,7 @@ def _run_one(fn, case):
 
 def _write(rows: dict, order: list, path: Path):
     df = _table(rows, order)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    df.to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: df.to_csv(fh, index=False), binary=False)
 
 
 def _table(rows: dict, order: list) -> pd.DataFrame:
@@ -99,7 +102,6 @@ def run_cases(fn: Callable[[dict], dict], cases: list[dict], out_csv, *, schedul
     todo = [c for c, k in zip(cases, ids) if k not in rows]
     bar = None
     if progress and todo:
-        from tqdm.auto import tqdm
         bar = tqdm(total=len(todo), desc=f"cases ({len(cases) - len(todo)} already done)", unit="case")
     if scheduler is None:
         for c in todo:
@@ -144,9 +146,6 @@ def demo_case(case: dict) -> dict:
 
     case: {"seed": int, "n": int (particles), "kt_over_kn": float, optional "fail": bool}.
     """
-    from microhom.moduli import predict_from_network
-    from microhom.network import from_overlaps
-
     if case.get("fail"):
         raise RuntimeError(f"case with seed {case['seed']} asked to fail")
     rng = np.random.default_rng(case["seed"])

@@ -19,10 +19,12 @@ import warnings
 import numpy as np
 import pandas as pd
 
+from dem.stiffness import stiffness
 from microhom import lattices
-from microhom.moduli import predict_moduli, rho_from_alpha
+from microhom.moduli import predict_from_network, predict_moduli, rho_from_alpha
 from microhom.structural_sums import particle_sums
-from studies.common import write_table
+from studies.cases import DEFAULTS, get_packing
+from studies.common import EXIT_NO_OUTPUT, cli_out_dir, write_table
 
 ROWS = []
 
@@ -88,10 +90,6 @@ def theory_cases():
 
 
 def stiffness_cases():
-    try:
-        from dem.stiffness import stiffness
-    except ImportError:  # the solver is part of the DEM half
-        return
     s3 = math.sqrt(3)
     for ratio in (0.0, 1e-12, 1e-3, 1.0, 10.0):
         case("lattice stiffness", f"triangular G/kn, kt/kn = {ratio:g}",
@@ -116,10 +114,6 @@ def stiffness_cases():
 
 def packing_cases(n):
     """Near-jamming pressures and a many-rattler packing: the exact solver and the theory on them."""
-    from dem.stiffness import stiffness
-    from microhom.moduli import predict_from_network
-    from studies.cases import DEFAULTS, get_packing
-
     for label, kw in (("p/kn = 1e-5", dict(p_over_kn=1e-5)), ("p/kn = 1e-6 (near jamming)", dict(p_over_kn=1e-6)),
                       ("mu_prep = 1 (many rattlers)", dict(mu_prep=1.0))):
         res, _, _ = get_packing({**DEFAULTS, "n": n, "seed": 1, **kw})
@@ -140,10 +134,15 @@ def packing_cases(n):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"exit codes: 0 every case right (ok, flagged or a clear error), 1 a case WRONG, "
+               f"{EXIT_NO_OUTPUT} --out cannot be written (checked before computing), 2 usage")
     ap.add_argument("--quick", action="store_true", help="skip the DEM packing cases (near jamming, rattlers)")
-    ap.add_argument("--out", default="out/stability")
+    ap.add_argument("--out", default="out/stability",
+                    help="output folder (CSV, markdown); the packing cache follows it")
     args = ap.parse_args(argv)
+    cli_out_dir(args.out)
     ROWS.clear()
     theory_cases()
     stiffness_cases()

@@ -38,7 +38,7 @@ def sweep_case(case: dict) -> dict:
     ratio = float(case["kt_ratio"])
     net = res.to_network().with_stiffness(kt=ratio * 1.0)
     t0 = time.perf_counter()
-    st = network_statistics(net)
+    st = network_statistics(net).as_dict()
     if st["nbar_phi"] is None:
         raise ValueError(f"phi = {st['phi']:.4f} < pi/4: Nbar(phi) undefined")
     if st["n_rattlers"] == st["n_particles"]:

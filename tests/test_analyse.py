@@ -1,5 +1,8 @@
-"""python -m microhom analyse: LAMMPS dump, OVAL D-file, dem packing npz; numbers against closed
-forms and against the library called directly; clear errors."""
+"""python -m dem analyse: LAMMPS dump, OVAL D-file (the manual's layout, and a real DEMPLA file),
+dem packing npz; numbers against closed forms and against the library called directly; the typed
+result and the unchanged JSON/CSV layout; the notes that state every assumption; clear errors."""
+import csv
+import io
 import json
 import subprocess
 import sys
@@ -12,7 +15,7 @@ DATA = Path(__file__).parent / "data"
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "microhom", "analyse", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "dem", "analyse", *map(str, args)],
                           capture_output=True, text=True)
 
 
@@ -76,8 +79,8 @@ def test_packing_npz_matches_library(packing_npz):
     r = json.loads(p.stdout)
     assert r["file"]["format"] == "packing" and r["network"]["forces"]
     st = network_statistics(net)
-    assert r["coordination"]["z"] == pytest.approx(st["nc"], rel=1e-14)
-    assert r["structural"]["rho"] == pytest.approx(st["rho"], rel=1e-12)
+    assert r["coordination"]["z"] == pytest.approx(st.nc, rel=1e-14)
+    assert r["structural"]["rho"] == pytest.approx(st.rho, rel=1e-12)
     assert r["stress"]["pressure"] == pytest.approx(pressure(net), rel=1e-12)
     assert r["stress"]["pressure"] == pytest.approx(1e-3, rel=2e-3)   # the packing's target
     pr = predict_from_network(net, warn=False)
@@ -97,8 +100,8 @@ def test_table_and_csv_outputs(packing_npz):
         assert text in p.stdout, text
     p = run(path, "--csv", "--no-exact")
     assert p.returncode == 0, p.stderr
-    head, row = p.stdout.strip().splitlines()
-    assert "coordination.z" in head.split(",") and len(head.split(",")) == len(row.split(","))
+    head, row = csv.reader(io.StringIO(p.stdout))
+    assert "coordination.z" in head and len(head) == len(row)
 
 
 def test_dem_io_npz_and_branch_length(tmp_path, packing_npz):
@@ -125,7 +128,7 @@ def test_errors_name_file_line_field(tmp_path):
     p = run(tmp_path / "missing.dump")
     assert p.returncode == 2 and "missing.dump" in p.stderr
     p = run(bad, "--format", "nonsense")
-    assert p.returncode == 2 and "unknown format" in p.stderr
+    assert p.returncode == 2 and "--format" in p.stderr and "invalid choice" in p.stderr
     p = run(DATA / "radius.dump", "--kn", "-1")
     assert p.returncode == 2 and "kn" in p.stderr
 
@@ -136,3 +139,146 @@ def test_microhom_library_does_not_import_dem():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "False"
+
+
+# ---- the typed result, the unchanged JSON/CSV layout, the stated assumptions --------------------
+
+#: section -> keys of the JSON that 'python -m microhom analyse tests/data/radius.dump --kn 2 --json'
+#: printed before the command moved (the layout must not change; NaN became null)
+OLD_JSON_KEYS = {
+    "file": ["source", "format", "forces", "kn", "kt", "branch_length", "read_s", "analyse_s"],
+    "network": ["n_particles", "n_contacts", "periodic", "kn_mean", "kt_mean", "forces"],
+    "coordination": ["z_all", "z", "n_rattlers", "rattler_fraction", "hist_all", "hist"],
+    "structural": ["n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho",
+                   "phi", "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar",
+                   "vbar_theory", "ebar_theory", "odd_norm"],
+    "stress": ["error"], "theory": ["error"],
+    "stiffness": ["K", "G", "K_affine", "G_affine", "C_mandel", "prestress", "n_rattlers",
+                  "n_floppy", "n_unstable", "n_dof", "residual", "time_s"],
+    "comparison": [], "notes": "list"}
+def run_in(capsys, *args):
+    """``python -m dem analyse ARGS`` in this process (no interpreter start-up): a
+    CompletedProcess-like object with returncode, stdout, stderr."""
+    from types import SimpleNamespace
+
+    from dem.__main__ import main
+    capsys.readouterr()
+    rc = main(["analyse", *map(str, args)])
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+
+
+OLD_CSV_HEADER = "file.source,file.format,file.forces,file.kn,file.kt,file.branch_length,file.read_s,file.analyse_s,network.n_particles,network.n_contacts,network.periodic,network.kn_mean,network.kt_mean,network.forces,coordination.z_all,coordination.z,coordination.n_rattlers,coordination.rattler_fraction,coordination.hist_all,coordination.hist,structural.n_particles,structural.n_contacts,structural.nc_all,structural.nc,structural.r_all,structural.r,structural.rho_all,structural.rho,structural.phi,structural.nbar_phi,structural.diameter,structural.sliding_fraction,structural.vbar,structural.ebar,structural.vbar_theory,structural.ebar_theory,structural.odd_norm,stress.error,theory.error,stiffness.K,stiffness.G,stiffness.K_affine,stiffness.G_affine,stiffness.C_mandel,stiffness.prestress,stiffness.n_rattlers,stiffness.n_floppy,stiffness.n_unstable,stiffness.n_dof,stiffness.residual,stiffness.time_s,notes"
+
+
+def test_json_and_csv_layout_unchanged_and_typed_result(capsys):
+    from dem.analyse import AnalysisResult, analyse_file
+    from microhom.results import Result
+    import dataclasses
+
+    p = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--json")
+    assert p.returncode == 0, p.stderr
+    r = json.loads(p.stdout)
+    assert list(r) == list(OLD_JSON_KEYS)
+    assert {k: (list(v) if isinstance(v, dict) else "list") for k, v in r.items()} == OLD_JSON_KEYS
+    c = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--csv")
+    assert c.stdout.splitlines()[0] == OLD_CSV_HEADER
+    res = analyse_file(DATA / "radius.dump", kn=2.0)
+    assert isinstance(res, AnalysisResult) and isinstance(res, Result)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.notes = []
+    d = res.as_dict()
+    d["stiffness"].pop("time_s"), r["stiffness"].pop("time_s")
+    for sec in ("network", "coordination", "structural", "stiffness", "notes"):
+        assert d[sec] == r[sec], sec
+
+
+def test_notes_state_frame_kt_and_dispersity(tmp_path, capsys):
+    """Row 14 (a 5-frame trajectory: the last frame, said), the kt = kn assumption (LAMMPS
+    gran/hooke/history uses 2/7), --kt-ratio, and the identical-disk note for a bidisperse set."""
+    from dem import io as dio
+    rng = np.random.default_rng(0)
+    L = 6.0
+    xy = rng.uniform(0, L, (30, 2))
+    rad = np.where(np.arange(30) % 2, 0.5, 0.7)
+    f = tmp_path / "traj.dump"
+    for t in range(5):
+        dio.write_lammps_dump(f, dio.Configuration(positions=xy * (1 + 0.01 * t), radii=rad,
+                                                   cell=np.diag([L, L]) * (1 + 0.01 * t)),
+                              timestep=100 * t, append=t > 0)
+    r = json.loads(run_in(capsys, f, "--json", "--no-exact").stdout)
+    notes = " ".join(r["notes"])
+    assert "frame 5 of 5 (timestep 400)" in notes and "--frame" in notes
+    assert "kt = kn assumed" in notes and "2/7" in notes
+    assert "identical disks" in notes and "max/min = 1.4" in notes
+    first = json.loads(run_in(capsys, f, "--json", "--no-exact", "--frame", "1").stdout)
+    assert "frame 1 of 5 (timestep 0)" in " ".join(first["notes"])
+    k = json.loads(run_in(capsys, f, "--json", "--no-exact", "--kn", "7", "--kt-ratio", "0.2857142857142857").stdout)
+    assert k["network"]["kt_mean"] == pytest.approx(2.0, rel=1e-12)
+    assert not any("kt = kn assumed" in n for n in k["notes"])
+    assert run_in(capsys, f, "--frame", "0").returncode == 2
+
+
+def test_tables_carry_units(capsys):
+    p = run_in(capsys, DATA / "D0001", "--kn", "2", "--kn-convention", "oval")
+    assert "K [N/m]" in p.stdout and "G [N/m]" in p.stdout and "vbar [N m]" in p.stdout
+    q = subprocess.run([sys.executable, "-m", "microhom", "predict"], capture_output=True, text=True)
+    assert "modulus [N/m]" in q.stdout
+
+
+def test_cli_messages_name_cli_flags(tmp_path, capsys):
+    """Row 13: messages suggested 'pass radius=', 'Pass nbar explicitly', 'pass format=',
+    "pass kn_convention='oval'" on the command line."""
+    d = tmp_path / "nor.dump"
+    d.write_text("ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n1\nITEM: BOX BOUNDS pp pp pp\n0 4\n0 4\n"
+                 "-0.5 0.5\nITEM: ATOMS id type x y z\n1 1 1 1 0\n")
+    p = run_in(capsys, d)
+    assert p.returncode == 2 and "--radius" in p.stderr
+    assert run_in(capsys, d, "--radius", "0.5", "--no-exact").returncode == 0
+    x = tmp_path / "packing.xyz"
+    x.write_text("1 2 3\n")
+    p = run_in(capsys, x)
+    assert p.returncode == 2 and "--format" in p.stderr
+    assert "--kn-convention oval" in run_in(capsys, DATA / "D0001", "--no-exact").stdout
+    q = subprocess.run([sys.executable, "-m", "microhom", "predict", "--phi", "0.5"],
+                       capture_output=True, text=True)
+    assert q.returncode == 2 and "--nbar" in q.stderr and "Pass nbar" not in q.stderr
+    for text in (p.stderr, q.stderr):
+        assert "Traceback" not in text
+
+
+def test_not_a_lammps_run_folder(tmp_path, capsys):
+    """Row 20: "[Errno 2] No such file ... 'files/in.packing'"."""
+    p = run_in(capsys, tmp_path)
+    assert p.returncode == 2 and "not a LAMMPS run folder" in p.stderr and str(tmp_path) in p.stderr
+
+
+def test_analyse_moved_and_console_scripts():
+    p = subprocess.run([sys.executable, "-m", "microhom", "analyse", "x.dump"], capture_output=True,
+                       text=True)
+    assert p.returncode == 2 and "python -m dem analyse x.dump" in p.stderr
+    import tomllib
+    proj = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert proj["project"]["scripts"] == {"microhom": "microhom.__main__:main",
+                                          "dem": "dem.__main__:main"}
+    h = subprocess.run([sys.executable, "-m", "dem", "analyse", "--help"], capture_output=True,
+                       text=True)
+    assert "exit codes" in h.stdout and "141" in h.stdout
+
+
+def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path):
+    """The same packing written as a LAMMPS dump (kn = 1) and as an OVAL D-file (kn_OVAL = 2, which
+    multiplies half the overlap) gives the same network and moduli with kt = 2/7 kn."""
+    from dem import io as dio
+    from dem.analyse import load_network
+    from microhom import lattices
+
+    net = lattices.triangular(6, 6, diameter=1.0)
+    cfg = dio.Configuration.from_network(net)
+    dio.write(tmp_path / "p.dump", cfg)
+    dio.write(tmp_path / "D0001", cfg, format="oval")
+    a, _ = load_network(tmp_path / "p.dump", kn=1.0, kt_ratio=2 / 7)
+    b, _ = load_network(tmp_path / "D0001", format="oval", kn=2.0, kt_ratio=2 / 7, kn_convention="oval")
+    assert a.n_contacts == b.n_contacts > 0
+    assert np.allclose(a.kn, 1.0) and np.allclose(b.kn, 1.0)
+    assert np.allclose(a.kt, 2 / 7) and np.allclose(b.kt, 2 / 7)

@@ -52,8 +52,7 @@ def test_kill_after_summary_then_resume(tmp_path, monkeypatch, capsys):
         raise KeyboardInterrupt    # stands for kill -9 right after the outputs were written
 
     monkeypatch.setattr(cli, "_print_table", killed)
-    with pytest.raises(KeyboardInterrupt):
-        cli.main(["pack", *BASE, "--out", str(out)])
+    assert cli.main(["pack", *BASE, "--out", str(out)]) == cli.EXIT_INTERRUPTED
     first = _csv(tmp_path / "ref" / "p_summary.csv")
     assert (tmp_path / "ref" / "p.checkpoint.npz").exists()
     monkeypatch.setattr(cli, "_print_table", real)
@@ -69,12 +68,12 @@ def test_kill_after_summary_then_resume(tmp_path, monkeypatch, capsys):
 
 
 def test_unwritable_out_folder_is_found_before_computing(tmp_path, monkeypatch, capsys):
-    """Row 2: a folder that cannot be made or written -> one line with the path, exit 5, and
+    """Row 2: a folder that cannot be made or written -> one line with the path, exit 1, and
     nothing computed (the packer is never called)."""
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     monkeypatch.setattr(cli, "pack", lambda *a, **k: pytest.fail("computed before the check"))
-    assert cli.main(["pack", *BASE, "--out", str(blocker / "p.npz")]) == cli.EXIT_WRITE
+    assert cli.main(["pack", *BASE, "--out", str(blocker / "p.npz")]) == cli.EXIT_MACHINE
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(blocker) in err[0] and "Traceback" not in err[0]
 
@@ -85,7 +84,7 @@ def test_read_only_folder(tmp_path, capsys):
     ro.mkdir()
     ro.chmod(stat.S_IRUSR | stat.S_IXUSR)
     try:
-        assert cli.main(["pack", *BASE, "--out", str(ro / "p.npz")]) == cli.EXIT_WRITE
+        assert cli.main(["pack", *BASE, "--out", str(ro / "p.npz")]) == cli.EXIT_MACHINE
         assert str(ro) in capsys.readouterr().err
     finally:
         ro.chmod(stat.S_IRWXU)
@@ -107,13 +106,13 @@ def _full_disk_after(n_ok, monkeypatch):
 
 
 def test_full_disk_during_the_run_keeps_the_checkpoint(tmp_path, monkeypatch, capsys):
-    """Row 2: the second checkpoint write fails -> exit 5, one line, the first checkpoint kept
+    """Row 2: the second checkpoint write fails -> exit 1, one line, the first checkpoint kept
     intact, no temporary file left."""
     _full_disk_after(1, monkeypatch)
     out = tmp_path / "p.npz"
     rc = cli.main(["pack", *BASE, "--out", str(out), "--checkpoint-every", "500",
                    "--checkpoint-seconds", "1e9"])
-    assert rc == cli.EXIT_WRITE
+    assert rc == cli.EXIT_MACHINE
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "p.checkpoint.npz" in err[0] and "No space left" in err[0]
     assert State.load(tmp_path / "p.checkpoint.npz").step == 500
@@ -121,14 +120,14 @@ def test_full_disk_during_the_run_keeps_the_checkpoint(tmp_path, monkeypatch, ca
 
 
 def test_full_disk_while_writing_outputs_then_resume(tmp_path, monkeypatch, capsys):
-    """Row 1 variant: the PNG cannot be written (disk full) -> exit 5 with the checkpoint kept;
+    """Row 1 variant: the PNG cannot be written (disk full) -> exit 1 with the checkpoint kept;
     after space is freed, --resume finishes with the stored criteria."""
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "p.png"))
 
     monkeypatch.setattr(dem.plot, "plot_packing", full)
     out = tmp_path / "p.npz"
-    assert cli.main(["pack", *BASE, "--out", str(out)]) == cli.EXIT_WRITE
+    assert cli.main(["pack", *BASE, "--out", str(out)]) == cli.EXIT_MACHINE
     err = capsys.readouterr().err
     assert "p.png" in err and "--resume" in err and "Traceback" not in err
     monkeypatch.undo()

@@ -1,6 +1,7 @@
 """dem.io: every format round-trips, the hand-written example files read as documented, and each
 malformed case raises a FormatError naming the file, the line and the field."""
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -155,7 +156,7 @@ def test_gzip_dump(tmp_path):
     src = (DATA / "radius.dump").read_bytes()
     p = tmp_path / "radius.dump.gz"
     p.write_bytes(gzip.compress(src))
-    assert io.read(p).n_particles == 4
+    assert io.read(p, frame=0).n_particles == 4
 
 
 def test_vtk_contents(tmp_path):
@@ -204,7 +205,8 @@ def test_example_sheared_data():
 
 
 def test_example_dump_radius_frames():
-    cfg = io.read(DATA / "radius.dump")
+    with pytest.warns(UserWarning, match=r"holds 2 frames: read the first \(timestep 1000\)"):
+        cfg = io.read(DATA / "radius.dump")
     assert cfg.meta["timestep"] == 1000
     np.testing.assert_array_equal(cfg.ids, [3, 1, 2, 4])  # file order kept
     s = cfg.sorted_by_id()
@@ -242,7 +244,7 @@ def test_dump_bounds_formulas():
 
 def test_example_oval_dfile_and_kn_convention():
     cfg = io.read(DATA / "D0001")
-    assert cfg.source_format == "oval" and cfg.meta["oval_extra"] == 0.25
+    assert cfg.source_format == "oval" and cfg.meta["oval_xcell33"] == 0.25
     np.testing.assert_allclose(cfg.cell, [[4.0, 1.0], [0.0, 2 * S3]], rtol=0, atol=1e-15)
     net = cfg.network(kn=2.0e5, kt=3.0e4, kn_convention="oval")
     assert np.all(net.contact_counts() == 6)
@@ -252,20 +254,62 @@ def test_example_oval_dfile_and_kn_convention():
         cfg.network(kn=1.0)
 
 
-def test_oval_second_offset(tmp_path):
+def test_oval_two_offsets_refused_with_the_fix(tmp_path):
+    """The manual puts three offsets on line 3; the old invented two-offset layout is refused with
+    the one-token fix in the message (no file of that layout exists outside this project)."""
     p = tmp_path / "D2"
-    p.write_text("1\n2 4.0 4.0 0\n0.5 0.25\n0.5 1 1\n0.5 2 1\n")
-    with pytest.warns(UserWarning, match="oval_offset2"):
+    p.write_text("1\n2 4.0 4.0 0\n0.5 0.0\n0.5 1 1\n0.5 2 1\n")
+    with pytest.raises(FormatError, match=r"line 3: expected 3 shear offsets .*append xcell\(2,3\)"):
+        io.read(p)
+
+
+def test_oval_third_direction_offsets_kept_and_warned(tmp_path):
+    """xcell(1,3), xcell(2,3) tilt the third direction: kept in meta, never used as an in-plane
+    shear (the old reader took the second number as in-plane, against the manual)."""
+    p = tmp_path / "D2"
+    p.write_text("1\n2 4.0 4.0 1.0\n0.5 0.25 0.125\n0.5 1 1\n0.5 2 1\n")
+    with pytest.warns(UserWarning, match="third direction"):
         cfg = io.read(p)
-    assert cfg.cell[1, 0] == 0.0 and cfg.meta["oval_offset2"] == 0.25
-    cfg2 = io.read_oval(p, shear="xy")
-    np.testing.assert_array_equal(cfg2.cell, [[4.0, 0.5], [0.25, 4.0]])
+    np.testing.assert_array_equal(cfg.cell, [[4.0, 0.5], [0.0, 4.0]])
+    assert cfg.meta["oval_xcell13"] == 0.25 and cfg.meta["oval_xcell23"] == 0.125
 
 
 def test_oval_fortran_exponents(tmp_path):
     p = tmp_path / "D3"
-    p.write_text("1\n1 4.0D0 4.0d+00 0\n0.0 0.0\n5.0D-01 1.0 1.0\n")
+    p.write_text("1\n     1  4.0D0  4.0d+00  1.0D+00\n        0.0D+00 0.0D0 0.0\n5.0D-01 1.0 1.0\n")
     assert io.read(p).radii[0] == 0.5
+
+
+def test_oval_writer_follows_the_manual_columns(tmp_path):
+    """Round trip of a file laid out exactly as DEMPLA's manual says: i1 / i6, 3(1pd25.17) /
+    6x, 3(1pd25.17) / 3(1pd25.17) per disk. The columns are cut at their fixed positions (not
+    split on blanks) and read back with the D exponent a Fortran writer would use."""
+    cfg = random_packing(n=40).wrapped()
+    cfg = io.Configuration(positions=cfg.positions - cfg.origin, radii=cfg.radii, cell=cfg.cell)
+    p = tmp_path / "Dman"
+    io.write_oval(p, cfg, xcell33=2.5)
+    lines = p.read_text().splitlines()
+    assert lines[0] == "1" and len(lines) == 3 + 40
+    assert len(lines[1]) == 6 + 3 * 25 and len(lines[2]) == 6 + 3 * 25
+    assert lines[2][:6] == " " * 6
+    assert int(lines[1][:6]) == 40
+    fields = lambda line, skip: [float(line[skip + 25 * i: skip + 25 * (i + 1)]) for i in range(3)]
+    assert fields(lines[1], 6) == [10.0, 8.0, 2.5]
+    assert fields(lines[2], 6) == [2.5, 0.0, 0.0]                      # xcell(1,2), (1,3), (2,3)
+    for i, line in enumerate(lines[3:]):
+        assert len(line) == 75 and "E" in line[:25]
+        assert fields(line, 0) == [cfg.radii[i], *cfg.positions[i]]   # 18 digits: exact
+    # Fortran's 1pd25.17 writes D exponents: the same file with D reads to the same numbers
+    pd_ = tmp_path / "Dfortran"
+    pd_.write_text(p.read_text().replace("E", "D"))
+    for path in (p, pd_):
+        back = io.read(path)
+        np.testing.assert_array_equal(back.positions, cfg.positions)
+        np.testing.assert_array_equal(back.radii, cfg.radii)
+        np.testing.assert_array_equal(back.cell, cfg.cell)
+        assert back.meta["oval_xcell33"] == 2.5
+    with pytest.raises(ValueError, match="to_restricted"):
+        io.write_oval(p, io.Configuration(positions=[[0, 0]], radii=1, cell=[[4, 0], [1, 4]]))
 
 
 @pytest.mark.parametrize("name,fmt", [("a.data", "lammps-data"), ("a.lmp", "lammps-data"),
@@ -342,15 +386,15 @@ MALFORMED = {
                           "sphere"),
     "data bad box": (("x.data", data_text(DATA_GOOD).replace("0 2 ylo", "0 z2 ylo")), 7, "yhi",
                      "non-numeric"),
-    "oval unknown shape": (("D1", "2\n1 4 4 0\n0 0\n0.5 1 1\n"), 1, "shape code", "unknown"),
-    "oval truncated": (("D1", "1\n3 4 4 0\n0 0\n0.5 1 1\n0.5 2 1\n"), 5, None, "truncated"),
-    "oval wrong columns": (("D1", "1\n2 4 4 0\n0 0\n0.5 1 1\n0.5 2\n"), 5, None,
+    "oval unknown shape": (("D1", "2\n1 4 4 0\n0 0 0\n0.5 1 1\n"), 1, "kshape", "unknown"),
+    "oval truncated": (("D1", "1\n3 4 4 0\n0 0 0\n0.5 1 1\n0.5 2 1\n"), 5, None, "truncated"),
+    "oval wrong columns": (("D1", "1\n2 4 4 0\n0 0 0\n0.5 1 1\n0.5 2\n"), 5, None,
                            "expected 3 columns"),
-    "oval negative radius": (("D1", "1\n2 4 4 0\n0 0\n0.5 1 1\n-0.5 2 1\n"), 5, "radius",
+    "oval negative radius": (("D1", "1\n2 4 4 0\n0 0 0\n0.5 1 1\n-0.5 2 1\n"), 5, "radius",
                              "negative"),
-    "oval non-numeric Lx": (("D1", "1\n2 four 4 0\n0 0\n0.5 1 1\n0.5 2 1\n"), 2, "Lx",
+    "oval non-numeric Lx": (("D1", "1\n2 four 4 0\n0 0 0\n0.5 1 1\n0.5 2 1\n"), 2, "xcell(1,1)",
                             "non-numeric"),
-    "oval header count": (("D1", "1\n2 4 4\n0 0\n0.5 1 1\n0.5 2 1\n"), 2, None, "4 numbers"),
+    "oval header count": (("D1", "1\n2 4 4\n0 0 0\n0.5 1 1\n0.5 2 1\n"), 2, None, "4 numbers"),
     "csv non-numeric": (("x.csv", "# format_version: 1\nid,type,x,y,radius\n1,1,0,0,0.5\n"
                          "2,1,oops,0,0.5\n"), 4, "x", "non-numeric"),
     "csv negative radius": (("x.csv", "# format_version: 1\nid,type,x,y,radius\n1,1,0,0,-0.5\n"),
@@ -415,3 +459,42 @@ def test_write_accepts_network_and_rejects_others(tmp_path):
     assert io.read(tmp_path / "sq.npz").n_particles == 16
     with pytest.raises(TypeError):
         io.write(tmp_path / "sq.csv", {"positions": 1})
+
+
+def test_real_dempla_startfile_head(tmp_path):
+    """The first 23 lines, verbatim, of DEMPLA's own sample StartFile Dcircls_1002_2 (public GitHub
+    repository mrkuhn53/dempla; see tests/data/README.md). The header is read as the manual
+    defines it (the old reader refused every real file at line 3); the particle table stops after
+    20 of the announced 1002 disks, which must be reported as a truncation at the file's end."""
+    src = DATA / "Dcircls_1002_2.head"
+    with pytest.raises(FormatError, match="truncated: expected 1002 rows, found 20") as err:
+        io.read(src)
+    assert err.value.line == 23
+    # the same lines with np = 20 (the only edit): every number exactly as written in the file
+    text = src.read_text().replace("  1002  ", "    20  ", 1)
+    p = tmp_path / "Dcircls_20"
+    p.write_text(text)
+    cfg = io.read(p)
+    L = 2.97703143874021730e+01
+    np.testing.assert_array_equal(cfg.cell, [[L, 0.0], [0.0, L]])
+    assert cfg.meta["oval_xcell33"] == 1.0
+    rows = [line.split() for line in text.splitlines()[3:]]
+    np.testing.assert_array_equal(cfg.radii, [float(r[0]) for r in rows])
+    np.testing.assert_array_equal(cfg.positions, [[float(r[1]), float(r[2])] for r in rows])
+    assert cfg.radii[0] == 3.13454063710418570e-01 and cfg.positions[-1, 1] == 1.72715442442558780e+01
+    # written back by the manual's fixed-column writer: DEMPLA's own layout, column for column,
+    # and the same numbers (the last printed digit may differ: 17 significant digits suffice)
+    out = tmp_path / "Dback"
+    io.write_oval(out, cfg)
+    back, orig = out.read_text().splitlines(), text.splitlines()
+    assert [len(x) for x in back] == [len(x) for x in orig]
+    for b, o in zip(back, orig):
+        assert [m.start() for m in re.finditer("E", b)] == [m.start() for m in re.finditer("E", o)]
+        assert [float(t) for t in b.split()] == [float(t) for t in o.split()]
+
+
+def test_real_dempla_oval_startfile_refused_by_its_kshape():
+    """DEMPLA's sample of ovals (kshape 2, verbatim head; tests/data/README.md): refused on line 1,
+    naming the shape code, not misread as disks."""
+    with pytest.raises(FormatError, match="line 1, field 'kshape': unknown shape code '2'"):
+        io.read(DATA / "Dovals_1002_1d.head")

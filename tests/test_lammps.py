@@ -80,7 +80,7 @@ def test_analyse_reads_the_run_folder(run):
     import json
     import subprocess
     import sys
-    p = subprocess.run([sys.executable, "-m", "microhom", "analyse", run.folder, "--prestress", "--json"],
+    p = subprocess.run([sys.executable, "-m", "dem", "analyse", run.folder, "--prestress", "--json"],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
@@ -99,7 +99,7 @@ def test_packing_matches_dem_packing(run):
     from microhom.structural_sums import network_statistics
     ref = pack(N, **PARAMS)
     assert ref.report["converged"]
-    z_l = network_statistics(run.network)["nc"]
-    z_d = network_statistics(ref.to_network())["nc"]
+    z_l = network_statistics(run.network).nc
+    z_d = network_statistics(ref.to_network()).nc
     assert abs(run.lammps["phi"] - ref.report["phi"]) < 0.012
     assert abs(z_l - z_d) < 0.15

@@ -56,7 +56,7 @@ def test_square_lattice_sums():
     assert C[0, 0, 0, 0] == pytest.approx(2.0) and C[0, 0, 1, 1] == pytest.approx(0.0, abs=1e-15)
     assert C[0, 1, 0, 1] == pytest.approx(0.5 / 2)  # C1212 = kt/2 (affine = exact for this lattice)
     st = network_statistics(net)
-    assert st["nc"] == 4 and st["r"] == 0 and st["n_rattlers"] == 0
+    assert st.nc == 4 and st.r == 0 and st.n_rattlers == 0
 
 
 def test_one_sided_particle_by_hand():
@@ -129,8 +129,8 @@ def test_rattlers_iterative():
     assert list(rat) == [True, True, True, True, False, False, False]  # peeled one by one
     assert list(active) == [False, False, False, False, True, True, True]
     st = network_statistics(net, min_contacts=2)
-    assert st["n_rattlers"] == 4 and st["nc"] == 2.0 and st["r"] == 0.0
-    assert st["nc_all"] == pytest.approx(2 * 7 / 7)
+    assert st.n_rattlers == 4 and st.nc == 2.0 and st.r == 0.0
+    assert st.nc_all == pytest.approx(2 * 7 / 7)
 
 
 def test_periodic_wrap_and_sheared_cell():
@@ -156,7 +156,7 @@ def test_translation_by_cell_vector_changes_nothing():
     assert np.allclose(a.branch, b.branch)
     sa, sb = network_statistics(a), network_statistics(b)
     for k in ("nc", "r", "rho", "vbar", "ebar"):
-        assert sa[k] == pytest.approx(sb[k], rel=1e-12, abs=1e-15)
+        assert getattr(sa, k) == pytest.approx(getattr(sb, k), rel=1e-12, abs=1e-15)
 
 
 def test_polydisperse_uses_own_branch_vectors():
@@ -196,3 +196,138 @@ def test_from_overlaps_matches_brute_force(tilt):
             hit = np.hypot(d[:, 0], d[:, 1]) <= (radii[iu] + radii[ju]) * (1 + 1e-9)
             brute |= {(int(i), int(j), *np.round(dd, 9)) for i, j, dd in zip(iu[hit], ju[hit], d[hit])}
     assert found == brute and len(found) > 50
+
+
+# ---- typed statistics, the near neighbourhood of (39) and the rho definitions (issue 16) ----------
+LEGACY_KEYS = ["n_particles", "n_contacts", "n_rattlers", "rattler_fraction", "nc_all", "r_all", "rho_all", "nc",
+               "r", "rho", "phi", "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
+               "ebar_theory", "odd_norm"]
+
+
+def _disordered(seed=0, side=12, noise=0.04, grow=1.03):
+    lat = lattices.triangular(side, side)
+    rng = np.random.default_rng(seed)
+    pos = lat.positions + rng.normal(scale=noise, size=lat.positions.shape)
+    return from_overlaps(pos, 0.5 * grow, lat.cell, kn=1.0, kt=1.0)
+
+
+def test_network_statistics_is_a_frozen_result_with_the_old_keys():
+    import dataclasses
+    import json
+
+    st = network_statistics(_disordered())
+    assert list(st.as_dict()) == LEGACY_KEYS  # the CLI's JSON/CSV keys, in order
+    json.dumps(st.as_dict())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        st.nc = 1.0
+    assert st.to_frame().shape == (1, len(LEGACY_KEYS))
+    assert st.rho_neighbours == "contacts"
+    with pytest.raises(ValueError, match="rho_neighbours"):
+        network_statistics(_disordered(), rho_neighbours="delaunay")
+
+
+def _brute_gaps(net):
+    """All pair gaps by the minimum image over the 3x3 images (a second method, O(N^2))."""
+    n = net.n_particles
+    out = {}
+    shifts = [net.cell @ np.array([a, b]) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = min(np.hypot(*(net.positions[j] + s - net.positions[i])) for s in shifts)
+            out[(i, j)] = d - net.radii[i] - net.radii[j]
+    return out
+
+
+@pytest.mark.parametrize("shear", [0.0, 2.3])
+def test_near_neighbours_are_the_smallest_gaps(shear):
+    from microhom.neighbourhood import near_neighbours
+
+    rng = np.random.default_rng(5)
+    L = 9.0
+    cell = np.array([[L, shear], [0.0, L]])
+    pos = rng.uniform(0, 1, (70, 2)) @ cell.T
+    radii = rng.uniform(0.4, 0.6, 70)
+    net = from_overlaps(pos, radii, cell)
+    nb = near_neighbours(net, nbar=4.5)
+    brute = _brute_gaps(net)
+    m = int(round(70 * 4.5 / 2))
+    want = sorted(brute.values())[:m]
+    assert len(nb.pairs) == m and nb.degree.sum() == 2 * m
+    assert np.allclose(np.sort(nb.gap), want, rtol=0, atol=1e-12)
+    for (i, j), g in zip(map(tuple, np.sort(nb.pairs, axis=1)), nb.gap):
+        assert brute[(i, j)] == pytest.approx(g, abs=1e-12)
+    assert np.allclose(np.hypot(*nb.branch.T) - radii[nb.pairs[:, 0]] - radii[nb.pairs[:, 1]], nb.gap)
+    assert nb.mean_degree == pytest.approx(4.5, abs=1 / 70)
+
+
+def test_near_neighbours_of_the_triangular_lattice_are_its_six_contacts():
+    from microhom.neighbourhood import nbar_from_phi, near_neighbours
+
+    net = lattices.triangular(8, 8, kn=1.0, kt=1.0)
+    assert float(nbar_from_phi(net.solid_fraction)) == pytest.approx(6.0, rel=1e-9)
+    nb = near_neighbours(net)  # Nbar from phi = pi/(2 sqrt 3): 6
+    assert np.all(nb.degree == 6)
+    assert {tuple(sorted(p)) for p in nb.pairs} == {tuple(sorted(p)) for p in net.pairs}
+    st = network_statistics(net, rho_neighbours="near")
+    assert st.rho == 0.0  # V = W = 0 on a perfect lattice
+
+
+def test_neighbour_vector_counts_non_touching_neighbours():
+    from microhom.structural_sums import neighbour_vector
+
+    # particle 0 touches 1 (on +x); 2 sits on -x at a gap, not touching; counts 3 and 5
+    counts = np.array([1, 3, 5])
+    pairs = np.array([[0, 1], [0, 2]])
+    branch = np.array([[1.0, 0.0], [-1.2, 0.0]])
+    V = neighbour_vector(counts, pairs, branch)
+    assert np.allclose(V[0], [(3 - 5) / math.pi, 0.0])  # both neighbours count, touching or not
+    assert np.allclose(V[1], [-1 / math.pi, 0.0]) and np.allclose(V[2], [1 / math.pi, 0.0])
+
+
+def test_rho_definitions_exact_cases_and_consistency():
+    from microhom.structural_sums import rho_definitions
+
+    # every particle keeps its 6 contacts: V = Nc W exactly, so rho(contacts) = 1, and shuffling
+    # equal contact numbers changes nothing: null = rho, spread 0
+    net = _disordered(noise=0.01, grow=1.05)
+    assert np.all(net.contact_counts() == 6)
+    res = rho_definitions(net, nbar=6.0, n_null=3)  # phi > pi/(2 sqrt 3) (overlaps): Nbar given
+    assert res.rho["contacts"] == pytest.approx(1.0, rel=1e-12)
+    for name in ("contacts", "near"):
+        assert res.null_mean[name] == pytest.approx(res.rho[name], rel=1e-12)
+        assert res.null_std[name] == pytest.approx(0.0, abs=1e-12)
+    # a disordered packing: the two definitions agree with network_statistics
+    net = _disordered(seed=3, noise=0.06, grow=1.02)
+    res = rho_definitions(net, nbar=5.0, n_null=4, seed=1)
+    assert res.rho["contacts"] == pytest.approx(network_statistics(net).rho, rel=1e-12)
+    assert res.rho["near"] == pytest.approx(network_statistics(net, rho_neighbours="near", nbar=5.0).rho, rel=1e-12)
+    assert res.null_std["contacts"] > 0 and res.mean_degree["near"] == pytest.approx(res.nbar, abs=1 / 144)
+    assert set(res.as_dict()) >= {"rho", "null_mean", "null_std", "nbar"}
+    with pytest.raises(ValueError, match="n_null"):
+        rho_definitions(net, n_null=1)
+
+
+def test_near_needs_nbar_outside_the_phi_range():
+    pos = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
+    net = from_overlaps(pos, 0.5, np.diag([10.0, 10.0]))
+    with pytest.raises(ValueError, match="nbar"):
+        network_statistics(net, rho_neighbours="near")
+
+
+def test_moduli_and_structural_sums_import_each_other_without_a_cycle():
+    import subprocess
+    import sys
+
+    for first, second in (("microhom.structural_sums", "microhom.moduli"), ("microhom.moduli", "microhom.structural_sums")):
+        code = f"import {first}, {second}; from microhom.moduli import nbar_from_phi, PHI_MAX, PHI_MIN_NBAR"
+        subprocess.run([sys.executable, "-c", code], check=True)
+    import ast
+    import inspect
+
+    from microhom import moduli, neighbourhood, structural_sums
+    for mod in (moduli, structural_sums, neighbourhood):
+        for node in ast.walk(ast.parse(inspect.getsource(mod))):
+            if isinstance(node, ast.FunctionDef):
+                for sub in ast.walk(node):
+                    if isinstance(sub, ast.ImportFrom) and sub.level > 0:
+                        raise AssertionError(f"{mod.__name__}.{node.name} imports .{sub.module} inside a function")

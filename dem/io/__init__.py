@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import os
 
+from microhom.network import ContactNetwork
+
 from ._core import KN_CONVENTIONS, Configuration, FormatError
 from .lammps import (box_from_dump_bounds, dump_bounds, iter_lammps_dump, read_lammps_data,
                      read_lammps_dump, write_lammps_data, write_lammps_dump)
@@ -60,8 +62,9 @@ def detect_format(path) -> str:
         return fmt
     if base.startswith("D"):
         return "oval"
-    raise ValueError(f"cannot tell the format of {name!r} from its name; pass format= one of "
-                     f"{sorted(FORMATS)} (extensions: {sorted(_EXTENSIONS)}, or D* for OVAL)")
+    raise ValueError(f"cannot tell the format of {name!r} from its name; give it (format= in "
+                     f"Python, --format on the command line) as one of {sorted(FORMATS)} "
+                     f"(extensions: {sorted(_EXTENSIONS)}, or D* for OVAL)")
 
 
 def _format(path, format):
@@ -86,7 +89,6 @@ def write(path, config, format=None, **kwargs):
     """
     fmt = _format(path, format)
     if not isinstance(config, Configuration):
-        from microhom.network import ContactNetwork
         if isinstance(config, ContactNetwork):
             if fmt == "vtk":
                 kwargs.setdefault("network", config)

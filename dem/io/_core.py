@@ -2,14 +2,24 @@
 fast-and-checked table parser every text reader uses."""
 from __future__ import annotations
 
+import gzip
 import io as _io
 import os
 import warnings
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from microhom.network import from_overlaps
+
 __all__ = ["Configuration", "FormatError", "KN_CONVENTIONS"]
+
+#: A periodic position more than this many cell lengths from the cell cannot be wrapped back
+#: without losing its digits (x = 1e300 would land on x = 0): such files are refused.
+MAX_CELLS_AWAY = 1.0e6
+#: An open packing spanning more than this many smallest radii has no meaningful overlaps.
+MAX_SPAN_OVER_RADIUS = 1.0e12
 
 #: Accepted values of ``kn_convention`` (see :meth:`Configuration.network`).
 KN_CONVENTIONS = ("standard", "oval")
@@ -43,6 +53,37 @@ def _float_array(name, value, shape):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains non-finite values")
     return arr
+
+
+def _per_particle(name, value, n, dtype, scalar=True):
+    """``value`` as an (n,) array (a scalar is broadcast when ``scalar``); ValueError naming
+    ``name`` and both shapes otherwise (never numpy's broadcast message)."""
+    arr = np.asarray(value) if dtype is None else np.asarray(value, dtype=dtype)
+    if arr.ndim == 0 and scalar:
+        return np.full(n, arr.item(), dtype=arr.dtype)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have one value per particle, shape ({n},), "
+                         f"got shape {arr.shape}")
+    return np.array(arr)
+
+
+def _check_extent(pos, rad, cell, origin):
+    """Refuse coordinates too far away to be meaningful (see MAX_CELLS_AWAY, MAX_SPAN_OVER_RADIUS)."""
+    if pos.shape[0] == 0:
+        return
+    if cell is not None:
+        s = np.linalg.solve(cell, (pos - origin).T).T
+        far = np.flatnonzero(np.abs(s).max(axis=1) > MAX_CELLS_AWAY)
+        if far.size:
+            k = int(far[0])
+            raise ValueError(f"particle {k} at ({float(pos[k, 0]):.6g}, {float(pos[k, 1]):.6g}) is "
+                             f"more than {MAX_CELLS_AWAY:.0e} cell lengths from the cell: wrapping "
+                             f"it back would lose all its digits")
+    else:
+        span = float(np.max(pos.max(axis=0) - pos.min(axis=0)))
+        if not span <= MAX_SPAN_OVER_RADIUS * float(rad.min()):
+            raise ValueError(f"the particles span {span:.6g}, more than {MAX_SPAN_OVER_RADIUS:.0e} "
+                             f"times the smallest radius {float(rad.min()):.6g}: coordinates absurd")
 
 
 @dataclass(eq=False)
@@ -86,7 +127,7 @@ class Configuration:
         n = pos.shape[0]
         if not np.all(np.isfinite(pos)):
             raise ValueError("positions contains non-finite values")
-        rad = np.array(np.broadcast_to(self.radii, (n,)), dtype=np.float64)
+        rad = _per_particle("radii", self.radii, n, np.float64)
         if not np.all(np.isfinite(rad)) or np.any(rad <= 0):
             raise ValueError("radii must be finite and > 0")
         self.positions, self.radii = pos, rad
@@ -95,15 +136,17 @@ class Configuration:
             if not abs(np.linalg.det(self.cell)) > 0:
                 raise ValueError("cell must be non-singular")
         self.origin = _float_array("origin", self.origin, (2,))
+        _check_extent(pos, rad, self.cell, self.origin)
         self.ids = (np.arange(1, n + 1, dtype=np.int64) if self.ids is None
-                    else np.array(self.ids, dtype=np.int64).reshape(n))
+                    else _per_particle("ids", self.ids, n, np.int64, scalar=False))
         self.types = (np.ones(n, dtype=np.int64) if self.types is None
-                      else np.array(np.broadcast_to(self.types, (n,)), dtype=np.int64))
+                      else _per_particle("types", self.types, n, np.int64))
         for name in ("velocities", "forces"):
             v = getattr(self, name)
             if v is not None:
                 setattr(self, name, _float_array(name, v, (n, 2)))
-        self.fields = {str(k): np.asarray(v).reshape(n) for k, v in dict(self.fields).items()}
+        self.fields = {str(k): _per_particle(f"field {k!r}", v, n, None, scalar=False)
+                       for k, v in dict(self.fields).items()}
         self.meta = dict(self.meta)
         if self.source is not None:
             self.source = os.fspath(self.source)
@@ -215,13 +258,12 @@ class Configuration:
             from an OVAL D-file (say which convention your kn is in).
         **kwargs : passed to ``from_overlaps`` (``sliding``, ``branch_length``, ``tolerance``).
         """
-        from microhom.network import from_overlaps
-
         if kn_convention is None:
             if self.source_format == "oval":
                 warnings.warn("configuration read from an OVAL D-file: kn is taken as force per "
-                              "unit overlap; pass kn_convention='oval' if kn is OVAL's (which "
-                              "multiplies half the overlap) or 'standard' to silence this",
+                              "unit overlap; say kn_convention='oval' (command line: "
+                              "--kn-convention oval) if kn is OVAL's, which multiplies half the "
+                              "overlap, or 'standard' to silence this",
                               stacklevel=2)
             kn_convention = "standard"
         if kn_convention not in KN_CONVENTIONS:
@@ -242,6 +284,28 @@ class Configuration:
 
 # ---- checked table parsing ------------------------------------------------------------------
 
+def show(tok, limit=30) -> str:
+    """A token as it may appear in a message: quoted, cut at ``limit`` characters, and never raw
+    binary (a token with control or replacement characters is described, not echoed)."""
+    if any((not ch.isprintable()) or ch == "\ufffd" for ch in tok):
+        return f"a non-text token of {len(tok)} characters"
+    return repr(tok if len(tok) <= limit else tok[:limit] + "...")
+
+
+def require_particles(n, path):
+    """FormatError "no particles in the file" for an empty table (a reader never returns N = 0)."""
+    if n == 0:
+        raise FormatError(path, None, None, "no particles in the file")
+
+
+def build(path, **kwargs) -> Configuration:
+    """``Configuration(**kwargs)``, its ValueError turned into a FormatError naming ``path``."""
+    try:
+        return Configuration(**kwargs)
+    except ValueError as exc:
+        raise FormatError(path, None, None, str(exc)) from None
+
+
 def _check_line_fields(line_text, columns, path, lineno):
     """Validate one data line; raise FormatError naming the first bad field."""
     toks = line_text.split()
@@ -253,9 +317,9 @@ def _check_line_fields(line_text, columns, path, lineno):
         try:
             v = float(tok)
         except ValueError:
-            raise FormatError(path, lineno, col, f"non-numeric value {tok!r}") from None
+            raise FormatError(path, lineno, col, f"non-numeric value {show(tok)}") from None
         if not np.isfinite(v):
-            raise FormatError(path, lineno, col, f"non-finite value {tok!r}")
+            raise FormatError(path, lineno, col, f"non-finite value {show(tok)}")
 
 
 def parse_table(block: bytes, columns, path, first_line, nrows=None, comment=None):
@@ -267,7 +331,7 @@ def parse_table(block: bytes, columns, path, first_line, nrows=None, comment=Non
     :class:`FormatError` naming the exact line (``first_line`` is the file line number of the
     block's first line) and column. ``nrows``: the expected number of rows (truncation check).
     """
-    import pandas as pd
+    import pandas as pd  # heavy (~0.3 s): only when a table is parsed
 
     ncol = len(columns)
     arr = None
@@ -325,7 +389,7 @@ def check_positive(values, name, path, block, first_line, comment=None):
         k = int(bad[0])
         what = "negative" if values[k] < 0 else "zero"
         raise FormatError(path, row_line(block, first_line, k, comment), name,
-                          f"{what} value {values[k]!r} (must be > 0)")
+                          f"{what} value {float(values[k])!r} (must be > 0)")
 
 
 def parse_number(tok, path, lineno, fieldname, kind=float):
@@ -333,19 +397,34 @@ def parse_number(tok, path, lineno, fieldname, kind=float):
     try:
         v = kind(tok)
     except ValueError:
-        raise FormatError(path, lineno, fieldname, f"non-numeric value {tok!r}") from None
+        raise FormatError(path, lineno, fieldname, f"non-numeric value {show(tok)}") from None
     if kind is float and not np.isfinite(v):
-        raise FormatError(path, lineno, fieldname, f"non-finite value {tok!r}")
+        raise FormatError(path, lineno, fieldname, f"non-finite value {show(tok)}")
     return v
 
 
 def open_bytes(path) -> bytes:
-    """The whole file as bytes (transparently gunzipped for ``.gz``)."""
+    """The whole file as bytes (transparently gunzipped for ``.gz``).
+
+    Raises :class:`FormatError` naming the file for a truncated or non-gzip ``.gz`` and for binary
+    content (NUL bytes: every format read through here is text); a missing or unreadable file
+    raises the usual ``OSError``.
+    """
     path = os.fspath(path)
-    if path.endswith(".gz"):
-        import gzip
-        with gzip.open(path, "rb") as f:
-            return f.read()
-    with open(path, "rb") as f:
-        return f.read()
+    with open(path, "rb") as raw:
+        if path.endswith(".gz"):
+            try:
+                with gzip.GzipFile(fileobj=raw, mode="rb") as f:
+                    data = f.read()
+            except (OSError, EOFError, zlib.error) as exc:
+                why = ("truncated" if isinstance(exc, EOFError) else
+                       "not gzip-compressed" if "gzip" in str(exc).lower() else "corrupt")
+                raise FormatError(path, None, None,
+                                  f"not a readable .gz file ({why})") from None
+        else:
+            data = raw.read()
+    if b"\x00" in data[:65536]:
+        raise FormatError(path, None, None, "binary data (NUL bytes): not a text file of this "
+                          "format")
+    return data
 

@@ -12,13 +12,14 @@ restricted form (or use :meth:`Configuration.to_restricted` first for older LAMM
 """
 from __future__ import annotations
 
+import io
 import os
 import warnings
 
 import numpy as np
 
-from ._core import (Configuration, FormatError, check_positive, open_bytes, parse_number, parse_table,
-                    row_line)
+from ._core import (Configuration, FormatError, build, check_positive, open_bytes, parse_number,
+                    parse_table, require_particles, row_line, show)
 
 
 def _f(x):
@@ -144,11 +145,15 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
             try:
                 float(toks[0])
             except ValueError:
-                raise FormatError(path, lineno, toks[0],
-                                  f"unknown header line or section {text!r}") from None
+                raise FormatError(path, lineno, None,
+                                  f"unknown header line or section {show(text, 60)}") from None
         k += 1
     if natoms is None:
-        raise FormatError(path, None, "atoms", "header has no 'N atoms' line")
+        raise FormatError(path, None, "atoms", "header has no 'N atoms' line (not a LAMMPS data "
+                          "file?)")
+    if natoms < 0:
+        raise FormatError(path, None, "atoms", f"negative atom count {natoms}")
+    require_particles(natoms, path)
     if gen:
         missing = {"avec", "bvec", "origin"} - set(gen)
         if missing:
@@ -238,7 +243,7 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
         _check_inside(pos, cell, origin, (0, 1), path, line_of_row)
         meta["box"] = cell.tolist()
     meta["sections"] = sorted(sections)
-    return Configuration(positions=pos, radii=0.5 * arr[:, 2], cell=cell if periodic else None,
+    return build(path, positions=pos, radii=0.5 * arr[:, 2], cell=cell if periodic else None,
                          origin=origin, ids=ids, types=arr[:, 1].astype(np.int64),
                          velocities=velocities, fields=fields, meta=meta, source=path,
                          source_format="lammps-data")
@@ -254,7 +259,6 @@ def _check_unique(ids, path, line_of_row):
 
 def _fmt_table(arr, fmts):
     """Rows of ``arr`` formatted with per-column printf formats, joined by newlines."""
-    import io
     buf = io.StringIO()
     np.savetxt(buf, arr, fmt=fmts, delimiter=" ")
     return buf.getvalue()
@@ -364,7 +368,7 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
         if not text:
             continue
         if not text.startswith("ITEM:"):
-            raise FormatError(path, ln, None, f"expected an 'ITEM:' line, found {text!r}")
+            raise FormatError(path, ln, None, f"expected an 'ITEM:' line, found {show(text, 60)}")
         item = text[5:].strip()
         if item == "TIMESTEP":
             t, l2 = next_line()
@@ -390,6 +394,9 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
             meta.setdefault("items", {})[item] = next_line()[0]
     if natoms is None:
         raise FormatError(path, lineno, "NUMBER OF ATOMS", "missing before 'ITEM: ATOMS'")
+    if natoms < 0:
+        raise FormatError(path, lineno, "NUMBER OF ATOMS", f"negative atom count {natoms}")
+    require_particles(natoms, path)
     if box is None:
         raise FormatError(path, lineno, "BOX BOUNDS", "missing before 'ITEM: ATOMS'")
     cell, origin, pbc = _dump_box(box, path, meta)
@@ -410,7 +417,8 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
         rad = np.full(natoms, float(radius))
     else:
         raise FormatError(path, first - 1, "ATOMS",
-                          "no 'radius' or 'diameter' column (pass radius= for point dumps)")
+                          "no 'radius' or 'diameter' column (give a constant radius: radius= in "
+                          "Python, --radius on the command line)")
     for xn, yn, scaled, unwrapped in _POSITION_SETS:
         if xn in col and yn in col:
             xy = arr[:, [col[xn], col[yn]]]
@@ -443,7 +451,7 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
                           "configuration is returned without a periodic cell", stacklevel=3)
     vel = arr[:, [col["vx"], col["vy"]]] if "vx" in col and "vy" in col else None
     frc = arr[:, [col["fx"], col["fy"]]] if "fx" in col and "fy" in col else None
-    return Configuration(positions=xy, radii=rad, cell=cell if periodic else None, origin=origin,
+    return build(path, positions=xy, radii=rad, cell=cell if periodic else None, origin=origin,
                          ids=ids, types=arr[:, col["type"]].astype(np.int64) if "type" in col
                          else None, velocities=vel, forces=frc, fields=fields, meta=meta,
                          source=path, source_format="lammps-dump")
@@ -487,7 +495,7 @@ def _dump_box(box, path, meta):
     return cell, origin, pbc
 
 
-def read_lammps_dump(path, frame=0, *, radius=None) -> Configuration:
+def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     """Read one frame of a LAMMPS text dump (``dump custom``/``atom``; ``.gz`` allowed).
 
     Needs ``ITEM: ATOMS`` columns for positions (``x y``, else ``xu yu``, ``xs ys`` or
@@ -501,20 +509,31 @@ def read_lammps_dump(path, frame=0, *, radius=None) -> Configuration:
     :func:`box_from_dump_bounds`) or ``abc origin pp pp pp`` (general triclinic). ``cell`` is set
     when x and y are both periodic (``pp``); otherwise ``cell=None``, ``meta['box']`` holds the
     box and particles outside its non-periodic directions raise :class:`FormatError`.
-    ``frame`` indexes the frames (negative from the end); see :func:`iter_lammps_dump`.
+    ``frame`` indexes the frames (negative from the end); see :func:`iter_lammps_dump`. Not given,
+    the first frame is read, with a warning naming the frame count when the file has several (a
+    trajectory's first frame is usually its initial gas). ``meta['frame']`` (0-based) and
+    ``meta['n_frames']`` say which frame was read.
     """
     path = os.fspath(path)
     data = open_bytes(path)
     offs = _frame_offsets(data)
     if not offs:
         raise FormatError(path, 1, "TIMESTEP", "not a LAMMPS dump: no 'ITEM: TIMESTEP' line")
+    unsaid = frame is None
+    frame = 0 if unsaid else frame
     try:
         start = offs[frame]
     except IndexError:
         raise IndexError(f"{path}: frame {frame} requested, file has {len(offs)}") from None
     k = offs.index(start)
     end = offs[k + 1] if k + 1 < len(offs) else len(data)
-    return _parse_dump_frame(data, start, end, path, radius, k)
+    cfg = _parse_dump_frame(data, start, end, path, radius, k)
+    cfg.meta["n_frames"] = len(offs)
+    if unsaid and len(offs) > 1:
+        warnings.warn(f"{path} holds {len(offs)} frames: read the first (timestep "
+                      f"{cfg.meta.get('timestep', '?')}); say frame=-1 for the last (--frame -1 "
+                      "on the command line)", stacklevel=2)
+    return cfg
 
 
 def iter_lammps_dump(path, *, radius=None):

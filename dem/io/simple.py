@@ -18,21 +18,24 @@ key                    shape       meaning
 ``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
 =====================  ==========  =========================================================
 
-CSV schema (``format_version`` 1): ``#`` header lines ``key: value`` (``format_version``,
+CSV schema (``format_version`` 1): optional ``#`` header lines ``key: value`` (``format_version``,
 ``cell_a: ax ay``, ``cell_b: bx by`` — both absent for an open packing —, ``origin: ox oy``,
 ``meta: {json}``), then a comma-separated table with a header row ``id,type,x,y,radius`` followed
 by optional ``vx,vy``, ``fx,fy`` and further field columns. Floats are written with 17 significant
-digits, so a round trip is exact.
+digits, so a round trip is exact. A plain table from another code (a header row with at least
+``x,y,radius``, no ``#`` lines) is read as version 1 of an open packing.
 """
 from __future__ import annotations
 
 import io
 import json
 import os
+import zipfile
+import zlib
 
 import numpy as np
 
-from ._core import Configuration, FormatError, open_bytes
+from ._core import Configuration, FormatError, build, open_bytes, require_particles, show
 
 
 def _f(x):
@@ -82,39 +85,54 @@ def write_npz(path, config, *, compressed=False):
 def read_npz(path) -> Configuration:
     """Read an npz configuration written by :func:`write_npz` (checks format and version)."""
     path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no such file")
     try:
-        z = np.load(path, allow_pickle=False)
-    except Exception as e:  # not a zip / corrupt
-        raise FormatError(path, None, None, f"not a readable npz file ({e})") from None
-    with z:
-        keys = set(z.files)
-        if "format" not in keys or str(z["format"]) != _MAGIC:
-            raise FormatError(path, None, "format", f"not a {_MAGIC} npz file")
-        version = int(z["format_version"]) if "format_version" in keys else None
-        if version is None or version > FORMAT_VERSION or version < 1:
-            raise FormatError(path, None, "format_version",
-                              f"unsupported version {version} (this reader: {FORMAT_VERSION})")
-        for key in ("positions", "radii"):
-            if key not in keys:
-                raise FormatError(path, None, key, "missing")
-        get = {k: z[k] for k in keys}
+        with np.load(path, allow_pickle=False) as z:
+            keys = set(z.files)
+            if "format" not in keys or z["format"].shape != () or str(z["format"]) != _MAGIC:
+                raise FormatError(path, None, "format", f"not a {_MAGIC} npz file (written by "
+                                  "dem.io.write_npz)")
+            version = z["format_version"] if "format_version" in keys else None
+            if version is None or version.shape != () or version.dtype.kind not in "iu" \
+                    or not 1 <= int(version) <= FORMAT_VERSION:
+                raise FormatError(path, None, "format_version",
+                                  f"unsupported version (this reader: {FORMAT_VERSION})")
+            for key in ("positions", "radii"):
+                if key not in keys:
+                    raise FormatError(path, None, key, "missing")
+            get = {k: z[k] for k in keys}
+    except FormatError:
+        raise
+    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
+        # not a zip of .npy arrays, a truncated or corrupt member, or a pickled object array
+        raise FormatError(path, None, None, "not a readable npz file (truncated, corrupt, or "
+                          "not a zip archive of numpy arrays)") from None
+    for key, v in get.items():
+        if v.dtype.kind not in "iufbU" and key != "meta_json":
+            raise FormatError(path, None, key, f"array of unsupported type {v.dtype.str}")
     kw = {}
     for key in ("cell", "origin", "ids", "types", "velocities", "forces"):
         if key in get:
             kw[key] = get[key]
     fields = {k.split(":", 1)[1]: v for k, v in get.items() if k.startswith("field:")}
-    meta = json.loads(str(get["meta_json"])) if "meta_json" in get else {}
-    rad = get["radii"]
-    if rad.ndim == 1:
+    try:
+        meta = json.loads(str(get["meta_json"])) if "meta_json" in get else {}
+    except ValueError:
+        raise FormatError(path, None, "meta_json", "invalid JSON") from None
+    if not isinstance(meta, dict):
+        raise FormatError(path, None, "meta_json", "not a JSON object")
+    pos, rad = get["positions"], get["radii"]
+    if pos.ndim != 2 or pos.shape[1:] != (2,):
+        raise FormatError(path, None, "positions", f"shape {pos.shape}, expected (N, 2)")
+    require_particles(pos.shape[0], path)
+    if rad.ndim == 1 and rad.dtype.kind in "iuf":
         bad = np.flatnonzero(~(rad > 0))
         if bad.size:
             raise FormatError(path, None, "radii", f"radius of particle {int(bad[0])} is "
-                              f"{rad[bad[0]]!r} (must be > 0)")
-    try:
-        return Configuration(positions=get["positions"], radii=rad, fields=fields, meta=meta,
-                             source=path, source_format="npz", **kw)
-    except ValueError as e:
-        raise FormatError(path, None, None, str(e)) from None
+                              f"{float(rad[bad[0]])!r} (must be > 0)")
+    return build(path, positions=pos, radii=rad, fields=fields, meta=meta, source=path,
+                 source_format="npz", **kw)
 
 
 def write_csv(path, config):
@@ -163,8 +181,9 @@ def _csv_floats(path, lineno, name, text, n):
 
 
 def read_csv(path) -> Configuration:
-    """Read a CSV configuration written by :func:`write_csv` (checks version and every field)."""
-    import pandas as pd
+    """Read a CSV configuration written by :func:`write_csv`, or a plain table with a header row
+    holding at least ``x,y,radius`` (checks the version, when given, and every field)."""
+    import pandas as pd  # heavy (~0.3 s): only when a table is parsed
 
     path = os.fspath(path)
     data = open_bytes(path)
@@ -177,12 +196,10 @@ def read_csv(path) -> Configuration:
             key, val = text.split(":", 1)
             head[key.strip()] = (val.strip(), k + 1)
         k += 1
-    if "format_version" not in head:
-        raise FormatError(path, 1, "format_version", "missing '# format_version: N' header line")
-    v, ln = head["format_version"]
+    v, ln = head.get("format_version", ("1", None))  # a plain table: read as version 1
     if v not in {str(i) for i in range(1, FORMAT_VERSION + 1)}:
         raise FormatError(path, ln, "format_version",
-                          f"unsupported version {v!r} (this reader: {FORMAT_VERSION})")
+                          f"unsupported version {show(v)} (this reader: {FORMAT_VERSION})")
     cell = None
     if "cell_a" in head or "cell_b" in head:
         for key in ("cell_a", "cell_b"):
@@ -199,14 +216,20 @@ def read_csv(path) -> Configuration:
             meta = json.loads(head["meta"][0])
         except ValueError:
             raise FormatError(path, head["meta"][1], "meta", "invalid JSON") from None
-    if k >= len(lines):
-        raise FormatError(path, k, None, "truncated: no column header row")
+    if k >= len(lines) or not lines[k].strip():
+        raise FormatError(path, k + 1, None, "no column header row (a CSV needs at least "
+                          "'x,y,radius')")
     names = [c.strip() for c in lines[k].decode("utf-8", "replace").split(",")]
     for req in ("x", "y", "radius"):
         if req not in names:
-            raise FormatError(path, k + 1, req, f"column missing from header {names}")
+            raise FormatError(path, k + 1, req, f"column missing from the header row "
+                              f"({show(','.join(names), 60)})")
+    if len(set(names)) != len(names):
+        raise FormatError(path, k + 1, None, "duplicate column names in the header row")
     first = k + 2
     block = b"\n".join(lines[k + 1:])
+    if not block.strip():
+        require_particles(0, path)
     arr = None
     try:
         df = pd.read_csv(io.BytesIO(block), header=None, names=names, dtype=np.float64,
@@ -229,23 +252,24 @@ def read_csv(path) -> Configuration:
                 try:
                     val = float(tok)
                 except ValueError:
-                    raise FormatError(path, first + j, name, f"non-numeric value {tok!r}") from None
+                    raise FormatError(path, first + j, name,
+                                      f"non-numeric value {show(tok)}") from None
                 if not np.isfinite(val):
-                    raise FormatError(path, first + j, name, f"non-finite value {tok!r}")
+                    raise FormatError(path, first + j, name, f"non-finite value {show(tok)}")
         raise FormatError(path, first, None, "unparseable table")
     col = {c: i for i, c in enumerate(names)}
     rad = arr[:, col["radius"]]
     bad = np.flatnonzero(~(rad > 0))
     if bad.size:
         raise FormatError(path, first + int(bad[0]), "radius",
-                          f"value {rad[bad[0]]!r} (must be > 0)")
+                          f"value {float(rad[bad[0]])!r} (must be > 0)")
     used = {"id", "type", "x", "y", "radius", "vx", "vy", "fx", "fy"}
     fields = {c: arr[:, i] for c, i in col.items() if c not in used}
     for c in ("ix", "iy", "iz"):
         if c in fields:
             fields[c] = fields[c].astype(np.int64)
-    return Configuration(
-        positions=arr[:, [col["x"], col["y"]]], radii=rad, cell=cell, origin=origin,
+    return build(
+        path, positions=arr[:, [col["x"], col["y"]]], radii=rad, cell=cell, origin=origin,
         ids=arr[:, col["id"]].astype(np.int64) if "id" in col else None,
         types=arr[:, col["type"]].astype(np.int64) if "type" in col else None,
         velocities=arr[:, [col["vx"], col["vy"]]] if "vx" in col and "vy" in col else None,

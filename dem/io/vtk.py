@@ -27,7 +27,7 @@ import os
 
 import numpy as np
 
-from ._core import Configuration, FormatError
+from ._core import Configuration, FormatError, build, require_particles
 
 __all__ = ["write_vtk", "read_vtk"]
 
@@ -128,10 +128,13 @@ def read_vtk(path) -> Configuration:
     """Read back a file written by :func:`write_vtk` (disks only; contacts are recomputable)."""
     meshio = _meshio()
     path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no such file")
     try:
         mesh = meshio.read(path)
-    except Exception as e:
-        raise FormatError(path, None, None, f"not a readable VTK file ({e})") from None
+    except (Exception, SystemExit):  # meshio calls sys.exit on some malformed files
+        raise FormatError(path, None, None, "not a readable VTK file (meshio could not parse "
+                          "it)") from None
     pd = mesh.point_data
     for key in ("radius", "particle"):
         if key not in pd:
@@ -151,7 +154,8 @@ def read_vtk(path) -> Configuration:
     skip = {"radius", "particle", "id", "type", "velocity", "force"}
     fields = {k: np.asarray(v)[keep] for k, v in pd.items()
               if k not in skip and np.asarray(v).ndim == 1}
-    return Configuration(positions=mesh.points[keep, :2], radii=pd["radius"][keep], cell=cell,
-                         origin=origin, ids=pd["id"][keep] if "id" in pd else None,
-                         types=pd["type"][keep] if "type" in pd else None, velocities=vel,
-                         forces=frc, fields=fields, source=path, source_format="vtk")
+    require_particles(int(keep.sum()), path)
+    return build(path, positions=mesh.points[keep, :2], radii=pd["radius"][keep], cell=cell,
+                 origin=origin, ids=pd["id"][keep] if "id" in pd else None,
+                 types=pd["type"][keep] if "type" in pd else None, velocities=vel,
+                 forces=frc, fields=fields, source=path, source_format="vtk")

@@ -1,0 +1,299 @@
+"""Fault injection (issue 15): every reader on truncated, binary, empty and absurd input; read-only
+and impossible output folders; closed output pipes; degenerate networks. The rules: a library call
+never raises SystemExit and never returns a silent 0/0; a command line never prints a traceback
+for a user's mistake or the machine's state; a degenerate result is flagged with its reason."""
+import gzip
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dem import io
+from dem.__main__ import main as dem_main
+from dem.analyse import NOT_JAMMED, analyse
+from dem.io import Configuration, FormatError
+from studies.common import EXIT_NO_OUTPUT, cli_out_dir
+
+DATA = Path(__file__).parent / "data"
+NUMPY_INTERNALS = ("np.float64", "operands could not be broadcast", "pickled", "Traceback",
+                   "zero-size array")
+
+
+def lattice(n=4, a=1.0):
+    """A square lattice of touching disks (r = a/2) in an n x n periodic cell: every disk has 4
+    contacts."""
+    g = np.arange(n) * a + a / 2
+    xy = np.array([(x, y) for y in g for x in g])
+    return Configuration(positions=xy, radii=a / 2, cell=np.diag([n * a, n * a]))
+
+
+EXTS = ["data", "dump", "csv", "npz", "dfile"]
+
+
+def good_file(tmp_path, ext):
+    p = tmp_path / f"good.{ext}"
+    io.write(p, lattice())
+    return p
+
+
+def clean(msg, path):
+    """The message names the file, holds no numpy internals and no raw binary."""
+    assert str(path) in msg, msg
+    for bad in NUMPY_INTERNALS:
+        assert bad not in msg, msg
+    assert all(ch.isprintable() for ch in msg), repr(msg)
+
+
+# ---- every reader on truncated, binary, empty and absurd input ------------------------------
+
+@pytest.mark.parametrize("ext", EXTS)
+@pytest.mark.parametrize("damage", ["truncated", "binary", "empty"])
+def test_reader_damaged_input(tmp_path, ext, damage):
+    src = good_file(tmp_path, ext)
+    raw = src.read_bytes()
+    bad = tmp_path / f"bad.{ext}"
+    if damage == "truncated":
+        cut = len(raw) * 2 // 3
+        if ext == "csv":  # a CSV has no row count: cut inside a row (after a comma) to see it
+            cut = raw.rindex(b",", 0, cut) + 1
+        bad.write_bytes(raw[:cut])
+    elif damage == "binary":
+        bad.write_bytes(bytes(range(256)) * 8)
+    else:
+        bad.write_bytes(b"")
+    with pytest.raises(FormatError) as err:
+        io.read(bad)
+    clean(str(err.value), bad)
+
+
+@pytest.mark.parametrize("ext", ["data", "dump", "csv", "dfile"])
+def test_reader_absurd_coordinate_refused(tmp_path, ext):
+    """x = 1e300 used to be wrapped to x = 0, on top of a neighbour (issue 15 row 10)."""
+    cfg = lattice()
+    pos = cfg.positions.copy()
+    pos[3, 0] = 3.140625  # a marker, then edited to 1e300 in the text (no writer writes it)
+    p = tmp_path / f"far.{ext}"
+    io.write(p, Configuration(positions=pos, radii=cfg.radii, cell=cfg.cell))
+    text = p.read_text()
+    marker = "3.14062500000000000E+00" if ext == "dfile" else "3.140625"
+    assert text.count(marker) == 1
+    p.write_text(text.replace(marker, "1e300"))
+    with pytest.raises(FormatError, match="cell lengths from the cell") as err:
+        io.read(p)
+    clean(str(err.value), p)
+
+
+def test_no_particles_in_file(tmp_path):
+    """A CSV with a header only and an npz with 0 particles (issue 15 row 9)."""
+    csv = tmp_path / "empty.csv"
+    csv.write_text("# format_version: 1\nid,type,x,y,radius\n")
+    npz = tmp_path / "empty.npz"
+    io.write_npz(npz, Configuration(positions=np.empty((0, 2)), radii=np.empty(0)))
+    dump = tmp_path / "empty.dump"
+    dump.write_text("ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n0\nITEM: BOX BOUNDS pp pp pp\n"
+                    "0 4\n0 4\n-0.5 0.5\nITEM: ATOMS id type radius x y z\n")
+    for p in (csv, npz, dump):
+        with pytest.raises(FormatError, match="no particles in the file") as err:
+            io.read(p)
+        clean(str(err.value), p)
+    rc = dem_main(["analyse", str(csv)])
+    assert rc == 2
+
+
+def test_gzip_truncated_and_not_gzip(tmp_path):
+    """A truncated .gz gave an EOFError traceback, a non-gzip .gz a message without the file name
+    (issue 15 row 5)."""
+    good = tmp_path / "a.dump"
+    io.write(good, lattice())
+    gz = gzip.compress(good.read_bytes())
+    cut = tmp_path / "cut.dump.gz"
+    cut.write_bytes(gz[: len(gz) // 2])
+    plain = tmp_path / "plain.dump.gz"
+    plain.write_bytes(good.read_bytes())
+    for p, why in ((cut, "truncated"), (plain, "not gzip-compressed")):
+        with pytest.raises(FormatError, match=why) as err:
+            io.read(p)
+        clean(str(err.value), p)
+
+
+def test_garbage_vtu_is_a_format_error_not_systemexit(tmp_path):
+    """meshio calls sys.exit on some files; a notebook or batch loop must survive (row 3)."""
+    pytest.importorskip("meshio")
+    for content in (b"garbage\n", b"<VTKFile type='UnstructuredGrid'>", bytes(range(256))):
+        p = tmp_path / "garbage.vtu"
+        p.write_bytes(content)
+        with pytest.raises(FormatError) as err:
+            io.read(p)
+        clean(str(err.value), p)
+
+
+def test_corrupt_npz_messages(tmp_path):
+    """Row 12: a text file named .npz, an npz with a wrong-shaped array, a bad radius."""
+    txt = tmp_path / "text.npz"
+    txt.write_text("positions,radii\n1,2\n")
+    cfg = lattice()
+    wrong = tmp_path / "wrong.npz"
+    np.savez(wrong, format=np.array("microhom-configuration"), format_version=np.array(1),
+             positions=cfg.positions, radii=np.ones(3), origin=np.zeros(2))
+    neg = tmp_path / "neg.npz"
+    np.savez(neg, format=np.array("microhom-configuration"), format_version=np.array(1),
+             positions=cfg.positions, radii=-0.5 * np.ones(16), origin=np.zeros(2))
+    for p, words in ((txt, "not a readable npz"), (wrong, "one value per particle"),
+                     (neg, "-0.5 (must be > 0)")):
+        with pytest.raises(FormatError, match=words.replace("(", r"\(").replace(")", r"\)")) as err:
+            io.read(p)
+        clean(str(err.value), p)
+
+
+def test_plain_csv_from_another_code(tmp_path):
+    """A plain x,y,radius table without '# format_version' is read (an open packing)."""
+    p = tmp_path / "other.csv"
+    p.write_text("x,y,radius\n0.5,0.5,0.5\n1.5,0.5,0.5\n")
+    cfg = io.read(p)
+    assert cfg.n_particles == 2 and cfg.cell is None
+    np.testing.assert_array_equal(cfg.positions, [[0.5, 0.5], [1.5, 0.5]])
+
+
+# ---- read-only and impossible output folders ------------------------------------------------
+
+def unwritable_dirs(tmp_path):
+    """Folders that cannot be written: always a path under a regular file; a folder without
+    write permission too, unless we run as root (root's writes ignore the mode bits)."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    out = [blocker / "sub"]
+    if os.geteuid() != 0:
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        out.append(ro / "out")
+    return out
+
+
+def test_cli_out_dir_refuses_before_computing(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("MICROHOM_CACHE", raising=False)
+    for d in unwritable_dirs(tmp_path):
+        with pytest.raises(SystemExit) as ex:
+            cli_out_dir(d)
+        assert ex.value.code == EXIT_NO_OUTPUT
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and str(d) in err and "nothing was computed" in err
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="the chmod case runs above when not root")
+def test_root_cannot_be_denied_by_chmod(tmp_path):
+    """As root, a folder without write bits is still writable: the tests above therefore use a
+    path under a regular file, which nobody can create."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    (ro / "x").write_text("root writes anyway")
+
+
+def test_kuhn_out_unwritable_exits_73_at_once(tmp_path):
+    """studies.kuhn --out in an impossible folder: one line, exit 73, before any packing."""
+    bad = unwritable_dirs(tmp_path)[0]
+    p = subprocess.run([sys.executable, "-m", "studies.kuhn", "--quick", "--out", str(bad)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == EXIT_NO_OUTPUT, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and str(bad) in p.stderr
+    assert "Traceback" not in p.stderr and p.stdout == ""
+
+
+def test_cache_follows_out(tmp_path, monkeypatch):
+    """Row 19: the packing cache goes under --out (unless MICROHOM_CACHE is set by the user)."""
+    monkeypatch.delenv("MICROHOM_CACHE", raising=False)
+    out = cli_out_dir(tmp_path / "x")
+    assert os.environ["MICROHOM_CACHE"] == str(out / "cache" / "packings")
+    out2 = cli_out_dir(tmp_path / "y")  # a second study in the same process follows its own --out
+    assert os.environ["MICROHOM_CACHE"] == str(out2 / "cache" / "packings")
+    monkeypatch.setenv("MICROHOM_CACHE", str(tmp_path / "mine"))
+    cli_out_dir(tmp_path / "z")
+    assert os.environ["MICROHOM_CACHE"] == str(tmp_path / "mine")
+
+
+# ---- closed output pipes ------------------------------------------------------------------
+
+@pytest.mark.parametrize("cmd", [["microhom", "predict", "--nc", "3.5", "4", "4.5", "--json"],
+                                 ["dem", "analyse", str(DATA / "D0001"), "--no-exact"]])
+def test_closed_pipe_is_silent(cmd):
+    """Row 18: 'predict --json | head' printed "error: [Errno 32] Broken pipe"."""
+    p = subprocess.Popen([sys.executable, "-m", *cmd], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before anything is written
+    err = p.stderr.read().decode()
+    rc = p.wait(timeout=120)
+    assert err == "" and rc == 141, (rc, err)
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (a device that is "
+                    "always full) to play the full disk")
+@pytest.mark.parametrize("cmd", [["microhom", "predict", "--json"],
+                                 ["dem", "analyse", str(DATA / "D0001"), "--no-exact"]])
+def test_full_disk_output_is_one_line(cmd):
+    """Output to a full device: one line naming the cause, exit 1, no traceback."""
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", *cmd], stdout=full, stderr=subprocess.PIPE,
+                           text=True, timeout=120)
+    assert p.returncode == 1, p.stderr
+    assert "No space left on device" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+# ---- degenerate networks ------------------------------------------------------------------
+
+def gas(tmp_path):
+    xy = np.array([(2.0 * i + 1, 2.0 * j + 1) for i in range(5) for j in range(5)])
+    p = tmp_path / "gas.csv"
+    io.write(p, Configuration(positions=xy, radii=0.5, cell=np.diag([10.0, 10.0])))
+    return p
+
+
+def test_all_rattler_gas_is_flagged_not_jammed(tmp_path):
+    """Row 17: r = 0 and rho = 0 were reported for 0/0 and the theory blamed 'kn ... got nan'."""
+    cfg = io.read(gas(tmp_path))
+    res = analyse(cfg.network(kn=1.0))
+    assert not res.jammed
+    for sec in (res.structural, res.theory, res.stiffness):
+        assert sec == {"error": NOT_JAMMED}
+    assert res.coordination["z"] is None and NOT_JAMMED in res.notes
+    assert "nan" not in json.dumps(res.as_dict()).lower()
+
+
+def test_all_rattler_gas_cli(tmp_path, capsys):
+    assert dem_main(["analyse", str(gas(tmp_path)), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"bare {c}"))
+    assert r["theory"] == {"error": NOT_JAMMED} and "kn" not in r["theory"]["error"].split(":")[0]
+
+
+def test_one_atom_dump_json_has_no_bare_nan(tmp_path, capsys):
+    """Row 15: 'analyse one_atom.dump --json' printed a bare NaN."""
+    p = tmp_path / "one_atom.dump"
+    p.write_text("ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n1\nITEM: BOX BOUNDS pp pp pp\n"
+                 "0 4\n0 4\n-0.5 0.5\nITEM: ATOMS id type radius x y z\n1 1 0.5 1 1 0\n")
+    assert dem_main(["analyse", str(p), "--json"]) == 0
+    text = capsys.readouterr().out
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c} in the JSON"))
+    assert "NaN" not in text
+
+
+def test_stiffening_correction_flagged(capsys):
+    """Row 6: 'predict --rho -5' gave K, G 3 and 4 times the mean field with validity ok."""
+    from microhom.__main__ import main as mh_main
+    assert mh_main(["predict", "--rho", "-5"]) == 3
+    out = capsys.readouterr().out
+    assert "FLAGGED" in out and "stiffening" in out
+
+
+def test_open_packing_sections_say_why(tmp_path, capsys):
+    """An open packing (a plain CSV from another code) has no periodic stiffness: the section says
+    why, the rest is computed, nothing is a traceback or a NaN."""
+    p = tmp_path / "open.csv"
+    p.write_text("x,y,radius\n" + "".join(f"{x},{y},0.5\n" for x in range(4) for y in range(4)))
+    assert dem_main(["analyse", str(p), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"bare {c}"))
+    assert r["network"]["periodic"] is False and r["coordination"]["z_all"] > 0
+    assert "error" in r["stiffness"] and r["stiffness"]["error"]
