@@ -567,8 +567,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     ordering : CHOLMOD fill-reducing ordering on the particle graph (:func:`particle_ordering`).
     rtol : target relative residual of the relaxation solve.
 
-    Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags`` and
-    raise a ``RuntimeWarning`` with the reason.
+    Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
+    "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
+    lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
     if count not in COUNTS:
@@ -619,8 +620,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         c_rel = c_rel + prestress_correction(sigma0)
     flags += degeneracy_flags(c_rel, c_aff, modes, net.n_particles, int(asm.rattlers.sum()),
                               red.H.shape[0])
-    for msg in flags:
-        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    for msg in flags:   # a floppy direction is a property of the network, flagged but not warned
+        if not msg.startswith("floppy"):
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
     c_rel, c_aff = c_rel * s, c_aff * s
     N = net.n_particles
     full = np.zeros((3 * N + 1, 3))

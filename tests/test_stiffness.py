@@ -443,6 +443,12 @@ def test_gas_frame_is_flagged_not_jammed():
     assert any(f.startswith("not jammed") and "floppy" in f for f in r.flags)
 
 
+def test_floppy_is_flagged_without_a_warning(recwarn):
+    r = stiffness(lattices.square(5, 6, kn=3.0, kt=0.0))
+    assert [f for f in r.flags if f.startswith("floppy")] and not r.ok
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
 def test_result_exports():
     r = stiffness(lattices.triangular(6, 6, kn=1.0, kt=0.5))
     d = r.as_dict()
