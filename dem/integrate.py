@@ -8,6 +8,10 @@ Scheme (leapfrog / velocity Verlet in kick-drift form, as in PFC and Yade)::
     h_{n+1}   = h_n + dt L h_n                             (same operator: images stay consistent)
 
 with spins ``w`` and rotations integrated the same way with torques and ``I = m r^2 / 2``.
+``Simulation(startup="lammps")`` takes the initial velocities as v(0) instead (LAMMPS' velocity
+Verlet): the first force call does not advance the contact history and the first kick is dt/2,
+after which the sequence is the same. With ``fuse=True`` and no cell control, each particle is
+kicked and drifted inside the force loop once its force is complete (same arithmetic).
 
 Cundall local non-viscous damping, per component: ``F_damp,k = -lambda |F_k| sign(v_k)`` (first
 order, ``v = v_{n-1/2}``); default ``lambda = 0.7`` for quasi-static work, 0 for dynamics. The work
@@ -16,8 +20,9 @@ done by it is accumulated in ``Simulation.damping_work`` [J/m].
 Critical time step (stated formula): ``dt_crit = min_i sqrt(m_i / K_i)`` with
 ``K_i = z_i * k_law`` the sum over the *possible* contacts of particle i of the law's stiffness,
 ``z_i = floor(pi / asin(r_min / (r_i + r_min)))`` the largest number of disks of the smallest radius
-that can touch disk i (6 for identical disks) and ``k_law`` = ``kn`` (frictionless) or
-``max(kn, 2 kt)`` (with friction and spins, covering the rotational modes of disks). Since the
+that can touch disk i (6 for identical disks) and ``k_law`` = ``law.dt_stiffness()``: ``kn``
+(frictionless), ``max(kn, 2 kt)`` with friction and spins (covering the rotational modes of
+disks), ``max(kn, 2 kt + 2 kr_ratio kn)`` with rolling resistance. Since the
 largest eigenfrequency of the assembly obeys ``omega_max^2 <= 2 K_i / m_i`` (Gershgorin), the
 leapfrog limit ``2 / omega_max`` is at least ``sqrt(2) dt_crit``. Default ``dt = 0.8 dt_crit``; a
 larger user ``dt`` than ``dt_crit`` raises ``ValueError``.
@@ -28,7 +33,10 @@ full-diameter overlap); a failure raises :class:`InstabilityError` carrying the 
 saves it to ``failure_path`` if set).
 
 Timing: every run ends with a per-phase table (neighbours, forces, integration, other) and the
-particle-steps per second, like LAMMPS (``Simulation.timing_report()``).
+particle-steps per second, like LAMMPS (``Simulation.timing_report()``). The stress, energy and
+contact tallies of the force loop (``Simulation.out``) are computed on the steps that read them
+only: every step under a cell control, on callback steps and on the last step of :meth:`run`, and
+on every :meth:`step` called directly.
 """
 from __future__ import annotations
 
@@ -38,8 +46,11 @@ import time as _time
 import numpy as np
 from numba import njit
 
+from . import contact_models as cm
 from . import neighbors
 from .contact_laws import law_from_meta
+from .contact_models import kick_drift, kick_spin
+from .state import State
 from .runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
 
 __all__ = ["Simulation", "critical_dt", "possible_contacts"]
@@ -60,79 +71,21 @@ def critical_dt(state, law) -> float:
 
 # --------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def _step_translation(x, v, f, mass, dt, damping, L00, L01, L10, L11, x_ref, F00, F01, F10, F11):
-    """Kick-drift of translations; returns (max non-affine displacement^2 since the last build,
-    kinetic energy at the integer time, work of the local damping)."""
-    # flat views of the (N, 2) C arrays: no stride arithmetic in the loop (same operations)
+def _step_translation(x, v, f, mass, dtk, dt, damping, L00, L01, L10, L11, x_ref, F00, F01, F10, F11, acc):
+    """Kick-drift of translations (kick step dtk, drift step dt) of every particle, in order; acc
+    (5,) as in :func:`dem.contact_models.pair_forces`."""
     xf = x.reshape(-1)
     vf = v.reshape(-1)
     ff = f.reshape(-1)
     rf = x_ref.reshape(-1)
-    d2max = 0.0
-    ke = 0.0
-    wd = 0.0
     for i in range(x.shape[0]):
-        m = mass[i]
-        for k in range(2):
-            F = ff[2 * i + k]
-            vo = vf[2 * i + k]
-            Fd = 0.0
-            if damping > 0.0:
-                if vo > 0.0:
-                    Fd = -damping * abs(F)
-                elif vo < 0.0:
-                    Fd = damping * abs(F)
-            vn = vo + dt * (F + Fd) / m
-            vm = 0.5 * (vo + vn)
-            ke += 0.5 * m * vm * vm
-            wd += Fd * vm * dt
-            vf[2 * i + k] = vn
-        x0 = xf[2 * i]
-        x1 = xf[2 * i + 1]
-        y0 = x0 + dt * (vf[2 * i] + L00 * x0 + L01 * x1)
-        y1 = x1 + dt * (vf[2 * i + 1] + L10 * x0 + L11 * x1)
-        xf[2 * i] = y0
-        xf[2 * i + 1] = y1
-        r0 = rf[2 * i]
-        r1 = rf[2 * i + 1]
-        dx = y0 - (F00 * r0 + F01 * r1)
-        dy = y1 - (F10 * r0 + F11 * r1)
-        d2 = dx * dx + dy * dy
-        if d2 > d2max:
-            d2max = d2
-    return d2max, ke, wd
+        kick_drift(i, xf, vf, ff, rf, mass, dtk, dt, damping, L00, L01, L10, L11, F00, F01, F10, F11, acc)
 
 
 @njit(cache=True)
-def _step_rotation(omega, theta, torque, inertia, dt, damping):
-    ke = 0.0
-    wd = 0.0
+def _step_rotation(omega, theta, torque, inertia, dtk, dt, damping, acc):
     for i in range(omega.shape[0]):
-        T = torque[i]
-        wo = omega[i]
-        Td = 0.0
-        if damping > 0.0:
-            if wo > 0.0:
-                Td = -damping * abs(T)
-            elif wo < 0.0:
-                Td = damping * abs(T)
-        wn = wo + dt * (T + Td) / inertia[i]
-        wm = 0.5 * (wo + wn)
-        ke += 0.5 * inertia[i] * wm * wm
-        wd += Td * wm * dt
-        omega[i] = wn
-        theta[i] += dt * wn
-    return ke, wd
-
-
-@njit(cache=True)
-def _kinetic(v, mass, omega, inertia):
-    ke = 0.0
-    for i in range(v.shape[0]):
-        ke += 0.5 * mass[i] * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1])
-    for i in range(omega.shape[0]):
-        ke += 0.5 * inertia[i] * omega[i] * omega[i]
-    return ke
+        kick_spin(i, omega, theta, torque, inertia, dtk, dt, damping, acc)
 
 
 @njit(cache=True)
@@ -145,6 +98,18 @@ def _resultants(f):
         if a > m:
             m = a
     return s, m
+
+
+def _new_history(npairs, law):
+    """Zero contact history: (P,) for one slot per pair (the layout of older checkpoints), else
+    (P, slots)."""
+    k = law.history_size
+    return np.zeros(npairs) if k == 1 else np.zeros((npairs, k))
+
+
+def _history_fits(hist, law):
+    k = law.history_size
+    return hist is not None and (hist.ndim == 1 if k == 1 else hist.ndim == 2 and hist.shape[1] == k)
 
 
 def _norm2_2x2(a, b, c, d):
@@ -169,10 +134,19 @@ class Simulation:
         (the cell keeps its current ``L``).
     sort_every : spatially sort the particles every this many list rebuilds (0: never).
     check_every : steps between instability checks; ke_limit : kinetic-energy bound [J/m].
+    startup : ``"leapfrog"`` (default): ``state.v`` holds the half-step velocities v(n - 1/2), as
+        this engine stores them. ``"lammps"``: ``state.v`` and ``state.omega`` are the velocities at
+        the integer time, as LAMMPS (velocity Verlet) stores them; the first step then computes
+        the forces with them without advancing the contact history (LAMMPS' setup force call) and
+        kicks by dt/2, after which the two schemes coincide.
+    fuse : kick and drift inside the force loop when the cell has no control (bit-identical to
+        the separate pass, one pass over the particle arrays fewer; measured no faster on the
+        benchmark scene, see ``docs/dem.md``, hence off by default).
     """
 
     def __init__(self, state, law, *, dt=None, damping=0.7, skin=None, control=None, sort_every=20,
-                 check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None):
+                 check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None, startup="leapfrog",
+                 fuse=False):
         self.state = state
         self.law = law
         if not (0 <= damping < 1):
@@ -200,9 +174,13 @@ class Simulation:
         if law.needs_spin and state.omega is None:
             state.omega = np.zeros(state.n)
             state.theta = np.zeros(state.n)
-        if law.needs_history and state.nl_i is not None and state.nl_ft is None:
-            state.nl_ft = np.zeros(state.nl_i.shape[0])
+        if startup not in ("leapfrog", "lammps"):
+            raise ValueError(f"startup must be 'leapfrog' or 'lammps', got {startup!r}")
+        self.fuse = bool(fuse)
+        if law.needs_history and state.nl_i is not None and not _history_fits(state.nl_ft, law):
+            state.nl_ft = _new_history(state.nl_i.shape[0], law)
         meta = state.meta.get("sim", {})
+        self.startup_pending = bool(meta.get("startup_pending", startup == "lammps"))
         self.n_rebuilds = int(meta.get("n_rebuilds", 0))
         self.need_rebuild = bool(meta.get("need_rebuild", state.nl_i is None))
         self.damping_work = float(meta.get("damping_work", 0.0))
@@ -219,8 +197,8 @@ class Simulation:
         self.f = np.zeros((n, 2))
         self.torque = np.zeros(n if self.law.needs_spin else 0)
         self.out = np.zeros(8)
+        self.acc = np.zeros(5)
         self._empty = np.zeros(0)
-        self._prm = self.law.params()
         self._pc = None          # per-pair law constants, valid for (self._pc_list, self._pc_mass)
         self._pc_list = None
         self._pc_mass = None
@@ -228,57 +206,51 @@ class Simulation:
 
     def set_law(self, law):
         """Switch the contact law (e.g. preparation friction -> test friction); dt is re-checked."""
-        if law.needs_spin != self.law.needs_spin or law.needs_history != self.law.needs_history:
-            raise ValueError("set_law: the new law must have the same spin/history needs")
+        if law.needs_spin != self.law.needs_spin or law.history_parity != self.law.history_parity:
+            raise ValueError("set_law: the new law must have the same spin and history layout")
         dtc = critical_dt(self.state, law)
         if self.dt > dtc:
             raise ValueError(f"dt = {self.dt:.6g} exceeds the stable time step {dtc:.6g} of the new law")
         self.law = law
         self.dt_crit = dtc
-        self._prm = law.params()
         self._pc = None
 
     # ---- pieces of a step ------------------------------------------------------------------------
     def rebuild(self):
         sort = self.sort_every > 0 and self.n_rebuilds % self.sort_every == 0
-        neighbors.rebuild(self.state, self.skin, sort=sort, with_history=self.law.needs_history)
+        neighbors.rebuild(self.state, self.skin, sort=sort, history=self.law.history_parity)
         self.n_rebuilds += 1
         self.need_rebuild = False
         self._href_inv = np.linalg.inv(self.state.h_ref)
 
-    def compute_forces(self):
-        """Contact forces at the current positions (advances the tangential history: call it only
-        as part of a step; use :meth:`measure` for read-only quantities)."""
+    def _pair_loop(self, kick, dt_history, tally=True):
         st = self.state
         if self.need_rebuild or st.nl_i is None:
             self.rebuild()
         h, L = st.h, st.L
-        omega = st.omega if self.law.needs_spin else self._empty
-        ft = st.nl_ft if self.law.needs_history else self._empty
+        law = self.law
         if self._pc is None or self._pc_list is not st.nl_i or self._pc_mass is not st.mass:
-            self._pc = self.law.pair_constants(st.mass, st.nl_i, st.nl_j)
+            self._pc = law.pair_constants(st.mass, st.nl_i, st.nl_j)
             self._pc_list = st.nl_i
             self._pc_mass = st.mass
-        self.law.kernel(st.x, st.v, omega, st.radius, st.mass, L[0, 0], L[0, 1], L[1, 0], L[1, 1],
-                        h[0, 0], h[0, 1], h[1, 0], h[1, 1], st.nl_i, st.nl_j, st.nl_shift, ft,
-                        self._prm, self.dt, self.f, self.torque, self.out, self._pc)
+        e = self._empty
+        spin = law.needs_spin
+        normal, damping, tangential, rolling = law.models
+        cm.pair_forces(st.x, st.v, st.omega if spin else e, st.theta if spin else e, st.radius, st.mass,
+                       st.inertia if spin else e, st.x_ref, st.nl_i, st.nl_j, st.nl_shift,
+                       st.nl_ft.reshape(-1) if law.needs_history else e, self._pc,
+                       cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
+                       normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
+                       self.f, self.torque, self.out, self.acc)
 
-    def step(self):
-        st = self.state
-        t0 = _time.perf_counter()
-        if self.need_rebuild or st.nl_i is None:
-            self.rebuild()
-        t1 = _time.perf_counter()
-        self.compute_forces()
-        t2 = _time.perf_counter()
-        A = st.h[0, 0] * st.h[1, 1] - st.h[0, 1] * st.h[1, 0]
-        if self.control is not None:
-            p = (self.out[0] + self.out[3]) / (2.0 * A)  # p = -tr(sigma)/2, sigma = -S/A
-            st.L = np.asarray(self.control.update(st, p, self.out[7] / (2.0 * A), self.dt), dtype=float)
-        L = st.L
-        dt = self.dt
-        h = st.h
-        # h_{n+1} = (I + dt L) h_n
+    def compute_forces(self):
+        """Contact forces at the current positions (advances the tangential history: call it only
+        as part of a step; use :meth:`measure` for read-only quantities)."""
+        self._pair_loop(cm.NO_KICK, self.dt)
+
+    def _deformation(self, L, dt):
+        """h_{n+1} = (I + dt L) h_n and F = h_{n+1} h_ref^{-1} by entries."""
+        h = self.state.h
         h00 = h[0, 0] + dt * (L[0, 0] * h[0, 0] + L[0, 1] * h[1, 0])
         h01 = h[0, 1] + dt * (L[0, 0] * h[0, 1] + L[0, 1] * h[1, 1])
         h10 = h[1, 0] + dt * (L[1, 0] * h[0, 0] + L[1, 1] * h[1, 0])
@@ -288,19 +260,55 @@ class Simulation:
         F01 = h00 * r[0, 1] + h01 * r[1, 1]
         F10 = h10 * r[0, 0] + h11 * r[1, 0]
         F11 = h10 * r[0, 1] + h11 * r[1, 1]
-        t3 = _time.perf_counter()
-        d2, ke, wd = _step_translation(st.x, st.v, self.f, st.mass, dt, self.damping,
-                                       L[0, 0], L[0, 1], L[1, 0], L[1, 1], st.x_ref, F00, F01, F10, F11)
+        return (h00, h01, h10, h11), (F00, F01, F10, F11)
+
+    def step(self, tally=True):
+        """One time step. ``tally=False`` skips the stress, energy and contact sums of ``out`` (as
+        LAMMPS skips energy and virial on steps without output); a cell control always tallies,
+        and :meth:`measure`, ``energy_n`` refer to the last tallied step."""
+        st = self.state
+        tally = tally or self.control is not None
+        dt = self.dt
+        dtk, dth = dt, dt
+        if self.startup_pending:  # LAMMPS start-up: setup force call, half kick
+            dtk, dth = 0.5 * dt, 0.0
+        t0 = _time.perf_counter()
+        if self.need_rebuild or st.nl_i is None:
+            self.rebuild()
+        t1 = _time.perf_counter()
+        acc = self.acc
+        if self.fuse and self.control is None:
+            L = st.L
+            hn, Fd = self._deformation(L, dt)
+            self._pair_loop(cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd), dth,
+                            tally)
+            t2 = t3 = t4 = _time.perf_counter()
+        else:
+            self._pair_loop(cm.NO_KICK, dth, tally)
+            t2 = _time.perf_counter()
+            A = st.h[0, 0] * st.h[1, 1] - st.h[0, 1] * st.h[1, 0]
+            if self.control is not None:
+                p = (self.out[0] + self.out[3]) / (2.0 * A)  # p = -tr(sigma)/2, sigma = -S/A
+                st.L = np.asarray(self.control.update(st, p, self.out[7] / (2.0 * A), dt), dtype=float)
+            L = st.L
+            hn, Fd = self._deformation(L, dt)
+            t3 = _time.perf_counter()
+            acc[:] = 0.0
+            _step_translation(st.x, st.v, self.f, st.mass, dtk, dt, self.damping,
+                              L[0, 0], L[0, 1], L[1, 0], L[1, 1], st.x_ref, *Fd, acc)
+            if self.law.needs_spin:
+                _step_rotation(st.omega, st.theta, self.torque, st.inertia, dtk, dt, self.damping, acc)
+            t4 = _time.perf_counter()
+        d2, ke, wd = acc[0], acc[1], acc[2]
         if self.law.needs_spin:
-            ker, wdr = _step_rotation(st.omega, st.theta, self.torque, st.inertia, dt, self.damping)
-            ke += ker
-            wd += wdr
-        t4 = _time.perf_counter()
-        st.h = np.array([[h00, h01], [h10, h11]])
+            ke += acc[3]
+            wd += acc[4]
+        st.h = np.array([[hn[0], hn[1]], [hn[2], hn[3]]])
+        self.startup_pending = False
         self.damping_work += wd
         self.ke_n = ke
-        self.energy_n = ke + self.out[6]
-        dF = _norm2_2x2(F00 - 1.0, F01, F10, F11 - 1.0)
+        self.energy_n = ke + self.out[6] if tally else float("nan")
+        dF = _norm2_2x2(Fd[0] - 1.0, Fd[1], Fd[2], Fd[3] - 1.0)
         if 2.0 * math.sqrt(d2) + dF * self.rc > self.skin:
             self.need_rebuild = True
         st.step += 1
@@ -343,6 +351,7 @@ class Simulation:
                 "check_every": self.check_every, "ke_limit": self.ke_limit,
                 "n_rebuilds": self.n_rebuilds, "need_rebuild": self.need_rebuild,
                 "damping_work": self.damping_work, "law": self.law.to_meta(),
+                "startup_pending": self.startup_pending,
                 "control": None if self.control is None else self.control.to_meta()}
 
     # ---- runs -------------------------------------------------------------------------------------
@@ -356,9 +365,11 @@ class Simulation:
         s0 = self.steps_timed
         w0 = _time.perf_counter()
         stopped = False
+        cb = callback is not None and every > 0
         for k in range(nsteps):
-            self.step()
-            if callback is not None and every > 0 and (k + 1) % every == 0:
+            # tally the stress and energy sums only where they are read: callbacks and the last step
+            self.step(tally=k == nsteps - 1 or (cb and (k + 1) % every == 0))
+            if cb and (k + 1) % every == 0:
                 if callback(self):
                     stopped = True
                     break
@@ -404,12 +415,9 @@ class Simulation:
         history is restored afterwards); use before :meth:`measure` on a freshly loaded state."""
         st = self.state
         keep = None if st.nl_ft is None else st.nl_ft.copy()
-        dt = self.dt
         try:
-            self.dt = 0.0  # no history increment
-            self.compute_forces()
+            self._pair_loop(cm.NO_KICK, 0.0)  # no history increment
         finally:
-            self.dt = dt
             if keep is not None and st.nl_ft is not None and keep.shape == st.nl_ft.shape:
                 st.nl_ft[:] = keep
         return self.measure()
@@ -424,7 +432,6 @@ class Simulation:
     def load(cls, path, *, control=None, **overrides):
         """Restart from :meth:`save`. The cell control object is passed again by the caller (its
         settings are in ``state.meta['sim']['control']`` for reference)."""
-        from .state import State
         st = State.load(path)
         m = st.meta["sim"]
         law = law_from_meta(m["law"])

@@ -50,6 +50,14 @@ from pathlib import Path
 
 import numpy as np
 
+from microhom.network import from_overlaps
+
+from . import io
+from .contact_laws import LinearFriction
+from .integrate import critical_dt
+from .io import FormatError
+from .packing import random_gas
+
 __all__ = ["LammpsRun", "write_inputs", "run_lammps", "read_run", "pack_lammps", "lammps_available",
            "read_dump_local", "INPUT_NAME"]
 
@@ -98,11 +106,6 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
     skin : neighbour skin (default 0.2 mean radius). dt : time step (default ``0.8 dt_crit`` of
         :func:`dem.integrate.critical_dt`, the same as :mod:`dem.packing`).
     """
-    from dem import io
-    from dem.contact_laws import LinearFriction
-    from dem.integrate import critical_dt
-    from dem.packing import random_gas
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     kt = kn if kt is None else kt
@@ -330,8 +333,6 @@ def run_lammps(folder, *, np=1, lmp="lmp", mpirun="mpirun", input_name=INPUT_NAM
 
 def read_dump_local(path) -> tuple[list, np.ndarray]:
     """Last frame of a LAMMPS ``dump local`` text file: (column names, (M, ncol) array)."""
-    from dem.io import FormatError
-
     text = Path(path).read_text()
     k = text.rfind("ITEM: TIMESTEP")
     if k < 0:
@@ -411,9 +412,6 @@ def read_run(folder, params=None) -> LammpsRun:
     ``params``: the dict :func:`write_inputs` returned (kn, kt, mu); if None they are read back
     from the header comment of ``in.packing``.
     """
-    from dem import io
-    from microhom.network import from_overlaps
-
     folder = Path(folder)
     if params is None:
         head = (folder / INPUT_NAME).read_text().splitlines()[3]

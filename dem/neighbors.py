@@ -14,9 +14,11 @@ cell deformation).
 
 At a rebuild, positions are wrapped into the cell (the image shifts of the old pairs are updated
 accordingly, ``s' = s + k_j - k_i``), particles are optionally re-ordered by bin (spatial sorting for
-memory locality; ``ids`` keeps the original labels) and the tangential history of every pair
-``(i, j, s)`` still in the list is carried over. A 2D tangential force history is a scalar along
-``t = rot90(n)``, invariant under swapping i and j, so re-ordering keeps it unchanged.
+memory locality; ``ids`` keeps the original labels) and the contact history of every pair
+``(i, j, s)`` still in the list is carried over. Each history slot has a parity under swapping i
+and j (declared by the contact law's sub-models): a scalar tangential force along
+``t = rot90(n)`` is invariant (+1), a shear-displacement vector or a relative rotation changes
+sign (-1); a re-ordering that swaps a pair applies it.
 """
 from __future__ import annotations
 
@@ -25,7 +27,9 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["rebuild", "needs_rebuild", "list_cutoff", "bin_counts"]
+from .cell import heights
+
+__all__ = ["rebuild", "list_cutoff", "bin_counts"]
 
 
 def list_cutoff(radius, skin) -> float:
@@ -36,7 +40,6 @@ def bin_counts(h, rc):
     """Number of bins along each fractional direction (>= 1) and the check that the cell is large
     enough: both perpendicular widths must exceed ``rc`` (a particle then meets at most one image
     of each neighbour)."""
-    from .cell import heights
     H = heights(h)
     if np.any(H <= rc):
         raise ValueError(f"periodic cell too small: its widths {H} must exceed the neighbour-list "
@@ -86,8 +89,9 @@ def _shift_old_pairs(oi, oj, osh, k):
 
 
 @njit(cache=True)
-def _remap_old_pairs(oi, oj, osh, inv):
-    """Apply a particle permutation (new index = inv[old]) to the old list, keeping i < j."""
+def _remap_old_pairs(oi, oj, osh, inv, oft, parity):
+    """Apply a particle permutation (new index = inv[old]) to the old list, keeping i < j; the
+    history slots of a swapped pair are multiplied by their parity (+1 or -1)."""
     for p in range(oi.shape[0]):
         a = inv[oi[p]]
         b = inv[oj[p]]
@@ -99,6 +103,9 @@ def _remap_old_pairs(oi, oj, osh, inv):
             oj[p] = a
             osh[p, 0] = -osh[p, 0]
             osh[p, 1] = -osh[p, 1]
+            for k in range(parity.shape[0]):
+                if parity[k] < 0:
+                    oft[p, k] = -oft[p, k]
 
 
 @njit(cache=True)
@@ -192,7 +199,7 @@ def _sort_pairs(pi, pj, ps, m):
 
 @njit(cache=True)
 def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
-    """ft[p] = oft of the old pair with the same (i, j, shift), else 0."""
+    """ft[p, :] = oft[q, :] of the old pair q with the same (i, j, shift), else 0."""
     start = np.zeros(n + 1, np.int64)
     for p in range(oi.shape[0]):
         start[oi[p] + 1] += 1
@@ -203,52 +210,54 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
     for p in range(oi.shape[0]):
         order[fill[oi[p]]] = p
         fill[oi[p]] += 1
+    nk = ft.shape[1]
     for p in range(pi.shape[0]):
         i = pi[p]
-        val = 0.0
         for q in range(start[i], start[i + 1]):
             o = order[q]
             if oj[o] == pj[p] and osh[o, 0] == ps[p, 0] and osh[o, 1] == ps[p, 1]:
-                val = oft[o]
+                for k in range(nk):
+                    ft[p, k] = oft[o, k]
                 break
-        ft[p] = val
 
 
 @njit(cache=True)
-def max_nonaffine_disp2(x, x_ref, f00, f01, f10, f11):
-    """max_i |x_i - F x_ref_i|^2."""
-    m = 0.0
-    for i in range(x.shape[0]):
-        dx = x[i, 0] - (f00 * x_ref[i, 0] + f01 * x_ref[i, 1])
-        dy = x[i, 1] - (f10 * x_ref[i, 0] + f11 * x_ref[i, 1])
-        d2 = dx * dx + dy * dy
-        if d2 > m:
-            m = d2
-    return m
-
-
-def _frel(h, h_ref):
-    return np.asarray(h) @ np.linalg.inv(h_ref)
-
-
-def needs_rebuild(state, skin, rc) -> bool:
-    """True if the Verlet list of ``state`` may miss a contact (see module docstring)."""
-    if state.nl_i is None:
-        return True
-    F = _frel(state.h, state.h_ref)
-    d2 = max_nonaffine_disp2(state.x, state.x_ref, F[0, 0], F[0, 1], F[1, 0], F[1, 1])
-    dF = np.linalg.norm(F - np.eye(2), 2)
-    return 2.0 * math.sqrt(d2) + dF * rc > skin
+def _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
+    """As :func:`_carry_history` for an old list still ordered by i (no re-ordering since it was
+    built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
+    written) if the old list is not ordered by i."""
+    for q in range(1, oi.shape[0]):
+        if oi[q] < oi[q - 1]:
+            return False
+    nk = ft.shape[1]
+    q0 = 0
+    nold = oi.shape[0]
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        while q0 < nold and oi[q0] < i:
+            q0 += 1
+        q = q0
+        while q < nold and oi[q] == i:
+            j = oj[q]
+            if j == pj[p] and osh[q, 0] + k[j, 0] - k[i, 0] == ps[p, 0] \
+                    and osh[q, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
+                for c in range(nk):
+                    ft[p, c] = oft[q, c]
+                break
+            q += 1
+    return True
 
 
 _PER_PARTICLE = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids")
 
 
-def rebuild(state, skin, *, sort=False, with_history=None):
+def rebuild(state, skin, *, sort=False, history=None):
     """Rebuild the Verlet list of ``state`` in place (wrap, optional spatial sort, history carry-over).
 
-    skin : list skin [m] (> 0). with_history : keep a tangential history array (default: keep it
-    if the state has one). Returns the number of pairs.
+    skin : list skin [m] (> 0). history : the parities (+1/-1) of the history slots of the contact
+    law (``law.history_parity``; ``()`` for no history); default: one invariant slot if the
+    state has a history, none otherwise. One slot is stored as ``nl_ft`` (P,), more as (P, k).
+    Returns the number of pairs.
     """
     if not (skin > 0):
         raise ValueError(f"skin must be > 0, got {skin}")
@@ -256,14 +265,17 @@ def rebuild(state, skin, *, sort=False, with_history=None):
     rc = list_cutoff(state.radius, skin)
     nba, nbb = bin_counts(h, rc)
     n = state.n
-    if with_history is None:
-        with_history = state.nl_ft is not None
+    if history is None:
+        history = (1,) if state.nl_ft is not None else ()
+    parity = np.array(history, dtype=np.int64)
+    nk = parity.shape[0]
     k = np.zeros((n, 2), np.int64)
     _wrap_inplace(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], k)
-    old = state.nl_i is not None and with_history and state.nl_ft is not None
+    old = (state.nl_i is not None and nk > 0 and state.nl_ft is not None
+           and state.nl_ft.size == nk * state.nl_i.shape[0])
     if old:
-        oi, oj, osh, oft = state.nl_i.copy(), state.nl_j.copy(), state.nl_shift.copy(), state.nl_ft
-        _shift_old_pairs(oi, oj, osh, k)
+        oi, oj, osh = state.nl_i, state.nl_j, state.nl_shift
+        oft = state.nl_ft.reshape(oi.shape[0], nk)
     binof = np.empty(n, np.int64)
     _bin_index(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], nba, nbb, binof)
     if sort:
@@ -273,24 +285,33 @@ def rebuild(state, skin, *, sort=False, with_history=None):
             if arr is not None:
                 setattr(state, name, np.ascontiguousarray(arr[perm]))
         binof = binof[perm]
-        if old:
+        if old:  # the old list in the new labels (copies: the state's list is not modified)
+            oi, oj, osh, oft = oi.copy(), oj.copy(), osh.copy(), oft.copy()
+            _shift_old_pairs(oi, oj, osh, k)
             inv = np.empty(n, np.int64)
             inv[perm] = np.arange(n)
-            _remap_old_pairs(oi, oj, osh, inv)
-    cap = max(16, 2 * (state.nl_i.shape[0] if state.nl_i is not None else 0), 8 * n)
+            _remap_old_pairs(oi, oj, osh, inv, oft, parity)
+            k[:] = 0
+    # room for the new list: 25 % above the old one (a second pass if it is exceeded)
+    prev = state.nl_i.shape[0] if state.nl_i is not None else 0
+    cap = max(64, int(1.25 * prev) + n // 8) if prev else max(16, 8 * n)
     while True:
         pi, pj, ps, m = _find_pairs(state.x, state.radius, h[0, 0], h[0, 1], h[1, 0], h[1, 1],
                                     nba, nbb, binof, float(skin), cap)
         if m <= cap:
             break
         cap = m
-    pi, pj, ps = pi[:m].copy(), pj[:m].copy(), ps[:m].copy()
+    pi, pj, ps = pi[:m], pj[:m], ps[:m]  # views: the capacity is at most ~25 % above m
     _sort_pairs(pi, pj, ps, m)
     ft = None
-    if with_history:
-        ft = np.zeros(m)
-        if old:
+    if nk > 0:
+        ft = np.zeros((m, nk))
+        if old and not _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
+            oi, oj, osh = oi.copy(), oj.copy(), osh.copy()
+            _shift_old_pairs(oi, oj, osh, k)
             _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
+        if nk == 1:
+            ft = ft.reshape(m)
     state.nl_i, state.nl_j, state.nl_shift, state.nl_ft = pi, pj, ps, ft
     state.x_ref = state.x.copy()
     state.h_ref = state.h.copy()

@@ -1,19 +1,33 @@
-"""Throughput of the numba disk DEM against LAMMPS (GRANULAR, serial) on the same dense scene.
+"""Throughput of the numba disk DEM against LAMMPS (GRANULAR, serial) on the same dense state.
 
-    python -m studies.bench_throughput [--quick] [--no-lammps] [--ns 10000 100000] [--no-pack]
+    python -m studies.bench_throughput [--quick] [--repeats 3] [--ns 10000 100000]
+                                       [--no-lammps] [--no-pack] [--work DIR]
 
-Scene (copy of /work/shared/bench/lammps, LJ-like units: mean diameter d = 1, a d = 1 disk has
-mass 1): N disks, diameters uniform in [0.9, 1.1], periodic square cell at solid fraction 0.84,
-linear kn = 1e4, kt = kn with history, Coulomb mu = 0.5, viscous normal and tangential contact
-damping with damping ratio 0.05 (``LinearFriction(restitution=e(0.05), tangential_damping=True)``),
-no local damping, dt = 0.1 * 2 sqrt(m/kn) = 0.002, skin 0.1 d.
+Scene (LJ-like units: mean diameter d = 1, a d = 1 disk has mass 1): 10 000 disks, diameters
+uniform in [0.9, 1.1], periodic square cell at solid fraction 0.84, prepared here (random gas at
+phi 0.3, compression at constant strain rate to phi 0.84 in 20 000 steps with local damping,
+relaxation, velocities zeroed) and tiled rx x ry to N. The *same* state is written for LAMMPS
+(``dem.io.write_lammps_data``), which tiles it the same way (``replicate``): both codes start from
+identical positions. Contact law: linear kn = 1e4, kt = kn with history, Coulomb mu = 0.5,
+contact dashpots of damping ratio 0.05 for a pair of d = 1 disks, dt = 0.1 * 2 sqrt(m/kn) = 0.002,
+skin 0.1 d, no local damping; 200 untimed warm-up steps, then the timed run.
 
-Our dense state: random gas at phi 0.3, compression at constant strain rate to phi = 0.84 in
-20000 steps with local damping, relaxation, tiled 5 x 2 for N = 1e5 (as LAMMPS' in.bench does).
-The LAMMPS side (if ``lmp`` is on PATH) prepares its own packing with in.prep and runs in.bench
-with the same step count; one line per N contains ``ratio`` = ours / LAMMPS particle-steps/s.
-Also times :func:`dem.packing.pack` for a 1e4-disk packing at p/kn = 1e-4 (1e3 with --quick).
-Figures are printed, never asserted.
+Laws run on our side (both timed, both reported against the same LAMMPS runs):
+
+* ``lammps-law``: :class:`dem.contact_laws.LammpsHookeHistory` with LAMMPS' numbers (dashpots
+  ``m_eff gamma``, ``gamma = 2 zeta sqrt(kn / (m1/2))``, cap ``mu |fn|``, projected shear history,
+  LAMMPS start-up) - the same physics as LAMMPS' ``gran/hooke/history`` to round-off;
+* ``default``: the engine's own :class:`~dem.contact_laws.LinearFriction` (damping ratio 0.05 per
+  pair, tangential dashpot, cap ``mu max(fn, 0)``, scalar history).
+
+The LAMMPS inputs are in ``studies/lammps_bench/`` (``in.bench``; ``in.prep`` for the preparation
+peer). The runs are interleaved (ours, LAMMPS, ours, LAMMPS, ...) so that load from other
+processes hits both alike; every repeat is printed with the load average, then the median, the
+spread (min-max) and the ratio of medians. Times are wall clock (LAMMPS: its "Loop time"); the CPU
+time of the same runs (ours: process time; LAMMPS: loop time x its "CPU use") is printed too,
+since on a loaded machine it is the steadier of the two. Also times :func:`dem.packing.pack` of
+1e4 disks at p/kn = 1e-4 against LAMMPS' ``in.prep`` of 1e4 disks, interleaved (1e3 and no
+``in.prep`` with --quick). Figures are printed, never asserted.
 """
 from __future__ import annotations
 
@@ -21,28 +35,42 @@ import argparse
 import math
 import os
 import re
-import shutil
+import statistics
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
+from dem import io
 from dem.cell import StrainRate
-from dem.contact_laws import LinearFriction
+from dem.contact_laws import LammpsHookeHistory, LinearFriction
 from dem.integrate import Simulation
+from dem.lammps import lammps_available
+from dem.packing import pack
 from dem.state import State
 
-LAMMPS_DIR = "/work/shared/bench/lammps"
+INPUTS = Path(__file__).resolve().parent / "lammps_bench"
 KN = 1e4
 DT = 0.1 * 2.0 * math.sqrt(1.0 / KN)
 ZETA = 0.05
 E_REST = math.exp(-ZETA * math.pi / math.sqrt(1 - ZETA ** 2))
+GAMMA = 2.0 * ZETA * math.sqrt(KN / 0.5)
 RHO = 4.0 / math.pi
+SKIN = 0.1
+WARM = 200
 
 
 def bench_law():
+    """The engine's own law of the benchmark (damping ratio 0.05 per pair)."""
     return LinearFriction(kn=KN, kt=KN, mu=0.5, restitution=E_REST, tangential_damping=True)
+
+
+def lammps_law():
+    """LAMMPS' ``gran/hooke/history 1e4 1e4 gamma gamma 0.5 1`` of ``in.bench``."""
+    return LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.5)
 
 
 def dense_base(n=10000, seed=4242, ncomp=20000, nrelax=3000):
@@ -56,7 +84,7 @@ def dense_base(n=10000, seed=4242, ncomp=20000, nrelax=3000):
     st = State.from_disks(x, r, np.diag([L0, L0]), rho=RHO, spins=True)
     e_tot = 0.5 * math.log(phi0 / phi1)  # log strain per direction (negative)
     rate = e_tot / (ncomp * DT)
-    sim = Simulation(st, bench_law(), dt=DT, damping=0.7, skin=0.1,
+    sim = Simulation(st, bench_law(), dt=DT, damping=0.7, skin=SKIN,
                      control=StrainRate([[rate, 0], [0, rate]]))
     sim.run(ncomp)
     sim.control = StrainRate(np.zeros((2, 2)))
@@ -68,7 +96,8 @@ def dense_base(n=10000, seed=4242, ncomp=20000, nrelax=3000):
 
 
 def tile(st, rx, ry):
-    """Replicate a periodic state rx x ry times (history dropped, list rebuilt on the first step)."""
+    """Replicate a periodic state rx x ry times (history dropped, list rebuilt on the first step),
+    in LAMMPS ``replicate`` order."""
     h = st.h
     xs, rs = [], []
     for a in range(rx):
@@ -80,94 +109,138 @@ def tile(st, rx, ry):
 
 
 def tiling(n, nbase=10000):
+    if n % nbase:
+        raise ValueError(f"N must be a multiple of {nbase}, got {n}")
     k = n // nbase
     ry = max(j for j in range(1, int(math.isqrt(k)) + 1) if k % j == 0)
     return k // ry, ry
 
 
-def run_ours(base, n, steps, warm=200):
-    rx, ry = tiling(n)
-    st = tile(base, rx, ry)
-    sim = Simulation(st, bench_law(), dt=DT, damping=0.0, skin=0.1, sort_every=50)
-    sim.run(warm)
+def run_ours(base, n, steps, law, startup="leapfrog"):
+    """Warm-up then a timed run; returns (wall particle-steps/s, CPU particle-steps/s, sim)."""
+    st = tile(base, *tiling(n, base.n))
+    sim = Simulation(st, law, dt=DT, damping=0.0, skin=SKIN, sort_every=50, startup=startup,
+                     unsafe_dt=True)
+    sim.run(WARM)
+    c0 = time.process_time()
     rep = sim.run(steps)
-    m = sim.measure()
-    return rep, m, sim
+    cpu = time.process_time() - c0
+    return rep["particle_steps_per_s"], n * steps / cpu, sim
 
 
-def lammps_available():
-    return shutil.which("lmp") is not None
+def write_base(base, path):
+    cfg = io.Configuration(positions=base.x, radii=base.radius, cell=base.h, ids=np.arange(1, base.n + 1),
+                           fields={"density": np.full(base.n, base.rho)})
+    io.write_lammps_data(path, cfg, velocities=False, title="studies.bench_throughput dense state")
 
 
-def run_lammps(ns, steps_of, work):
-    os.makedirs(work, exist_ok=True)
-    out = {}
-    data = os.path.join(work, "dense_10000.data")
-    t0 = time.perf_counter()
-    if not os.path.exists(data):
-        subprocess.run(["lmp", "-in", f"{LAMMPS_DIR}/in.prep", "-var", "N", "10000", "-var", "out", data,
-                        "-log", os.path.join(work, "prep.log"), "-screen", "none"], check=True,
-                       env=dict(os.environ, OMP_NUM_THREADS="1"))
-        out["prep_wall_s"] = time.perf_counter() - t0
-    for n in ns:
-        log = os.path.join(work, f"bench_{n}.log")
-        subprocess.run(["lmp", "-in", f"{LAMMPS_DIR}/in.bench", "-var", "N", str(n), "-var", "steps",
-                        str(steps_of[n]), "-var", "base", data, "-log", log, "-screen", "none"],
-                       check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
-        loops = []
-        for line in open(log, errors="replace"):
-            m = re.match(r"Loop time of (\S+) on \d+ procs for (\d+) steps with (\d+) atoms", line)
-            if m:
-                loops.append((float(m.group(1)), int(m.group(2)), int(m.group(3))))
-        loop, steps, atoms = loops[1]  # run 0: warm-up, run 1: timed
-        out[n] = atoms * steps / loop
+def _loops(log):
+    """(loop time [s], CPU use [%], steps, atoms) of every run in a LAMMPS log."""
+    out, cur = [], None
+    for line in open(log, errors="replace"):
+        m = re.match(r"Loop time of (\S+) on \d+ procs for (\d+) steps with (\d+) atoms", line)
+        if m:
+            cur = [float(m.group(1)), float("nan"), int(m.group(2)), int(m.group(3))]
+            out.append(cur)
+        m = re.match(r"\s*([\d.]+)% CPU use", line)
+        if m and cur is not None:
+            cur[1] = float(m.group(1))
     return out
+
+
+def run_lammps_bench(data, n, nbase, steps, work):
+    """One in.bench run; returns (wall particle-steps/s, CPU particle-steps/s, log path)."""
+    rx, ry = tiling(n, nbase)
+    log = os.path.join(work, f"bench_{n}_{time.time_ns()}.log")
+    subprocess.run(["lmp", "-in", str(INPUTS / "in.bench"), "-var", "base", data, "-var", "rx", str(rx),
+                    "-var", "ry", str(ry), "-var", "steps", str(steps), "-var", "warm", str(WARM),
+                    "-var", "skin", str(SKIN), "-log", log, "-screen", "none"],
+                   check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    loop, cpu_pct, st, atoms = _loops(log)[1]   # run 0: warm-up, run 1: timed
+    return atoms * st / loop, atoms * st / (loop * cpu_pct / 100.0), log
+
+
+def _stats(vals):
+    return statistics.median(vals), min(vals), max(vals)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short runs (about a minute)")
+    ap.add_argument("--quick", action="store_true", help="short runs (a few minutes)")
     ap.add_argument("--ns", type=int, nargs="*", default=[10000, 100000])
+    ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-lammps", action="store_true")
     ap.add_argument("--no-pack", action="store_true")
-    ap.add_argument("--work", default=os.path.join(os.environ.get("TMPDIR", "/tmp"), "dem-bench-lammps"))
+    ap.add_argument("--work", default=None, help="folder for LAMMPS logs and data (default: a temporary one)")
     a = ap.parse_args(argv)
-    steps_of = {n: (max(100, int(1.5e7 / n)) if a.quick else max(150, int(1.5e8 / n))) for n in a.ns}
+    steps_of = {n: (max(100, int(3e6 / n)) if a.quick else max(150, int(3e7 / n))) for n in a.ns}
+    print(f"loadavg at start {os.getloadavg()} (2-core machine shared with other jobs: see the spread)")
 
     t0 = time.perf_counter()
     base = dense_base(ncomp=5000 if a.quick else 20000, nrelax=1000 if a.quick else 3000)
-    t_prep = time.perf_counter() - t0
-    print(f"ours-prep N=10000 wall_s={t_prep:.2f} phi={base.solid_fraction:.4f} (constant-rate "
-          f"compression, {'quick' if a.quick else 'full'})", flush=True)
-    ours = {}
-    for n in a.ns:
-        rep, m, sim = run_ours(base, n, steps_of[n])
-        ours[n] = rep["particle_steps_per_s"]
-        print(f"ours N={n} steps={rep['steps']} particle_steps_per_s={ours[n]:.4e} Z={2 * m['n_contacts'] / n:.3f} "
-              f"p={m['pressure']:.4g} dt/dt_crit={sim.dt / sim.dt_crit:.3f} builds={sim.n_rebuilds}", flush=True)
-        print("  " + rep["table"].replace("\n", "\n  "), flush=True)
+    print(f"ours-prep N=10000 wall_s={time.perf_counter() - t0:.2f} phi={base.solid_fraction:.4f} "
+          f"(constant-rate compression, {'quick' if a.quick else 'full'})", flush=True)
+    use_lammps = not a.no_lammps and lammps_available()
+    if not a.no_lammps and not use_lammps:
+        print("lmp not on PATH: LAMMPS side skipped (Debian: apt-get install -y lammps)")
+    tmp = tempfile.TemporaryDirectory(prefix="dem-bench-lammps-")
+    work = a.work or tmp.name
+    os.makedirs(work, exist_ok=True)
+    data = os.path.join(work, "dense.data")
+    write_base(base, data)
 
-    if not a.no_lammps:
-        if lammps_available():
-            lm = run_lammps(a.ns, steps_of, a.work)
-            if "prep_wall_s" in lm:
-                print(f"lammps-prep N=10000 wall_s={lm['prep_wall_s']:.2f}", flush=True)
-            for n in a.ns:
-                print(f"N={n} ours={ours[n]:.4e} lammps={lm[n]:.4e} ratio={ours[n] / lm[n]:.3f} "
-                      f"(particle-steps/s, ours/LAMMPS gran/hooke/history, serial)", flush=True)
-        else:
-            print("lmp not on PATH: LAMMPS side skipped (Debian: apt-get install -y lammps)")
+    laws = {"lammps-law": (lammps_law(), "lammps"), "default": (bench_law(), "leapfrog")}
+    for n in a.ns:
+        steps = steps_of[n]
+        res = {k: ([], []) for k in (*laws, "LAMMPS")}
+        print(f"\nN={n} steps={steps} (interleaved repeats: {', '.join(res)})", flush=True)
+        for rep in range(a.repeats):
+            for name, (law, startup) in laws.items():
+                load = os.getloadavg()[0]
+                w, c, sim = run_ours(base, n, steps, law, startup)
+                res[name][0].append(w)
+                res[name][1].append(c)
+                m = sim.measure()
+                print(f"  rep {rep + 1} ours {name:10s} wall {w:.4e} cpu {c:.4e} particle-steps/s "
+                      f"builds={sim.n_rebuilds} Z={2 * m['n_contacts'] / n:.3f} loadavg={load:.1f}", flush=True)
+            if use_lammps:
+                load = os.getloadavg()[0]
+                w, c, log = run_lammps_bench(data, n, base.n, steps, work)
+                res["LAMMPS"][0].append(w)
+                res["LAMMPS"][1].append(c)
+                print(f"  rep {rep + 1} LAMMPS gran/hooke/history wall {w:.4e} cpu {c:.4e} particle-steps/s "
+                      f"loadavg={load:.1f}", flush=True)
+        for name, (wall, cpu) in res.items():
+            if not wall:
+                continue
+            mw, lw, hw = _stats(wall)
+            mc, lc, hc = _stats(cpu)
+            print(f"N={n} {name:10s} wall median {mw:.4e} [{lw:.3e}, {hw:.3e}]  cpu median {mc:.4e} "
+                  f"[{lc:.3e}, {hc:.3e}] particle-steps/s", flush=True)
+        if use_lammps:
+            lm_w, lm_c = statistics.median(res["LAMMPS"][0]), statistics.median(res["LAMMPS"][1])
+            for name in laws:
+                pair_ratios = [o / lm for o, lm in zip(res[name][0], res["LAMMPS"][0])]
+                print(f"N={n} ratio ours({name})/LAMMPS: wall {statistics.median(res[name][0]) / lm_w:.3f} "
+                      f"(per repeat {min(pair_ratios):.2f}-{max(pair_ratios):.2f}), "
+                      f"cpu {statistics.median(res[name][1]) / lm_c:.3f} (serial, per core)", flush=True)
 
     if not a.no_pack:
-        from dem.packing import pack
         npk = 1000 if a.quick else 10000
         t0 = time.perf_counter()
         res = pack(npk, p_over_kn=1e-4, seed=0)
         r = res.report
-        print(f"pack N={npk} p/kn=1e-4 mu=0.5 wall_s={time.perf_counter() - t0:.1f} steps={r['steps']} "
-              f"converged={r['converged']} phi={r['phi']:.4f} Z={r['Z']:.3f} Nc={r['n_contacts']} "
-              f"psi6={r['psi6']:.3f} psi6_local={r['psi6_local']:.3f} unbalanced={r['unbalanced']:.2e} "
-              f"rel_p_err={r['rel_p_err']:.1e} particle_steps_per_s={r['particle_steps_per_s']:.3e}", flush=True)
+        print(f"\npack N={npk} p/kn=1e-4 mu=0.5 wall_s={time.perf_counter() - t0:.1f} steps={r['steps']} "
+              f"converged={r['converged']} phi={r['phi']:.4f} Z={r['Z']:.3f} "
+              f"particle_steps_per_s={r['particle_steps_per_s']:.3e} loadavg={os.getloadavg()[0]:.1f}", flush=True)
+        if use_lammps and not a.quick:
+            t0 = time.perf_counter()
+            subprocess.run(["lmp", "-in", str(INPUTS / "in.prep"), "-var", "N", "10000", "-var", "out",
+                            os.path.join(work, "prep_10000.data"), "-log", os.path.join(work, "prep.log"),
+                            "-screen", "none"], check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+            print(f"lammps-prep N=10000 wall_s={time.perf_counter() - t0:.1f} loadavg={os.getloadavg()[0]:.1f}",
+                  flush=True)
+    tmp.cleanup()
     return 0
 
 

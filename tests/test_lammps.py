@@ -2,17 +2,27 @@
 contacts, forces and stress measured here against LAMMPS's own computes to round-off.
 
 Skipped only when the LAMMPS binary ``lmp`` is not on PATH (CI installs Debian's ``lammps``)."""
+import json
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")
+from dem.lammps import pack_lammps
+from dem.measure import contact_forces, stress
+from dem.packing import pack, random_gas
+from microhom.structural_sums import network_statistics
+
+# slow: the module's fixture prepares a LAMMPS packing (10-35 s on 2 cores); the LAMMPS
+# conventions of the contact law are in the default suite through tests/test_lammps_equivalence.py
+pytestmark = [pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH"),
+              pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from dem.lammps import pack_lammps
     folder = tmp_path_factory.mktemp("lammps")
     np_ = 2 if shutil.which("mpirun") else 1
     # dem.packing's default stop criteria (tol_p 1e-3, tol_unbalanced 1e-5, tol_ke 1e-8)
@@ -33,7 +43,6 @@ def test_packing_reaches_target(run):
         assert ph["ke_rel"] < 1e-8
     assert 0.80 < res["phi"] < 0.86 and 3.3 < res["Z"] < 4.2
     # the starting gas is dem.packing.random_gas with the same seed (same N, radii)
-    from dem.packing import random_gas
     gas = random_gas(300, dispersity=0.2, seed=1)
     assert np.allclose(np.sort(run.config.radii), np.sort(gas.radius), rtol=1e-15)
 
@@ -53,7 +62,6 @@ def test_kn_convention_normal_forces(run):
 
 
 def test_stress_agrees_with_compute_pressure_virial(run):
-    from dem.measure import stress
     s = stress(run.network, symmetric=False)        # tension positive; LAMMPS P = -sigma^T
     L = run.lammps
     scale = L["pressure"]
@@ -66,7 +74,6 @@ def test_stress_agrees_with_compute_pressure_virial(run):
 def test_particle_force_balance_agrees_with_dump(run):
     # resultant of our contact forces (fn from overlaps, ft from LAMMPS) on every particle equals
     # the force LAMMPS dumped (velocities zeroed: no drag, no dashpot)
-    from dem.measure import contact_forces
     net, cfg = run.network, run.config
     F = contact_forces(net)
     res = np.zeros((net.n_particles, 2))
@@ -77,9 +84,6 @@ def test_particle_force_balance_agrees_with_dump(run):
 
 
 def test_analyse_reads_the_run_folder(run):
-    import json
-    import subprocess
-    import sys
     p = subprocess.run([sys.executable, "-m", "dem", "analyse", run.folder, "--prestress", "--json"],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
@@ -95,8 +99,6 @@ def test_packing_matches_dem_packing(run):
     # (docs/scale_out.md): at N = 300, p/kn = 1e-3, seeds 1-3, the two engines differed by <= 0.0063
     # in phi and <= 0.08 in Z without rattlers, about the seed-to-seed scatter of either engine
     # (phi 0.826-0.839); the bounds below are about twice that.
-    from dem.packing import pack
-    from microhom.structural_sums import network_statistics
     ref = pack(N, **PARAMS)
     assert ref.report["converged"]
     z_l = network_statistics(run.network).nc

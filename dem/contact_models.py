@@ -1,0 +1,842 @@
+"""Contact-law sub-models and the one pair loop that numba specialises for every combination.
+
+A contact law is a choice of four sub-models, in the pattern of LAMMPS GRANULAR
+(``granular_model.cpp`` with its ``gran_sub_mod_*`` files):
+
+==============  ===========================================================================
+normal          :class:`Hooke` (``fn = kn delta``), :class:`Hertz` (``fn = kh delta^{3/2}``)
+damping         :class:`NoDamping`; :class:`Viscous` (``c = 2 zeta sqrt(m_eff k_n)``, normal
+                only) and :class:`ViscousTangential` (the same ``c`` on the tangential relative
+                velocity too), restitution-based through :meth:`Viscous.from_restitution`;
+                :class:`MassGamma` (LAMMPS: ``c_n = m_eff gamma_n``, ``c_t = m_eff gamma_t``)
+tangential      :class:`NoTangential`; :class:`LinearHistory` (constant ``kt``) and
+                :class:`Mindlin` (``kt = ratio * k_n(delta)``): a scalar force along the current
+                tangent, cap ``mu max(fn, 0)``; :class:`LammpsHistory`: LAMMPS
+                ``gran/hooke/history`` (shear displacement vector, slip added then projected on
+                the tangent plane, cap ``mu |fn|``)
+rolling         :class:`NoRolling`, :class:`RollingResistance` (spring-slider on the relative
+                rotation, cap ``mu_r R_eff max(fn, 0)``)
+==============  ===========================================================================
+
+Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba receives) with:
+
+* ``check()``: raises ``ValueError`` naming the coefficient and its allowed range;
+* ``HISTORY`` (slots per pair in the contact history) and ``PARITY`` (per slot, +1 if the slot is
+  unchanged when the pair's i and j are swapped, -1 if it changes sign; used at list rebuilds);
+* ``dt_stiffness(normal)``: its stiffness for the critical time step (see :mod:`dem.integrate`);
+* its numba implementation, registered with :func:`_implements` for one of the generic hooks
+  below (``normal_force``, ``pair_constants``, ``normal_damping``, ``tangential_force``,
+  ``rolling_torque``).
+
+:func:`pair_forces` is the pair loop, written once. numba compiles one specialisation per
+combination of sub-model types (the types are part of the signature and the hooks are resolved
+at compile time through ``numba.extending.overload``), so a contact never branches on the law at
+run time, and the compiled loops are cached on disk like any ``cache=True`` function. A new law
+is one new sub-model: see :class:`RollingResistance` (Hertz with rolling resistance,
+:class:`dem.contact_laws.HertzRolling`).
+
+Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can also integrate
+(``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
+complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
+reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
+arithmetic per particle is that of :func:`kick_drift` and :func:`kick_spin`, in the same order,
+so fused and separate integration give bit-identical trajectories.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+from numba.extending import overload
+
+__all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
+           "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
+           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "make_pair_constants",
+           "kick_drift", "kick_spin", "SUBMODELS"]
+
+
+def _check(name, value, low, *, low_open=False, high=math.inf):
+    ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
+    if not ok:
+        lo = "(" if low_open else "["
+        hi = "inf)" if high == math.inf else f"{high:g}]"
+        raise ValueError(f"{name} must be in {lo}{low:g}, {hi}, got {value}")
+
+
+# --------------------------------------------------------------------------------------------------
+# hooks: stubs that the loop calls, resolved at compile time from the sub-model's type
+# --------------------------------------------------------------------------------------------------
+def _hook(name):
+    """A stub the pair loop calls; its implementations are registered with :func:`_implements`."""
+    def stub(*args):  # pragma: no cover - only numba calls it
+        raise NotImplementedError(name)
+
+    stub.__name__ = stub.__qualname__ = name
+    return stub
+
+
+normal_force = _hook("normal_force")
+pair_constant = _hook("pair_constant")
+normal_damping = _hook("normal_damping")
+tangential_force = _hook("tangential_force")
+rolling_torque = _hook("rolling_torque")
+force_magnitude = _hook("force_magnitude")
+history_slots = _hook("history_slots")
+
+
+def _implements(hook, *classes):
+    """Register ``typer`` as the numba implementation of ``hook`` when its first argument (the
+    sub-model) is an instance of one of ``classes``.
+
+    ``typer(model, *args)`` receives the numba types and returns the implementation (numba's
+    ``overload`` protocol), so an implementation can specialise on the other models' types, e.g.
+    the tangential model on whether the damping has a tangential part."""
+    def deco(typer):
+        @functools.wraps(typer)
+        def guarded(*args):
+            return typer(*args) if _cls(args[0]) in classes else None
+
+        overload(hook, jit_options={"cache": True}, inline="always")(guarded)
+        return typer
+    return deco
+
+
+def _cls(t):
+    return getattr(t, "instance_class", None)
+
+
+# --------------------------------------------------------------------------------------------------
+# normal models: normal_force(model, delta) -> (fn elastic, k_n tangent stiffness, elastic energy)
+# --------------------------------------------------------------------------------------------------
+class Hooke(NamedTuple):
+    """Linear normal spring ``fn = kn delta``, ``kn`` [N/m] (force per unit overlap)."""
+    kn: float
+
+    HISTORY = 0
+    PARITY = ()
+
+    def check(self):
+        _check("kn", self.kn, 0.0, low_open=True)
+
+    def dt_stiffness(self):
+        return self.kn
+
+    def tangent(self, delta):
+        return np.full_like(np.asarray(delta, dtype=float), self.kn)
+
+    def fn_elastic(self, delta):
+        return self.kn * delta
+
+    def stiffness_scale(self):
+        """The constant normal stiffness (for stiffnesses given as a ratio of it)."""
+        return self.kn
+
+
+@_implements(normal_force, Hooke)
+def _hooke_force(model, delta):
+    def impl(model, delta):
+        kn = model.kn
+        return kn * delta, kn, 0.5 * kn * delta * delta
+    return impl
+
+
+class Hertz(NamedTuple):
+    """Hertz normal force ``fn = kh delta^{3/2}`` (``kh`` [N/m^{3/2}]; the 3D sphere form applied
+    to disks, as in Yade/LAMMPS 2D runs), tangent ``k_n = 1.5 kh sqrt(delta)``. ``delta_ref`` [m]:
+    the overlap at which the tangent stiffness enters the critical time step."""
+    kh: float
+    delta_ref: float
+
+    HISTORY = 0
+    PARITY = ()
+
+    def check(self):
+        _check("kh", self.kh, 0.0, low_open=True)
+        _check("delta_ref", self.delta_ref, 0.0, low_open=True)
+
+    def dt_stiffness(self):
+        return 1.5 * self.kh * math.sqrt(self.delta_ref)
+
+    def tangent(self, delta):
+        return 1.5 * self.kh * np.sqrt(np.maximum(delta, 0.0))
+
+    def fn_elastic(self, delta):
+        return self.kh * np.maximum(delta, 0.0) ** 1.5
+
+    def stiffness_scale(self):
+        return self.dt_stiffness()
+
+
+@_implements(normal_force, Hertz)
+def _hertz_force(model, delta):
+    def impl(model, delta):
+        kh = model.kh
+        sq = math.sqrt(delta)
+        return kh * delta * sq, 1.5 * kh * sq, 0.4 * kh * delta * delta * sq
+    return impl
+
+
+# --------------------------------------------------------------------------------------------------
+# damping models.
+#   pair_constant(model, normal, meff, out_row): fills the per-pair constants (NPC per pair),
+#       computed at each list build;
+#   normal_damping(model, normal, pc, p, k_n, fn, vn) -> (fn with dashpot, tangential c_t).
+# --------------------------------------------------------------------------------------------------
+class NoDamping(NamedTuple):
+    """No contact dashpot."""
+    zero: float = 0.0
+
+    NPC = 0
+    TANGENTIAL = False
+
+    def check(self):
+        pass
+
+
+@_implements(pair_constant, NoDamping)
+def _nodamp_pc(model, normal, meff, row):
+    def impl(model, normal, meff, row):
+        pass
+    return impl
+
+
+@_implements(normal_damping, NoDamping)
+def _nodamp(model, normal, pc, p, kn, fn, vn):
+    def impl(model, normal, pc, p, kn, fn, vn):
+        return fn, 0.0
+    return impl
+
+
+class Viscous(NamedTuple):
+    """Normal dashpot ``c = 2 zeta sqrt(m_eff k_n)`` (damping ratio ``zeta`` in [0, 1)), with
+    ``m_eff = m_i m_j / (m_i + m_j)`` and ``k_n`` the normal tangent stiffness; for Hooke ``c`` is a
+    per-pair constant computed at list builds, for Hertz ``m_eff`` is."""
+    zeta: float
+
+    NPC = 1
+    TANGENTIAL = False
+
+    def check(self):
+        _check("damping ratio zeta", self.zeta, 0.0, high=1.0)
+
+    @classmethod
+    def from_restitution(cls, e):
+        """The damping ratio giving the restitution coefficient ``e`` of a linear contact."""
+        return cls(damping_ratio(e))
+
+
+class ViscousTangential(NamedTuple):
+    """:class:`Viscous` on the normal and, with the same ``c``, on the tangential relative velocity
+    (the Coulomb cap then applies to the total tangential force)."""
+    zeta: float
+
+    NPC = 1
+    TANGENTIAL = True
+
+    check = Viscous.check
+
+    @classmethod
+    def from_restitution(cls, e):
+        return cls(damping_ratio(e))
+
+
+def _viscous_pc(model, normal, meff, row):
+    if _cls(normal) is Hooke:
+        def impl(model, normal, meff, row):
+            row[0] = 2.0 * model.zeta * math.sqrt(meff * normal.kn)
+    else:
+        def impl(model, normal, meff, row):
+            row[0] = meff
+    return impl
+
+
+def _viscous(model, normal, pc, p, kn, fn, vn):
+    if _cls(normal) is Hooke:
+        def impl(model, normal, pc, p, kn, fn, vn):
+            c = pc[p]
+            return fn - c * vn, c
+    else:
+        def impl(model, normal, pc, p, kn, fn, vn):
+            c = 2.0 * model.zeta * math.sqrt(pc[p] * kn)
+            return fn - c * vn, c
+    return impl
+
+
+_implements(pair_constant, Viscous, ViscousTangential)(_viscous_pc)
+_implements(normal_damping, Viscous, ViscousTangential)(_viscous)
+
+
+class MassGamma(NamedTuple):
+    """LAMMPS ``gran/*/history`` dashpots: ``c_n = m_eff gamma_n``, ``c_t = m_eff gamma_t``
+    (``gamma`` [1/s], one value for all pairs). :meth:`lammps` maps LAMMPS's ``NULL`` gamma_t to
+    ``gamma_n / 2`` and its ``dampflag = 0`` to ``gamma_t = 0``."""
+    gamma_n: float
+    gamma_t: float
+
+    NPC = 2
+    TANGENTIAL = True
+
+    def check(self):
+        _check("gamma_n", self.gamma_n, 0.0)
+        _check("gamma_t", self.gamma_t, 0.0)
+
+    @classmethod
+    def lammps(cls, gamma_n, gamma_t=None, dampflag=1):
+        """As LAMMPS reads ``pair_style gran/hooke/history kn kt gamma_n gamma_t mu dampflag``."""
+        gt = 0.5 * gamma_n if gamma_t is None else gamma_t
+        return cls(float(gamma_n), float(gt) if dampflag else 0.0)
+
+
+@_implements(pair_constant, MassGamma)
+def _massgamma_pc(model, normal, meff, row):
+    def impl(model, normal, meff, row):
+        row[0] = meff * model.gamma_n
+        row[1] = meff * model.gamma_t
+    return impl
+
+
+@_implements(normal_damping, MassGamma)
+def _massgamma(model, normal, pc, p, kn, fn, vn):
+    def impl(model, normal, pc, p, kn, fn, vn):
+        return fn - pc[2 * p] * vn, pc[2 * p + 1]
+    return impl
+
+
+def damping_ratio(e) -> float:
+    """Damping ratio zeta of a linear spring-dashpot giving the restitution coefficient e (0 < e <= 1)."""
+    if e is None:
+        return 0.0
+    if not (0 < e <= 1):
+        raise ValueError(f"restitution must be in (0, 1], got {e}")
+    le = math.log(e)
+    return -le / math.sqrt(math.pi ** 2 + le * le)
+
+
+# --------------------------------------------------------------------------------------------------
+# tangential models.
+#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j,
+#                    fn, kn, ct, dt, torque) -> (ftx, fty, elastic energy)
+#   adds the torques of the tangential force itself; ``hist`` is the flat (P * nh,) history, the
+#   pair's slots start at nh * p.
+# --------------------------------------------------------------------------------------------------
+class NoTangential(NamedTuple):
+    """No tangential force (no spins needed)."""
+    zero: float = 0.0
+
+    HISTORY = 0
+    PARITY = ()
+    SPIN = False
+
+    def check(self):
+        pass
+
+    def dt_stiffness(self, normal):
+        return 0.0
+
+    def tangent(self, normal, delta):
+        return np.zeros_like(np.asarray(delta, dtype=float))
+
+    @property
+    def mu(self):
+        return 0.0
+
+
+@_implements(tangential_force, NoTangential)
+def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+            torque):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+             torque):
+        return 0.0, 0.0, 0.0
+    return impl
+
+
+@_implements(force_magnitude, NoTangential)
+def _notang_mag(model, fn, fx, fy):
+    def impl(model, fn, fx, fy):
+        return abs(fn)
+    return impl
+
+
+class LinearHistory(NamedTuple):
+    """Tangential spring ``kt`` [N/m] with history, Coulomb ``mu``: a scalar force ``ft`` along the
+    current tangent ``t`` (the spring turns rigidly with the contact), incremented by
+    ``-kt vt dt`` and capped at ``mu max(fn, 0)``; reset when the contact opens."""
+    kt: float
+    mu: float
+
+    HISTORY = 1
+    PARITY = (1,)
+    SPIN = True
+
+    def check(self):
+        _check("kt", self.kt, 0.0)
+        _check("mu", self.mu, 0.0)
+
+    def dt_stiffness(self, normal):
+        # rotational modes of disks (I = m r^2 / 2): z contacts resisting one rotation give
+        # omega^2 = 4 z kt / m, hence 2 kt
+        return 2.0 * self.kt
+
+    def tangent(self, normal, delta):
+        return np.full_like(np.asarray(delta, dtype=float), self.kt)
+
+
+class Mindlin(NamedTuple):
+    """As :class:`LinearHistory` with the incremental Mindlin stiffness ``kt = kt_ratio k_n(delta)``."""
+    kt_ratio: float
+    mu: float
+
+    HISTORY = 1
+    PARITY = (1,)
+    SPIN = True
+
+    def check(self):
+        _check("kt_ratio", self.kt_ratio, 0.0)
+        _check("mu", self.mu, 0.0)
+
+    def dt_stiffness(self, normal):
+        return 2.0 * self.kt_ratio * normal.dt_stiffness()
+
+    def tangent(self, normal, delta):
+        return self.kt_ratio * normal.tangent(delta)
+
+
+@njit(cache=True, inline="always")
+def _coulomb_scalar(fs, lim, ct, vt, with_damping):
+    """Scalar Coulomb cap. Returns (spring force kept in the history, total tangential force)."""
+    if with_damping:
+        ftot = fs - ct * vt
+        if abs(ftot) > lim:
+            ftot = lim if ftot > 0.0 else -lim
+            fs = ftot + ct * vt
+        return fs, ftot
+    if abs(fs) > lim:
+        fs = lim if fs > 0.0 else -lim
+    return fs, fs
+
+
+def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+                       kn, ct, dt, torque):
+    tdamp = bool(_cls(damping).TANGENTIAL)
+    mindlin = _cls(model) is Mindlin
+
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+             torque):
+        tx = -ny
+        ty = nx
+        vt = dvx * tx + dvy * ty - (omega[i] * ri + omega[j] * rj)
+        if mindlin:
+            kt = model.kt_ratio * kn
+        else:
+            kt = model.kt
+        fc = fn if fn > 0.0 else 0.0
+        lim = model.mu * fc
+        q = nh * p
+        fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, ct, vt, tdamp)
+        hist[q] = fs
+        U = 0.0
+        if kt > 0.0:
+            U = 0.5 * fs * fs / kt
+        torque[i] -= ri * ftot
+        torque[j] -= rj * ftot
+        return ftot * tx, ftot * ty, U
+    return impl
+
+
+def _frictional_mag(model, fn, fx, fy):
+    def impl(model, fn, fx, fy):
+        return math.sqrt(fx * fx + fy * fy)
+    return impl
+
+
+class LammpsHistory(NamedTuple):
+    """LAMMPS ``gran/hooke/history`` tangential rule (``pair_gran_hooke_history.cpp``): the shear
+    displacement vector ``s`` (history, 2 slots) gets the slip ``vt dt`` added, is then projected
+    on the current tangent line (which shrinks it by ``cos`` of the contact's rotation since the
+    last step), the force ``-(kt s + c_t vt)`` is capped at ``mu |fn|`` (``fn`` including the
+    dashpot, so a tensile dashpot force still allows friction) by rescaling ``s``. ``kt`` > 0
+    [N/m]. With ``dt = 0`` (LAMMPS' setup force call) neither the slip nor the projection is
+    applied."""
+    kt: float
+    mu: float
+
+    HISTORY = 2
+    PARITY = (-1, -1)
+    SPIN = True
+
+    def check(self):
+        _check("kt", self.kt, 0.0, low_open=True)
+        _check("mu", self.mu, 0.0)
+
+    dt_stiffness = LinearHistory.dt_stiffness
+    tangent = LinearHistory.tangent
+
+
+@_implements(tangential_force, LammpsHistory)
+def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
+                       kn, ct, dt, torque):
+    # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
+    # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
+    # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
+    # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
+    # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
+    # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
+             torque):
+        kt = model.kt
+        q = nh * p
+        # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
+        vt1 = dvx - nx * vn
+        vt2 = dvy - ny * vn
+        ws = ri * omega[i] + rj * omega[j]
+        vtr1 = vt1 + ny * ws
+        vtr2 = vt2 - nx * ws
+        s1 = hist[q]
+        s2 = hist[q + 1]
+        if dt > 0.0:
+            s1 += vtr1 * dt
+            s2 += vtr2 * dt
+        shr2 = s1 * s1 + s2 * s2
+        if dt > 0.0:
+            rsht = s1 * nx + s2 * ny
+            s1 -= rsht * nx
+            s2 -= rsht * ny
+        fs1 = -(kt * s1 + ct * vtr1)
+        fs2 = -(kt * s2 + ct * vtr2)
+        fs2sum = fs1 * fs1 + fs2 * fs2
+        lim = model.mu * abs(fn)
+        if fs2sum > lim * lim:
+            # (LAMMPS compares |fs| > lim and tests the shear magnitude before the projection)
+            if shr2 != 0.0:
+                r = lim / math.sqrt(fs2sum)
+                a1 = ct * vtr1 / kt
+                a2 = ct * vtr2 / kt
+                s1 = r * (s1 + a1) - a1
+                s2 = r * (s2 + a2) - a2
+                fs1 *= r
+                fs2 *= r
+            else:
+                fs1 = 0.0
+                fs2 = 0.0
+        hist[q] = s1
+        hist[q + 1] = s2
+        tor = nx * fs2 - ny * fs1
+        torque[i] -= ri * tor
+        torque[j] -= rj * tor
+        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2)
+    return impl
+
+
+_implements(tangential_force, LinearHistory, Mindlin)(_scalar_tangential)
+_implements(force_magnitude, LinearHistory, Mindlin, LammpsHistory)(_frictional_mag)
+
+
+def _history_slots(model, rolling):
+    n = int(_cls(model).HISTORY + _cls(rolling).HISTORY)
+
+    def impl(model, rolling):
+        return n
+    return impl
+
+
+_implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_history_slots)
+
+
+# --------------------------------------------------------------------------------------------------
+# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque)
+#   h0 = the first history slot of this sub-model; returns its elastic energy.
+# --------------------------------------------------------------------------------------------------
+class NoRolling(NamedTuple):
+    """No rolling resistance."""
+    zero: float = 0.0
+
+    HISTORY = 0
+    PARITY = ()
+
+    def check(self):
+        pass
+
+    def dt_stiffness(self, normal):
+        return 0.0
+
+
+@_implements(rolling_torque, NoRolling)
+def _noroll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+        return 0.0
+    return impl
+
+
+class RollingResistance(NamedTuple):
+    """Elastic-plastic rolling resistance: a torque ``M`` (on j; ``-M`` on i) with history,
+    incremented by ``-k_r (omega_j - omega_i) dt`` and capped at ``|M| <= mu_r R_eff max(fn, 0)``,
+    ``R_eff = r_i r_j / (r_i + r_j)``, ``k_r = kr_ratio k_n(delta) R_eff^2``. A disk rolling without
+    slip on another (``omega_j r_j = -omega_i r_i`` for a fixed pair axis) turns at a relative rate
+    ``omega_j - omega_i != 0`` and is resisted; a rigid rotation of the pair is not."""
+    kr_ratio: float
+    mu_r: float
+
+    HISTORY = 1
+    PARITY = (-1,)
+
+    def check(self):
+        _check("kr_ratio", self.kr_ratio, 0.0)
+        _check("mu_r", self.mu_r, 0.0)
+
+    def dt_stiffness(self, normal):
+        # k_r <= kr_ratio k_n r_i^2 (R_eff <= r_i), I_i = m_i r_i^2 / 2: as a tangential spring 2 kr_ratio k_n
+        return 2.0 * self.kr_ratio * normal.dt_stiffness()
+
+
+@_implements(rolling_torque, RollingResistance)
+def _roll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+        q = nh * p + h0
+        reff = ri * rj / (ri + rj)
+        kr = model.kr_ratio * kn * reff * reff
+        fc = fn if fn > 0.0 else 0.0
+        lim = model.mu_r * reff * fc
+        m = hist[q] - kr * (omega[j] - omega[i]) * dt
+        if abs(m) > lim:
+            m = lim if m > 0.0 else -lim
+        hist[q] = m
+        torque[j] += m
+        torque[i] -= m
+        U = 0.0
+        if kr > 0.0:
+            U = 0.5 * m * m / kr
+        return U
+    return impl
+
+
+# --------------------------------------------------------------------------------------------------
+# integration hooks (fused kick)
+# --------------------------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def kick_drift(k, xf, vf, ff, rf, mass, dtk, dt, damping, L00, L01, L10, L11, F00, F01, F10, F11, acc):
+    """Kick-drift of particle k (flat (2N,) views): v += dtk (F + F_damp)/m, x += dt (v + L x).
+    acc[0] = max non-affine displacement^2, acc[1] += kinetic energy at the integer time,
+    acc[2] += work of the local damping (same arithmetic as :mod:`dem.integrate`)."""
+    m = mass[k]
+    for c in range(2):
+        F = ff[2 * k + c]
+        vo = vf[2 * k + c]
+        Fd = 0.0
+        if damping > 0.0:
+            if vo > 0.0:
+                Fd = -damping * abs(F)
+            elif vo < 0.0:
+                Fd = damping * abs(F)
+        vn = vo + dtk * (F + Fd) / m
+        vm = 0.5 * (vo + vn)
+        acc[1] += 0.5 * m * vm * vm
+        acc[2] += Fd * vm * dt
+        vf[2 * k + c] = vn
+    x0 = xf[2 * k]
+    x1 = xf[2 * k + 1]
+    y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
+    y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
+    xf[2 * k] = y0
+    xf[2 * k + 1] = y1
+    r0 = rf[2 * k]
+    r1 = rf[2 * k + 1]
+    dx = y0 - (F00 * r0 + F01 * r1)
+    dy = y1 - (F10 * r0 + F11 * r1)
+    d2 = dx * dx + dy * dy
+    if d2 > acc[0]:
+        acc[0] = d2
+
+
+@njit(cache=True, inline="always")
+def kick_spin(k, omega, theta, torque, inertia, dtk, dt, damping, acc):
+    """Spin kick and rotation of particle k; acc[3] += rotational kinetic energy, acc[4] += work."""
+    T = torque[k]
+    wo = omega[k]
+    Td = 0.0
+    if damping > 0.0:
+        if wo > 0.0:
+            Td = -damping * abs(T)
+        elif wo < 0.0:
+            Td = damping * abs(T)
+    wn = wo + dtk * (T + Td) / inertia[k]
+    wm = 0.5 * (wo + wn)
+    acc[3] += 0.5 * inertia[k] * wm * wm
+    acc[4] += Td * wm * dt
+    omega[k] = wn
+    theta[k] += dt * wn
+
+
+class Kick(NamedTuple):
+    """Integration inside the force loop (``fused``): kick step ``dtk``, drift step ``dt``, Cundall
+    ``damping``, the cell's ``L`` and the deformation ``F = h_{n+1} h_ref^{-1}`` of the rebuild
+    test. ``fused = False``: the loop computes forces only."""
+    fused: bool
+    dtk: float
+    dt: float
+    damping: float
+    L00: float
+    L01: float
+    L10: float
+    L11: float
+    F00: float
+    F01: float
+    F10: float
+    F11: float
+
+
+NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+
+
+KICK_BLOCK = 64
+
+
+@njit(cache=True)
+def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc):
+    """Kick and drift particles lo..hi-1 (translation, then spin if the state has spins)."""
+    for k in range(lo, hi):
+        kick_drift(k, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
+                   kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
+    if omega.shape[0] > 0:
+        for k in range(lo, hi):
+            kick_spin(k, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+
+
+class Cell(NamedTuple):
+    """Velocity gradient L and shape matrix h of the cell, by entries."""
+    L00: float
+    L01: float
+    L10: float
+    L11: float
+    h00: float
+    h01: float
+    h10: float
+    h11: float
+
+
+# --------------------------------------------------------------------------------------------------
+# the pair loop
+# --------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hist, pc, cell, normal,
+                damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
+    """Contact forces (and, with ``kick``, the integration) of one step.
+
+    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, pj (P,), ps (P, 2) the Verlet list
+    (ordered by pi, pj > pi);
+    hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
+    hroll: first history slot of the rolling model; dt: the history increment step (0: history
+    not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
+    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) =
+    (max non-affine displacement^2, translational KE, translational damping work, rotational KE,
+    rotational damping work).
+    """
+    L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
+    h00, h01, h10, h11 = cell.h00, cell.h01, cell.h10, cell.h11
+    f[:, :] = 0.0
+    torque[:] = 0.0
+    for k in range(acc.shape[0]):
+        acc[k] = 0.0
+    xf = x.reshape(-1)
+    vf = v.reshape(-1)
+    ff = f.reshape(-1)
+    psf = ps.reshape(-1)
+    rf = x_ref.reshape(-1)
+    s00 = 0.0
+    s01 = 0.0
+    s10 = 0.0
+    s11 = 0.0
+    nc = 0.0
+    fsum = 0.0
+    U = 0.0
+    kl2 = 0.0
+    fused = kick.fused
+    nh = history_slots(tangential, rolling)
+    done = np.uint64(0)
+    one = np.uint64(1)
+    block = np.uint64(KICK_BLOCK)
+    for p in range(pj.shape[0]):
+        # unsigned indices: numba then skips its negative-index wraparound on every access
+        i = np.uint64(pi[p])
+        if fused and i >= done + block:
+            # particles below i have all their forces (pairs are ordered by i, j > i)
+            kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+            done = i
+        j = np.uint64(pj[p])
+        i2 = i + i
+        j2 = j + j
+        pp = np.uint64(p)
+        sa = psf[pp + pp]
+        sb = psf[pp + pp + one]
+        lx = xf[j2] + h00 * sa + h01 * sb - xf[i2]
+        ly = xf[j2 + one] + h10 * sa + h11 * sb - xf[i2 + one]
+        ri = radius[i]
+        rj = radius[j]
+        rs = ri + rj
+        d2 = lx * lx + ly * ly
+        if d2 >= rs * rs:
+            for k in range(nh * p, nh * p + nh):
+                hist[k] = 0.0
+            continue
+        d = math.sqrt(d2)
+        nx = lx / d
+        ny = ly / d
+        delta = rs - d
+        dvx = vf[j2] - vf[i2] + L00 * lx + L01 * ly
+        dvy = vf[j2 + one] - vf[i2 + one] + L10 * lx + L11 * ly
+        fn, kn, Un = normal_force(normal, delta)
+        vn = dvx * nx + dvy * ny
+        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
+        ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri,
+                                        rj, omega, i, j, fn, kn, ct, dt, torque)
+        Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
+        fx = fn * nx + ftx
+        fy = fn * ny + fty
+        ff[j2] += fx
+        ff[j2 + one] += fy
+        ff[i2] -= fx
+        ff[i2 + one] -= fy
+        if tally:
+            U += Un
+            U += Ut
+            U += Ur
+            s00 += fx * lx
+            s01 += fx * ly
+            s10 += fy * lx
+            s11 += fy * ly
+            nc += 1.0
+            fsum += force_magnitude(tangential, fn, fx, fy)
+            kl2 += kn * d2
+    if fused:
+        kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+    if not tally:
+        return
+    out[0] = s00
+    out[1] = s01
+    out[2] = s10
+    out[3] = s11
+    out[4] = nc
+    out[5] = fsum
+    out[6] = U
+    out[7] = kl2
+
+
+@njit(cache=True)
+def make_pair_constants(damping, normal, mass, pi, pj, npc):
+    """(P * npc,) per-pair constants of the damping model (m_eff = m_i m_j / (m_i + m_j))."""
+    pc = np.zeros(pi.shape[0] * npc)
+    if npc > 0:
+        for p in range(pi.shape[0]):
+            i = pi[p]
+            j = pj[p]
+            meff = mass[i] * mass[j] / (mass[i] + mass[j])
+            pair_constant(damping, normal, meff, pc[npc * p:npc * (p + 1)])
+    return pc
+
+
+SUBMODELS = {c.__name__: c for c in (Hooke, Hertz, NoDamping, Viscous, ViscousTangential, MassGamma,
+                                     NoTangential, LinearHistory, Mindlin, LammpsHistory, NoRolling,
+                                     RollingResistance)}
+

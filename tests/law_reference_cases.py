@@ -1,0 +1,73 @@
+"""Short runs of every contact law of the engine, recorded before the sub-model composition.
+
+``tests/data/law_reference.npz`` holds the positions, velocities, spins, rotations, cell and
+tangential history after these runs, computed by the three hand-written kernels of
+``dem/contact_laws.py`` (commit 087b653, before the laws were composed from sub-models). The
+composed laws must reproduce them bit for bit (``tests/test_contact_laws.py``). Regenerate only
+with that old code (``git stash; git checkout 087b653 -- dem``), never with the code under test.
+"""
+import numpy as np
+
+from dem.cell import PressureServo
+from dem.contact_laws import Frictionless, HertzMindlin, LinearFriction
+from dem.integrate import Simulation
+from dem.state import State
+from microhom import lattices
+
+R = 0.5
+RHO = 1.0 / (np.pi * R * R)
+
+CASES = {
+    "frictionless": lambda: Frictionless(kn=1e4),
+    "frictionless_e": lambda: Frictionless(kn=1e4, restitution=0.6),
+    "linear": lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3),
+    "linear_e": lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7),
+    "linear_e_tdamp": lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7,
+                                             tangential_damping=True),
+    "hertz": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02),
+    "hertz_e": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, kt_ratio=0.5, restitution=0.5),
+}
+STEPS = 400
+FIELDS = ("x", "v", "omega", "theta", "h", "nl_ft", "ids")
+
+
+def initial_state(spins, seed=3):
+    """Perturbed, squeezed triangular lattice (12 x 12) with random velocities and spins."""
+    rng = np.random.default_rng(seed)
+    net = lattices.triangular(12, 12, diameter=1.0)
+    sq = 0.985
+    x = net.positions * sq + rng.uniform(-0.04, 0.04, net.positions.shape)
+    r = R * (1 + rng.uniform(-0.08, 0.08, net.n_particles))
+    st = State.from_disks(x, r, net.cell * sq, rho=RHO, spins=spins)
+    st.v[:] = rng.normal(0, 5e-2, st.v.shape)
+    if spins:
+        st.omega[:] = rng.normal(0, 1e-1, st.n)
+    return st
+
+
+def run_case(name):
+    """Run case ``name`` for STEPS steps (pressure servo, local damping, frequent rebuilds and
+    spatial sorts) and return the final state and the last ``out`` vector of the kernel."""
+    law = CASES[name]()
+    st = initial_state(law.needs_spin)
+    sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3,
+                     control=PressureServo(p_target=80.0, max_rate=5e-3))
+    sim.run(STEPS)
+    return st, sim.out.copy(), sim.n_rebuilds
+
+
+def record(path):
+    data = {}
+    for name in CASES:
+        st, out, nreb = run_case(name)
+        for f in FIELDS:
+            a = getattr(st, f)
+            if a is not None:
+                data[f"{name}/{f}"] = a
+        data[f"{name}/out"] = out
+        data[f"{name}/n_rebuilds"] = np.array(nreb)
+    np.savez_compressed(path, **data)
+
+
+if __name__ == "__main__":
+    record("tests/data/law_reference.npz")
