@@ -8,7 +8,7 @@ of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equil
 -> equilibrium at mu, each phase with its own stop criterion (the step at which each ended is
 printed).
 
-LAMMPS: ``studies/lammps/prep_for_bench_pack.in`` (carried in the repository): random insertion,
+LAMMPS: ``studies/lammps_bench/in.prep`` (carried in the repository, shared with bench_throughput): random insertion,
 soft push-off, isotropic compression at a constant rate to phi = 0.84 with GRANULAR
 gran/hooke/history, relaxation until the translational kinetic energy per particle is below
 1e-12 kn d^2; serial, one thread. Its stop criterion is its own; the comparison is the wall time
@@ -30,7 +30,7 @@ import time
 
 from dem.packing import pack
 
-PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps", "prep_for_bench_pack.in")
+PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
 #: the defaults of ``python -m dem pack``
 CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispersity=0.0,
                     tol_unbalanced=1e-5)
