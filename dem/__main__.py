@@ -16,12 +16,19 @@ friction) and writes, next to ``--out`` (``packing.npz`` below):
 * ``packing.vtu`` — VTK unstructured grid with the contacts (ParaView; skipped if meshio is
   missing);
 * ``packing.checkpoint.npz`` — the checkpoint while running (atomic, every
-  ``--checkpoint-every`` seconds); removed after a converged run, kept otherwise for ``--resume``.
+  ``--checkpoint-seconds`` seconds of wall time and/or every ``--checkpoint-every`` steps, as
+  ``checkpoint_seconds`` and ``checkpoint_every`` of :func:`dem.packing.pack`); removed after a
+  converged run, kept otherwise for ``--resume``.
 
-Exit codes of ``pack``: 0 converged; 2 bad input (the message names the option and its allowed
-range); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged = False``;
-continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good checkpoint
-kept); 130 interrupted (Ctrl-C; the last checkpoint is kept).
+Exit codes of ``pack``: 0 converged (also: ``--resume`` of a run that had already converged,
+whose stored report and outputs are written again); 2 bad input (the message names the option and
+its allowed range; this includes a packing too large for the available memory, about 211 B per
+particle); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
+False``; continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good
+checkpoint kept); 1 an output or the checkpoint cannot be written (a folder that cannot be
+created or written is found before computing; a full disk during the run or the outputs: one
+line with the path, the last checkpoint kept); 130 interrupted (Ctrl-C; the last checkpoint is
+kept).
 
 Exit codes of ``analyse``: 0 analysed (a degenerate result is flagged in the report, with its
 reason); 2 bad input (an option out of range, a missing or malformed file: one line naming the
@@ -39,10 +46,19 @@ import json
 import math
 import os
 import sys
+import tempfile
 import time
 
+from tqdm import tqdm
+
 from . import analyse_cli
-from .io import FormatError
+from . import io as dio
+from . import measure
+from .integrate import InstabilityError
+from .io import Configuration, FormatError
+from .packing import check_memory, pack
+from .runtime import remove_stale_temporaries
+from .state import State
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 EXIT_MACHINE, EXIT_BROKEN_PIPE = 1, 141
@@ -98,8 +114,11 @@ def _parser():
             "  printed), STEM.png (force chains), STEM.lammpstrj (OVITO), STEM.vtu (ParaView),\n"
             "  STEM.checkpoint.npz while running (kept unless converged)\n"
             "exit codes:\n"
-            "  0 converged, 2 bad input, 3 not converged within --max-steps (outputs written,\n"
-            "  flagged converged=False), 4 unstable (last good checkpoint kept), 130 interrupted\n"
+            "  0 converged (or already converged on --resume), 2 bad input (incl. too many disks\n"
+            "  for the available memory), 3 not converged within --max-steps (outputs written,\n"
+            "  flagged converged=False), 4 unstable (last good checkpoint kept), 1 an output or\n"
+            "  the checkpoint cannot be written (read-only folder, full disk; checkpoint kept),\n"
+            "  130 interrupted\n"
             "example:\n"
             "  python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 \\\n"
             "      --out packing.npz"))
@@ -133,14 +152,19 @@ def _parser():
       help="stop when the unbalanced force ratio (dimensionless) is below TOL, in (0, 1) "
            "(default 1e-5)")
     a("--out", default="packing.npz", metavar="PATH.npz",
-      help="packing file (.npz); the other outputs go next to it (default packing.npz)")
+      help="packing file (.npz); the other outputs go next to it, its folder is created if "
+           "missing (default packing.npz)")
     a("--resume", action="store_true",
       help="continue the interrupted or unconverged run from STEM.checkpoint.npz (bit-exact; "
            "the physics options are those of the checkpoint)")
     a("--fresh", action="store_true",
       help="discard an existing checkpoint and start again")
-    a("--checkpoint-every", type=float, default=5.0, metavar="SECONDS",
-      help="wall-clock seconds between atomic checkpoints, > 0 (default 5)")
+    a("--checkpoint-seconds", type=float, default=5.0, metavar="SECONDS",
+      help="wall-clock seconds between atomic checkpoints, > 0 (default 5); the API's "
+           "checkpoint_seconds")
+    a("--checkpoint-every", type=int, default=None, metavar="STEPS",
+      help="also write a checkpoint every STEPS time steps, an integer >= 1 (default: by time "
+           "only); the API's checkpoint_every")
     a("--no-progress", action="store_true", help="no progress bar")
     return ap
 
@@ -205,8 +229,6 @@ def _fmt(v):
 
 
 def _summary_rows(res, net):
-    from . import measure
-
     rows = []
     rep = res.report
     keys = ["converged", "steps", "compaction_steps", "wall_s", "particle_steps_per_s", "n", "seed",
@@ -227,8 +249,7 @@ def _summary_rows(res, net):
 
 
 def _write_outputs(res, paths, params, log):
-    from . import io as dio
-    from .plot import plot_packing
+    from .plot import plot_packing   # matplotlib: a heavy import, only when writing the picture
 
     net = res.to_network()
     res.state.meta["cli"] = params
@@ -246,7 +267,6 @@ def _write_outputs(res, paths, params, log):
                                           f"Z = {r['Z']:.3f}, psi6 = {r['psi6']:.3f}; "
                                           f"line width ~ normal force")
     log(f"picture        {paths['png']}")
-    from .io import Configuration
     cfg = Configuration.from_network(net, meta={"timestep": int(r["steps"])},
                                      fields={"contacts": net.contact_counts()})
     dio.write(paths["dump"], cfg, timestep=int(r["steps"]))
@@ -271,24 +291,40 @@ def _print_table(rows, stream):
         print(f"{k:<{width}s}  {_fmt(v)}", file=stream)
 
 
-def cmd_pack(args) -> int:
-    from .integrate import InstabilityError
-    from .packing import pack
-    from .state import State
+class WriteError(OSError):
+    """An output folder cannot be created or written (exit code 1, the machine's state)."""
 
+
+def _writable(folder):
+    """Create ``folder`` if missing and prove it writable with a small probe file; raise
+    :class:`WriteError` with the path otherwise (before any computing)."""
+    try:
+        os.makedirs(folder, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".tmp_probe.", dir=folder)
+        try:
+            os.write(fd, b"\0" * 4096)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+            os.unlink(probe)
+    except OSError as exc:
+        raise WriteError(f"cannot write to --out folder {folder}: {exc.strerror or exc}") from None
+
+
+def cmd_pack(args) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
     if args.max_steps < 1:
         raise BadInput(f"--max-steps must be an integer >= 1, got {args.max_steps}")
-    if not (math.isfinite(args.checkpoint_every) and args.checkpoint_every > 0):
-        raise BadInput(f"--checkpoint-every must be > 0 [s], got {args.checkpoint_every}")
+    if not (math.isfinite(args.checkpoint_seconds) and args.checkpoint_seconds > 0):
+        raise BadInput(f"--checkpoint-seconds must be > 0 [s], got {args.checkpoint_seconds}")
+    if args.checkpoint_every is not None and args.checkpoint_every < 1:
+        raise BadInput(f"--checkpoint-every must be an integer >= 1 [steps], got {args.checkpoint_every}")
     if args.resume and args.fresh:
         raise BadInput("--resume and --fresh exclude each other")
     paths = _paths(args.out)
     folder = os.path.dirname(os.path.abspath(paths["npz"]))
-    if not os.path.isdir(folder):
-        raise BadInput(f"--out: folder {folder} does not exist")
     ck = paths["checkpoint"]
     stored = None
     if args.resume:
@@ -306,11 +342,17 @@ def cmd_pack(args) -> int:
                            f"continue it or --fresh to discard it")
         os.unlink(ck)
     prm = _resolve(args, stored)
+    try:
+        check_memory(prm["n"])
+    except ValueError as exc:
+        raise BadInput(f"--n: {exc}") from None
+    _writable(folder)
+    remove_stale_temporaries(paths["npz"])    # left by a run killed while writing its packing
 
     kw = dict(kn=prm["kn"], kt=prm["kt"], mu=prm["mu"], mu_prep=prm["mu_prep"],
               dispersity=prm["dispersity"], seed=prm["seed"], tol_unbalanced=prm["tol_unbalanced"],
-              max_steps=args.max_steps, checkpoint=ck, checkpoint_every=None,
-              checkpoint_seconds=args.checkpoint_every, meta={"cli": prm})
+              max_steps=args.max_steps, checkpoint=ck, checkpoint_every=args.checkpoint_every,
+              checkpoint_seconds=args.checkpoint_seconds, meta={"cli": prm})
     if prm["pressure_pa"] is not None:
         kw["pressure"] = prm["pressure_pa"]
     else:
@@ -318,7 +360,6 @@ def cmd_pack(args) -> int:
 
     bar = None
     if not args.no_progress:
-        from tqdm import tqdm
         bar = tqdm(total=args.max_steps, unit="step", mininterval=1.0, dynamic_ncols=True,
                    desc="pack", file=sys.stderr)
     ke_seen = ["-"]
@@ -349,12 +390,22 @@ def cmd_pack(args) -> int:
         log("interrupted; " + (f"the last checkpoint {ck} is kept: continue with --resume"
                                if there else "no checkpoint had been written yet"))
         return EXIT_INTERRUPTED
+    except OSError as exc:
+        if bar is not None:
+            bar.close()
+        return _write_failed(exc, ck, log)
     if bar is not None:
         bar.update(res.report["steps"] - bar.n)
         bar.close()
-    rows = _write_outputs(res, paths, prm, log)
+    try:
+        rows = _write_outputs(res, paths, prm, log)
+    except OSError as exc:
+        return _write_failed(exc, ck, log)
     _print_table(rows, sys.stdout)
     r = res.report
+    if r["already_converged"]:
+        log(f"already converged: {ck} holds a finished run (step {r['steps']}); its stored report "
+            f"and the outputs were written again")
     if not r["converged"]:
         log(f"NOT CONVERGED within --max-steps {args.max_steps} (steps {r['steps']}, "
             f"dp/p {r['rel_p_err']:.2e}, unbalanced {r['unbalanced']:.2e}, ke/U {r['ke_rel']:.2e}); "
@@ -365,6 +416,14 @@ def cmd_pack(args) -> int:
         os.unlink(ck)
     log(f"converged in {r['steps']} steps, {time.perf_counter() - t0:.1f} s; psi6 = {r['psi6']:.3f}")
     return EXIT_OK
+
+
+def _write_failed(exc, ck, log):
+    where = getattr(exc, "filename", None)
+    kept = (f"the last checkpoint {ck} is kept: free space or fix the folder, then --resume"
+            if os.path.exists(ck) else "no checkpoint had been written")
+    log(f"error: cannot write {where or 'an output'}: {exc.strerror or exc}; {kept}")
+    return EXIT_MACHINE
 
 
 def _join_negative_numbers(argv):

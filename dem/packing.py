@@ -55,6 +55,9 @@ Same seed, same parameters -> bit-identical packing (serial kernels, fixed summa
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (:meth:`PackingResult.load`)
 and a ``dem.io`` configuration (:func:`dem.io.read`).
+The phases are objects (:class:`Grow`, :class:`Compact`, :class:`Equilibrate`), each with its own
+parameters and stop criterion; :func:`pack` runs them in order and reports them in
+:class:`PackReport` (``phase_steps``).
 ``pack(..., checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and/or
 every ``checkpoint_seconds`` of wall time (only at check points, after the instability guard
 passed, so a checkpoint is always a good state) and resumes from ``path`` if it exists: the
@@ -62,19 +65,26 @@ continuation is bit-exact whatever the checkpoint times were.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .cell import PressureServo
+from microhom.network import ContactNetwork
+from microhom.results import Result
+
+from .cell import PressureServo, wrap
 from .contact_laws import Frictionless, LinearFriction, law_from_meta
-from .integrate import Simulation
+from .integrate import InstabilityError, Simulation
+from .measure import hexatic_order
+from .runtime import atomic_write, remove_stale_temporaries
 from .state import State
 
-__all__ = ["pack", "random_gas", "PackingResult", "network_from_state", "hexatic_psi6"]
+__all__ = ["pack", "random_gas", "PackingResult", "PackReport", "network_from_state", "hexatic_psi6",
+           "Grow", "Compact", "Equilibrate", "BYTES_PER_PARTICLE", "check_memory"]
 
 
 def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spins=True) -> State:
@@ -132,9 +142,6 @@ def network_from_state(state, law):
     ``fn`` (compression positive), ``ft`` (history, force on j along t, clipped to the Coulomb
     limit of the current ``fn``), tangent ``kn``, ``kt``,
     ``sliding = |ft| >= mu fn (1 - 1e-9)``."""
-    from microhom.network import ContactNetwork
-    from .cell import wrap
-
     if state.nl_i is None:
         raise ValueError("the state has no neighbour list yet (run at least one step)")
     i, j, br, delta, k = _contacts(state, law)
@@ -160,8 +167,7 @@ def network_from_state(state, law):
 
 
 def hexatic_psi6(net) -> dict:
-    """psi6 (global |mean|) and mean local |psi6_i| over periodic Delaunay neighbours."""
-    from .measure import hexatic_order
+    """psi6 (global |mean|) and mean local |psi6_i| over periodic Delaunay neighbours (dict)."""
     return hexatic_order(net).as_dict()
 
 
@@ -172,51 +178,147 @@ _CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the 
 def _write_packing_npz(path, state):
     """Write ``state`` (a checkpoint, :meth:`State.save`) plus the ``dem.io`` npz configuration
     keys (``format``, ``positions``, ``radii``, ``cell``, ...; schema in :mod:`dem.io.simple`) into
-    one npz, atomically (temporary file in the same folder, then ``os.replace``)."""
-    import json
-    import tempfile
-    import zipfile
-
-    from .cell import wrap
-
+    one npz, atomically (:func:`dem.runtime.atomic_write`)."""
     path = os.fspath(path)
     if not path.endswith(".npz"):
         path += ".npz"
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_pack_", suffix=".npz", dir=folder)
-    os.close(fd)
-    try:
-        state.save(tmp)
-        xw, _ = wrap(state.x, state.h)
-        meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(state.step)}
-        meta.update({k: v for k, v in state.meta.get("packing_report", {}).items()
-                     if isinstance(v, (int, float, str, bool)) or v is None})
-        meta["law"] = state.meta.get("packing_law")
-        arrays = {"format": np.array("microhom-configuration"), "format_version": np.array(1),
-                  "positions": xw, "radii": state.radius, "cell": state.h,
-                  "origin": np.zeros(2), "types": np.ones(state.n, dtype=np.int64),
-                  "velocities": state.v, "meta_json": np.array(json.dumps(meta))}
-        # ``ids`` is already in the file (the state's own labels, same order as ``positions``)
-        with zipfile.ZipFile(tmp, "a") as zf:
-            for k, v in arrays.items():
-                with zf.open(k + ".npy", "w", force_zip64=True) as fh:
-                    np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    xw, _ = wrap(state.x, state.h)
+    meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(state.step)}
+    meta.update({k: v for k, v in state.meta.get("packing_report", {}).items()
+                 if isinstance(v, (int, float, str, bool)) or v is None})
+    meta["law"] = state.meta.get("packing_law")
+    arrays = state.arrays()
+    # ``ids`` is already among the state's arrays (its own labels, same order as ``positions``)
+    arrays.update({"format": np.array("microhom-configuration"), "format_version": np.array(1),
+                   "positions": xw, "radii": state.radius, "cell": state.h,
+                   "origin": np.zeros(2), "types": np.ones(state.n, dtype=np.int64),
+                   "velocities": state.v, "meta_json": np.array(json.dumps(meta))})
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
     return path
+
+
+@dataclass(frozen=True)
+class PackReport(Result):
+    """What :func:`pack` reports (units consistent with the inputs; 2D per unit thickness).
+
+    Run: ``n`` disks, ``seed``, ``converged`` (the last phase met its stop criteria),
+    ``already_converged`` (resumed from a checkpoint of a finished run: nothing was computed),
+    ``steps`` total time steps, ``phase_steps`` list of {phase, step at its end},
+    ``compaction_steps`` step at the end of the compaction (None without one), ``wall_s`` [s],
+    ``resumed``, ``particle_steps_per_s``, ``timing`` (table of the engine's sections), ``dt`` [s],
+    ``dt_over_dtcrit``.
+    Stop criteria (final values): ``p_target``, ``pressure`` [N/m], ``rel_p_err`` |p - p_t|/p_t,
+    ``p_over_kn``, ``unbalanced`` (Yade mean ratio), ``unbalanced_max``, ``ke_rel`` (kinetic
+    energy of particles in contact over elastic energy), ``kinetic_energy``,
+    ``kinetic_energy_in_contact``, ``elastic_energy`` [J/m], their tolerances ``tol_p``,
+    ``tol_unbalanced``, ``tol_ke``.
+    Packing: ``phi`` solid fraction, ``n_contacts``, ``Z`` = 2 C / N, ``sliding_fraction``
+    (NaN when frictionless), ``psi6``, ``psi6_local`` (hexatic order).
+    Parameters: ``mu``, ``mu_prep``, ``kn``, ``kt`` [N/m], ``damping``, ``damping_compaction``,
+    ``damping_work`` [J/m].
+
+    For the code written against the earlier dict report, ``report["key"]``, ``key in report``,
+    ``report.get`` and ``report.items()`` read the fields; ``report["new_key"] = value`` adds a
+    caller's annotation to ``extra`` (saved with the packing, as the dict's keys were), and
+    assigning a field raises.
+    """
+
+    n: int
+    seed: int
+    converged: bool
+    steps: int
+    phase_steps: list = field(default_factory=list)
+    compaction_steps: int | None = None
+    wall_s: float = float("nan")
+    resumed: bool = False
+    p_target: float = float("nan")
+    pressure: float = float("nan")
+    rel_p_err: float = float("nan")
+    p_over_kn: float = float("nan")
+    unbalanced: float = float("nan")
+    unbalanced_max: float = float("nan")
+    ke_rel: float | None = None
+    kinetic_energy: float = float("nan")
+    kinetic_energy_in_contact: float = float("nan")
+    elastic_energy: float = float("nan")
+    phi: float = float("nan")
+    n_contacts: int = 0
+    Z: float = float("nan")
+    sliding_fraction: float = float("nan")
+    dt: float = float("nan")
+    dt_over_dtcrit: float = float("nan")
+    mu: float = float("nan")
+    mu_prep: float = float("nan")
+    kn: float = float("nan")
+    kt: float = float("nan")
+    tol_p: float = float("nan")
+    tol_unbalanced: float = float("nan")
+    tol_ke: float = float("nan")
+    damping: float = float("nan")
+    damping_compaction: float | None = None
+    damping_work: float = float("nan")
+    psi6: float = float("nan")
+    psi6_local: float = float("nan")
+    timing: str = ""
+    particle_steps_per_s: float = float("nan")
+    already_converged: bool = False
+    #: the caller's own annotations (``report["wall_time"] = ...``): scalars that travel with the
+    #: packing in its npz, as keys of the earlier dict report did
+    extra: dict = field(default_factory=dict, metadata={"export": False})
+
+    # ---- read access of the earlier dict report ------------------------------------------------
+    def __getitem__(self, key):
+        if key in self._names():
+            return getattr(self, key)
+        return self.extra[key]
+
+    def __setitem__(self, key, value):
+        if key in self._names():
+            raise TypeError(f"PackReport.{key} is read-only (dataclasses.replace makes a copy); "
+                            f"only new keys can be added as annotations")
+        self.extra[key] = value
+
+    def __contains__(self, key):
+        return key in self._names() or key in self.extra
+
+    def get(self, key, default=None):
+        return self[key] if key in self else default
+
+    def keys(self):
+        return self._names() + list(self.extra)
+
+    def items(self):
+        return [(k, self[k]) for k in self.keys()]
+
+    @classmethod
+    def _names(cls):
+        return [f.name for f in fields(cls) if f.name != "extra"]
+
+    def scalars(self) -> dict:
+        """The scalar fields (what travels in the npz meta, NaN kept; ``already_converged`` is
+        a property of a resumed call, not of the packing, and stays out)."""
+        return {k: v for k, v in self.items() if (isinstance(v, (int, float, str, bool)) or v is None)
+                and k != "already_converged"}
+
+    @classmethod
+    def from_dict(cls, d):
+        """From a stored (possibly partial) report dict; unknown keys are ignored."""
+        names = set(cls._names())
+        kw = {k: v for k, v in d.items() if k in names}
+        kw["extra"] = {k: v for k, v in d.items() if k not in names}
+        kw.setdefault("n", 0)
+        kw.setdefault("seed", 0)
+        kw.setdefault("converged", False)
+        kw.setdefault("steps", 0)
+        return cls(**kw)
 
 
 @dataclass
 class PackingResult:
-    """Final state of a packing run with its law and report (see :func:`pack`)."""
+    """Final state of a packing run with its law and :class:`PackReport` (see :func:`pack`)."""
     state: State
     law: object
-    report: dict = field(default_factory=dict)
+    report: PackReport
 
     def to_network(self):
         """The :class:`microhom.network.ContactNetwork` of the packing (forces included)."""
@@ -225,21 +327,144 @@ class PackingResult:
     def save(self, path):
         """One npz that is a checkpoint (:meth:`load`, bit-exact state) and a ``dem.io``
         configuration (:func:`dem.io.read`: positions, radii, cell, ids, velocities); atomic."""
-        self.state.meta["packing_report"] = {k: v for k, v in self.report.items()
-                                             if isinstance(v, (int, float, str, bool)) or v is None}
+        self.state.meta["packing_report"] = self.report.scalars()
         self.state.meta["packing_law"] = self.law.to_meta()
         return _write_packing_npz(path, self.state)
 
     @classmethod
     def load(cls, path):
         st = State.load(path)
-        return cls(st, law_from_meta(st.meta["packing_law"]), dict(st.meta.get("packing_report", {})))
+        return cls(st, law_from_meta(st.meta["packing_law"]),
+                   PackReport.from_dict(st.meta.get("packing_report", {})))
 
 
-def _make_law(kn, kt, mu, restitution):
-    if kt == 0 or mu is None:
-        return Frictionless(kn=kn, restitution=restitution)
-    return LinearFriction(kn=kn, kt=kt, mu=mu, restitution=restitution)
+#: bytes per particle held by a packing run (state, Verlet list, history, engine buffers),
+#: measured by ``studies.bench_scaling``; the memory guard of :func:`check_memory` uses it
+BYTES_PER_PARTICLE = 211
+
+
+def available_memory() -> int:
+    """Available memory [bytes] (``MemAvailable`` of /proc/meminfo; total physical memory
+    elsewhere)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(n, fraction=0.8):
+    """Refuse (ValueError naming ``n``) a packing whose estimated memory,
+    ``BYTES_PER_PARTICLE * n`` plus 30 % for the analysis after the run, exceeds ``fraction`` of
+    the available memory."""
+    need = 1.3 * BYTES_PER_PARTICLE * n
+    avail = available_memory()
+    if need > fraction * avail:
+        raise ValueError(f"n = {n} disks need about {need / 1e9:.3g} GB ({BYTES_PER_PARTICLE} B per "
+                         f"particle and 30 % for the analysis) but only {avail / 1e9:.3g} GB are "
+                         f"available; allowed: n <= {int(fraction * avail / (1.3 * BYTES_PER_PARTICLE))}")
+
+
+# ---- the phases of pack ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class Grow:
+    """Phase ``grow`` (only with ``growth_dispersity`` > 0): compress with spread radii until the
+    pressure is within ``tol_p`` (5 %) of the target, then phase ``restore`` shrinks the spread to
+    zero in ``increments`` checks."""
+    growth_dispersity: float
+    tol_p: float = 0.05
+    increments: int = 50
+    name = "grow"
+
+    def enter(self, run):
+        pass
+
+    def done(self, run, m):
+        return abs(m["pressure"] - run.p_target) < self.tol_p * run.p_target
+
+    def restore(self, run):
+        """One restore increment (phase ``restore``); True when the radii are back."""
+        state = run.state
+        gr = state.meta["growth"]
+        gr["s"] = max(0.0, gr["s"] - 1.0 / self.increments)
+        r0, u = np.asarray(gr["r0"]), np.asarray(gr["u"])
+        state.radius = r0 * (1.0 + gr["g"] * gr["s"] * u)
+        run.sim.need_rebuild = True
+        if gr["s"] == 0.0:
+            state.radius = r0.copy()
+            return True
+        return False
+
+
+@dataclass(frozen=True)
+class Compact:
+    """Phase ``compact``: the servo drives the pressure to the target under the light damping
+    ``damping`` (set when the simulation is built); ends when the packing has jammed:
+    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``."""
+    damping: float
+    jam_unbalanced: float = 1e-3
+    tol_p: float = 1e-2
+    name = "compact"
+
+    def enter(self, run):
+        pass
+
+    def done(self, run, m):
+        return abs(m["pressure"] - run.p_target) < self.tol_p * run.p_target and \
+            m["unbalanced"] < self.jam_unbalanced
+
+
+@dataclass(frozen=True)
+class Equilibrate:
+    """Phase ``prep`` (at the preparation friction) or ``test`` (at the test friction): hold the
+    target pressure with the equilibrium ``damping`` until all three criteria hold:
+    ``|p - p_t|/p_t < tol_p``, unbalanced ratio < ``tol_unbalanced``, kinetic energy of the
+    particles in contact < ``tol_ke`` x elastic energy (evaluated only when the first two hold)."""
+    name: str
+    law: object
+    damping: float
+    tol_p: float = 1e-3
+    tol_unbalanced: float = 1e-5
+    tol_ke: float = 1e-8
+
+    def enter(self, run):
+        if run.sim.law is not self.law and run.sim.law.to_meta() != self.law.to_meta():
+            run.sim.set_law(self.law)
+        run.sim.damping = float(self.damping)
+
+    def done(self, run, m):
+        return run.criteria(m, self)
+
+
+class _Run:
+    """The state a pack run carries between its checks: simulation, target, last criteria,
+    phase history."""
+
+    def __init__(self, sim, p_target, history):
+        self.sim = sim
+        self.state = sim.state
+        self.p_target = p_target
+        self.history = history
+        self.last = {}
+
+    def ke_rel(self, m):
+        ke = _contact_kinetic_energy(self.state, self.sim.law)
+        ke_rel = ke / m["elastic_energy"] if m["elastic_energy"] > 0 else float("inf")
+        self.last.update(ke_rel=ke_rel, kinetic_energy_in_contact=ke)
+        return ke_rel
+
+    def criteria(self, m, eq, force_ke=False):
+        """The three stop criteria of :class:`Equilibrate` ``eq`` (the kinetic-energy pass only
+        when it can decide, or when ``force_ke``)."""
+        e_p = abs(m["pressure"] - self.p_target) / self.p_target
+        self.last.update(m, rel_p_err=e_p)
+        ok = e_p < eq.tol_p and m["unbalanced"] < eq.tol_unbalanced
+        if ok or force_ke:
+            ok = self.ke_rel(m) < eq.tol_ke and ok
+        return ok
 
 
 def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None, radius=0.5,
@@ -272,9 +497,16 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         ``r_i (1 + g u_i)``, ``u_i`` uniform in [-1, 1], masses of the final disks), removed in
         ``restore_increments`` steps of ``check_every`` steps once the target pressure is first
         reached (within 5 %); 0 disables it.
-    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` steps
-        and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed from if
-        it exists). Either trigger may be None.
+    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` time
+        steps and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed
+        from if it exists; the CLI's ``--checkpoint-every`` and ``--checkpoint-seconds`` have the
+        same units). Either trigger may be None. The final checkpoint of a converged run holds
+        its report: resuming it returns that report with ``already_converged=True``. Temporary
+        files of a killed checkpoint write are removed on resume.
+
+    The run is a sequence of named phases (:class:`Grow`, :class:`Compact`,
+    :class:`Equilibrate` "prep" and "test"), each with its own parameters and stop criterion.
+    ``n`` is checked against the available memory first (:func:`check_memory`, ValueError).
     progress : optional ``progress(info)`` called at every check with a dict (``step``,
         ``max_steps``, ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` — None
         when not evaluated at this check —, ``checkpoint_step``).
@@ -301,6 +533,13 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         raise ValueError(f"jam_unbalanced must be in (0, 1), got {jam_unbalanced}")
     if int(check_every) != check_every or check_every < 1:
         raise ValueError(f"check_every must be an integer >= 1, got {check_every}")
+    if not (0 <= growth_dispersity < 0.5):
+        raise ValueError(f"growth_dispersity must be in [0, 0.5), got {growth_dispersity}")
+    for name, val in (("checkpoint_every", checkpoint_every), ("checkpoint_seconds", checkpoint_seconds)):
+        if val is not None and not (val >= 0 and math.isfinite(val)):
+            raise ValueError(f"{name} must be None or >= 0 ({'steps' if name == 'checkpoint_every' else 's'}), "
+                             f"got {val}")
+    check_memory(n)
     check_every = int(check_every)
     if frictionless is None:
         frictionless = mu == 0 and mu_prep == 0
@@ -312,55 +551,65 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
               "damping_compaction": damping_compaction, "tol_p": tol_p,
               "tol_unbalanced": tol_unbalanced, "tol_ke": tol_ke, "check_every": check_every}
 
+    # the named phases, in order (each with its own parameters and stop criterion)
+    phases = []
+    if growth_dispersity > 0:
+        phases.append(Grow(growth_dispersity, increments=restore_increments))
+    if damping_compaction is not None:
+        phases.append(Compact(damping_compaction, jam_unbalanced))
+    eq = dict(damping=damping, tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke)
+    phases.append(Equilibrate("prep", law_prep, **eq))
+    if law_test is not law_prep and mu != mu_prep:
+        phases.append(Equilibrate("test", law_test, **eq))
+    by_name = {ph.name: ph for ph in phases}
+
     resumed = checkpoint is not None and os.path.exists(os.fspath(checkpoint))
+    if checkpoint is not None:
+        remove_stale_temporaries(checkpoint)
     if resumed:
         st0 = State.load(checkpoint)
         pk = st0.meta["packing"]
         phase = pk["phase"]
+        if phase == "done" and pk.get("report"):   # a finished run: nothing to compute
+            rep = PackReport.from_dict(dict(pk["report"], phase_steps=pk.get("history", []),
+                                            resumed=True, already_converged=True))
+            return PackingResult(st0, law_test, rep)
         ctl = PressureServo(**{k: v for k, v in st0.meta["sim"]["control"].items() if k != "kind"})
         sim = Simulation.load(checkpoint, control=ctl)
         history = pk.get("history", [])
     else:
         st = random_gas(n, radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
                         spins=not frictionless)
-        if not (0 <= growth_dispersity < 0.5):
-            raise ValueError(f"growth_dispersity must be in [0, 0.5), got {growth_dispersity}")
         if growth_dispersity > 0:
             u = np.random.default_rng([seed, 1]).uniform(-1.0, 1.0, st.n)
             st.meta["growth"] = {"r0": st.radius.tolist(), "u": u.tolist(), "g": growth_dispersity, "s": 1.0}
             st.radius = st.radius * (1.0 + growth_dispersity * u)
         if meta:
             st.meta.update(meta)
-        compaction = damping_compaction is not None
-        sim = Simulation(st, law_prep, damping=damping_compaction if compaction else damping,
-                         check_every=0)
+        sim = Simulation(st, law_prep, damping=damping if damping_compaction is None else
+                         damping_compaction, check_every=0)
         ctl = PressureServo(p_target=p_target, max_rate=max_strain_per_step / sim.dt, alpha=alpha)
         sim.control = ctl
-        phase = "grow" if growth_dispersity > 0 else ("compact" if compaction else "prep")
+        phase = phases[0].name
         history = []
     sim.check_every = 0  # guard is done in the callback below (every check_every steps)
     state = sim.state
+    run = _Run(sim, p_target, history)
     ck_state = {"step": state.step if resumed else None, "t": time.perf_counter()}
-
-    last = {}
     n_checks = [0]
+    order = [ph.name for ph in phases]
 
-    def ke_rel_of(m):
-        ke = _contact_kinetic_energy(state, sim.law)
-        ke_rel = ke / m["elastic_energy"] if m["elastic_energy"] > 0 else float("inf")
-        last.update(ke_rel=ke_rel, kinetic_energy_in_contact=ke)
-        return ke_rel
+    def next_phase(name):
+        if name == "grow":
+            return "restore"
+        nxt = order.index("grow" if name == "restore" else name) + 1
+        return order[nxt] if nxt < len(order) else "done"
 
-    def converged(m, force_ke=False):
-        e_p = abs(m["pressure"] - p_target) / p_target
-        last.update(m, rel_p_err=e_p)
-        ok = e_p < tol_p and m["unbalanced"] < tol_unbalanced
-        if ok or force_ke:  # the kinetic-energy pass only when it can decide
-            ok = ke_rel_of(m) < tol_ke and ok
-        return ok
-
-    def save_checkpoint():
+    def save_checkpoint(report=None):
         state.meta["packing"] = {"phase": phase, "history": history, "params": params}
+        if report is not None:
+            state.meta["packing"]["report"] = {k: v for k, v in report.scalars().items()
+                                               if k not in ("resumed", "already_converged")}
         sim.save(checkpoint)
         ck_state["step"] = state.step
         ck_state["t"] = time.perf_counter()
@@ -370,47 +619,27 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         s._guard()
         m = s.measure()
         n_checks[0] += 1
-        last["ke_rel"] = None
+        run.last["ke_rel"] = None
         if verbose and state.step % (10 * check_every) == 0:
             print(f"[pack] step {state.step} phase {phase} phi {state.solid_fraction:.4f} "
                   f"p/p0 {m['pressure'] / p_target:.5f} unb {m['unbalanced']:.3g} "
                   f"Z {2 * m['n_contacts'] / state.n:.3f}", flush=True)
-        done = False
-        if phase == "grow":
-            if abs(m["pressure"] - p_target) < 0.05 * p_target:
-                history.append({"phase": phase, "step": int(state.step)})
-                phase = "restore"
-        elif phase == "restore":
-            gr = state.meta["growth"]
-            gr["s"] = max(0.0, gr["s"] - 1.0 / restore_increments)
-            r0, u = np.asarray(gr["r0"]), np.asarray(gr["u"])
-            state.radius = r0 * (1.0 + gr["g"] * gr["s"] * u)
-            s.need_rebuild = True
-            if gr["s"] == 0.0:
-                state.radius = r0.copy()
-                history.append({"phase": phase, "step": int(state.step)})
-                phase = "compact" if damping_compaction is not None else "prep"
-        elif phase == "compact":
-            if abs(m["pressure"] - p_target) < 1e-2 * p_target and m["unbalanced"] < jam_unbalanced:
-                history.append({"phase": phase, "step": int(state.step)})
-                s.damping = float(damping)
-                phase = "prep"
-        elif converged(m):
+        ph = by_name["grow"] if phase == "restore" else by_name[phase]
+        finished = ph.restore(run) if phase == "restore" else ph.done(run, m)
+        if finished:
             history.append({"phase": phase, "step": int(state.step)})
-            if phase == "prep" and law_test is not law_prep and mu != mu_prep:
-                s.set_law(law_test)
-                phase = "test"
-            else:
-                phase = "done"
-                done = True
+            phase = next_phase(phase)
+            if phase in by_name:
+                by_name[phase].enter(run)
         if progress is not None:
-            if last["ke_rel"] is None and n_checks[0] % 10 == 0:
-                ke_rel_of(m)
+            if run.last["ke_rel"] is None and n_checks[0] % 10 == 0:
+                run.ke_rel(m)
             progress({"step": int(state.step), "max_steps": int(max_steps), "phase": phase,
                       "phi": state.solid_fraction, "Z": 2.0 * m["n_contacts"] / state.n,
                       "rel_p_err": abs(m["pressure"] - p_target) / p_target,
                       "unbalanced": m["unbalanced"],
-                      "ke_rel": last["ke_rel"], "checkpoint_step": ck_state["step"]})
+                      "ke_rel": run.last["ke_rel"], "checkpoint_step": ck_state["step"]})
+        done = phase == "done"
         if checkpoint is not None and not done:
             by_steps = checkpoint_every and state.step % checkpoint_every == 0
             by_time = checkpoint_seconds is not None and \
@@ -429,39 +658,38 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
             sim.run(k)
             if state.step % check_every == 0 and callback(sim):
                 break
-    except Exception as exc:
-        from .integrate import InstabilityError
-        if isinstance(exc, InstabilityError):
-            exc.checkpoint = os.fspath(checkpoint) if ck_state["step"] is not None else None
-            exc.checkpoint_step = ck_state["step"]
+    except InstabilityError as exc:
+        exc.checkpoint = os.fspath(checkpoint) if ck_state["step"] is not None else None
+        exc.checkpoint_step = ck_state["step"]
         raise
-    converged(sim.measure(), force_ke=True)  # the final values of the three criteria
+    m = sim.measure() if sim.steps_timed else sim.refresh()   # forces exist only after a step
+    run.criteria(m, phases[-1], force_ke=True)  # the final values of the three criteria
+    last = run.last
     net = network_from_state(state, sim.law)
     try:
         hx = hexatic_psi6(net)
-    except Exception as exc:  # pragma: no cover - psi6 is informative only
-        hx = {"psi6": float("nan"), "psi6_local": float("nan"), "psi6_error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 - psi6 is informative only
+        hx = {"psi6": float("nan"), "psi6_local": float("nan")}
     nc = net.n_contacts
     compact_end = [h["step"] for h in history if h["phase"] == "compact"]
-    report = {
-        "n": state.n, "seed": seed, "converged": phase == "done", "steps": int(state.step),
-        "phase_steps": history, "compaction_steps": compact_end[0] if compact_end else None,
-        "wall_s": time.perf_counter() - t_start, "resumed": resumed,
-        "p_target": p_target, "pressure": last["pressure"], "rel_p_err": last["rel_p_err"],
-        "p_over_kn": last["pressure"] / kn, "unbalanced": last["unbalanced"],
-        "unbalanced_max": last["unbalanced_max"], "ke_rel": last["ke_rel"],
-        "kinetic_energy": last["kinetic_energy"],
-        "kinetic_energy_in_contact": last["kinetic_energy_in_contact"], "elastic_energy": last["elastic_energy"],
-        "phi": state.solid_fraction, "n_contacts": nc, "Z": 2.0 * nc / state.n,
-        "sliding_fraction": float(net.sliding.mean()) if nc and not frictionless else float("nan"),
-        "dt": sim.dt, "dt_over_dtcrit": sim.dt / sim.dt_crit, "mu": mu, "mu_prep": mu_prep,
-        "kn": kn, "kt": 0.0 if frictionless else kt, "tol_p": tol_p, "tol_unbalanced": tol_unbalanced,
-        "tol_ke": tol_ke, "damping": damping, "damping_compaction": damping_compaction,
-        "damping_work": sim.damping_work, **hx,
-        "timing": sim.timing_report()["table"],
-        "particle_steps_per_s": sim.timing_report()["particle_steps_per_s"],
-    }
+    timing = sim.timing_report()
+    report = PackReport(
+        n=state.n, seed=seed, converged=phase == "done", steps=int(state.step),
+        phase_steps=history, compaction_steps=compact_end[0] if compact_end else None,
+        wall_s=time.perf_counter() - t_start, resumed=resumed,
+        p_target=p_target, pressure=last["pressure"], rel_p_err=last["rel_p_err"],
+        p_over_kn=last["pressure"] / kn, unbalanced=last["unbalanced"],
+        unbalanced_max=last["unbalanced_max"], ke_rel=last["ke_rel"],
+        kinetic_energy=last["kinetic_energy"],
+        kinetic_energy_in_contact=last["kinetic_energy_in_contact"], elastic_energy=last["elastic_energy"],
+        phi=state.solid_fraction, n_contacts=nc, Z=2.0 * nc / state.n,
+        sliding_fraction=float(net.sliding.mean()) if nc and not frictionless else float("nan"),
+        dt=sim.dt, dt_over_dtcrit=sim.dt / sim.dt_crit, mu=mu, mu_prep=mu_prep,
+        kn=kn, kt=0.0 if frictionless else kt, tol_p=tol_p, tol_unbalanced=tol_unbalanced,
+        tol_ke=tol_ke, damping=damping, damping_compaction=damping_compaction,
+        damping_work=sim.damping_work, psi6=hx["psi6"], psi6_local=hx["psi6_local"],
+        timing=timing["table"], particle_steps_per_s=timing["particle_steps_per_s"])
     res = PackingResult(state, sim.law, report)
     if checkpoint is not None:
-        save_checkpoint()
+        save_checkpoint(report if phase == "done" else None)
     return res

@@ -5,10 +5,11 @@ module depends on nothing else in the project.
 """
 from __future__ import annotations
 
+import glob
 import os
 import tempfile
 
-__all__ = ["InstabilityError", "RunReport", "run_report", "atomic_write"]
+__all__ = ["InstabilityError", "RunReport", "run_report", "atomic_write", "remove_stale_temporaries"]
 
 
 class InstabilityError(RuntimeError):
@@ -42,20 +43,50 @@ class RunReport(dict):
         return self["table"]
 
 
+def _temp_prefix(path):
+    return ".tmp_" + os.path.basename(path) + "."
+
+
+def _umask_mode():
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write(path, write, binary=True):
-    """Write ``path`` atomically: ``write(fh)`` into a temporary file in the same folder, flush and
-    fsync, then ``os.replace``; the temporary file is removed if writing fails. Every checkpoint of
-    the project (disk states, hexagon models) goes through here."""
+    """Write ``path`` atomically: ``write(fh)`` into a temporary file ``.tmp_<name>.*`` in the same
+    folder, flush and fsync, then ``os.replace``; the temporary file is removed if writing fails
+    (a kill -9 can leave one: :func:`remove_stale_temporaries`). The file gets the permissions of
+    an ordinary new file (0666 less the umask), not mkstemp's 0600. Every checkpoint of the
+    project (disk states, packings, hexagon models) goes through here."""
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=os.path.splitext(path)[1], dir=folder)
     try:
+        os.fchmod(fd, _umask_mode())
         with os.fdopen(fd, "wb" if binary else "w") as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError):   # name the file the caller asked for, not the temporary
+            raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
         raise
+
+
+def remove_stale_temporaries(path) -> list:
+    """Remove the temporary files :func:`atomic_write` left for ``path`` when its process was
+    killed mid-write (call it before resuming from ``path``). Returns the removed paths."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    gone = []
+    for tmp in glob.glob(os.path.join(glob.escape(folder), glob.escape(_temp_prefix(path)) + "*")):
+        try:
+            os.unlink(tmp)
+            gone.append(tmp)
+        except OSError:
+            pass
+    return gone

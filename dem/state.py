@@ -39,7 +39,6 @@ _ARRAYS = ("x", "v", "radius", "mass", "inertia", "omega", "theta", "ids", "h", 
 
 
 
-
 @dataclass(eq=False)
 class State:
     """Structure-of-arrays state of N disks in a periodic deformable cell.
@@ -141,14 +140,20 @@ class State:
 
     # ---- persistence ---------------------------------------------------------------------------
     def save(self, path) -> None:
-        """Write an npz checkpoint atomically (temporary file in the same folder, then os.replace)."""
+        """Write an npz checkpoint atomically (:func:`dem.runtime.atomic_write`)."""
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
+        arrays = self.arrays()
+        atomic_write(path, lambda fh: np.savez(fh, **arrays))
+
+    def arrays(self) -> dict:
+        """The arrays of a checkpoint (what :meth:`save` writes, scalars and meta as JSON in
+        ``_scalars``)."""
         arrays = {k: getattr(self, k) for k in _ARRAYS if getattr(self, k) is not None}
         scal = {"rho": self.rho, "step": int(self.step), "time": float(self.time), "meta": self.meta}
         arrays["_scalars"] = np.array(json.dumps(scal))
-        atomic_write(path, lambda fh: np.savez(fh, **arrays))
+        return arrays
 
     @classmethod
     def load(cls, path) -> "State":

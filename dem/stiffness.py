@@ -41,31 +41,47 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import eigsh, splu
 
 from microhom.kinematics import affine_tensor, assemble, stress0
+from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
                               prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
                               voigt_to_mandel, voigt_to_tensor)
 
-__all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment"]
+try:    # optional: CHOLMOD (scikit-sparse, built against Debian's libsuitesparse-dev)
+    import sksparse.cholmod as _cholmod
+except ImportError:     # pragma: no cover - depends on the machine
+    _cholmod = None
+
+__all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
+           "factorise", "count_modes", "relax", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
+           "particle_ordering", "Reduced", "ModeCount"]
 # the tensor-notation helpers (mandel_to_tensor, isotropic_moduli, ...) live in microhom.tensors and
 # the assembly in microhom.kinematics; they are imported here for the solver, not re-exported.
 
 
 
 # ---- result ----------------------------------------------------------------------------------
-@dataclass
-class StiffnessResult:
+@dataclass(frozen=True, eq=False)
+class StiffnessResult(Result):
     """Relaxed and affine 2D stiffness of a contact network (Mandel form over [xx, yy, sqrt2 xy]).
 
+    Tensors [N/m, 2D per unit thickness]: ``C_mandel``, ``C_affine_mandel`` (3, 3); moduli ``K``,
+    ``G``, ``K_affine``, ``G_affine`` their isotropic projection (``microhom.tensors``).
     Counts: ``n_rattlers`` particles removed (iteratively, fewer than ``min_contacts`` contacts);
     ``n_floppy`` zero-energy modes of the reduced Hessian (after removing rattlers, dropped spins
-    and the two global translations); ``n_dof`` the number of unknowns solved for.
-    ``solve_time`` is factorisation + solves [s]; ``assembly_time`` the assembly [s].
+    and the two global translations); ``n_unstable`` negative modes of the Hessian (pre-stress
+    only); ``n_dof`` the number of unknowns solved for. ``solve_time`` is factorisation + mode
+    count + solves [s]; ``assembly_time`` the assembly [s]. ``solver`` the back end that ran
+    (``"cholmod"`` or ``"splu"``). ``flags``: the reasons the result is degenerate, one
+    sentence each (not jammed, floppy, unstable, ill-conditioned); empty for a rigid, stable
+    network. ``stiffness_scale``: the power of two the contact stiffnesses were divided by
+    before the solve (exact; the tensor is scaled back).
     """
 
     C_mandel: np.ndarray
@@ -82,7 +98,7 @@ class StiffnessResult:
     n_particles: int = 0
     n_contacts: int = 0            # contacts kept (between non-rattlers)
     n_spins: int = 0               # spin unknowns kept
-    n_unstable: int = 0            # negative-stiffness modes (only possible with prestress)
+    n_unstable: int = 0            # negative-stiffness modes of the Hessian (only possible with prestress)
     prestress: bool = False
     solver: str = "splu"
     residual: float = 0.0          # max_j |H q_j + F_j| / (norm of the per-contact affine forces) after refinement
@@ -90,9 +106,13 @@ class StiffnessResult:
     n_refine: int = 0
     pivot_gap: tuple = (np.nan, np.nan)   # (largest floppy, smallest kept) relative pivot
     stress0_mandel: np.ndarray | None = None
-    u: np.ndarray | None = field(default=None, repr=False)       # (3, N, 2) relaxed fluctuations
-    omega: np.ndarray | None = field(default=None, repr=False)   # (3, N) relaxed spins
-    rattler_mask: np.ndarray | None = field(default=None, repr=False)
+    flags: tuple = ()
+    stiffness_scale: float = 1.0
+    count_method: str = "pivots"   # how the floppy modes were counted (see count_modes)
+    step_times: dict = field(default_factory=dict)   # wall time of each named step [s]
+    u: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})      # (3, N, 2)
+    omega: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})  # (3, N)
+    rattler_mask: np.ndarray | None = field(default=None, repr=False, metadata={"export": False})
 
     @property
     def C(self) -> np.ndarray:
@@ -106,6 +126,11 @@ class StiffnessResult:
     @property
     def C_voigt(self) -> np.ndarray:
         return mandel_to_voigt(self.C_mandel)
+
+    @property
+    def ok(self) -> bool:
+        """True when nothing is flagged (rigid, stable, well conditioned)."""
+        return not self.flags
 
     def summary(self) -> str:
         f = np.array2string
@@ -125,6 +150,7 @@ class StiffnessResult:
             f"{self.consistency:.2e}, pivot gap {self.pivot_gap[0]:.1e} | {self.pivot_gap[1]:.1e}",
             f"  assembly {self.assembly_time:.3f} s, solve {self.solve_time:.3f} s",
         ]
+        lines += [f"  FLAG: {s}" for s in self.flags]
         return "\n".join(lines)
 
 
@@ -132,9 +158,9 @@ def _ratio(a, b):
     return f"{a / b:.6f}" if b != 0 else "n/a"
 
 
-# ---- assembly (shared with the relaxation hierarchy: microhom.kinematics) -------------------
+# ---- affine tensor ---------------------------------------------------------------------------
 def affine_stiffness(network, prestress=False) -> np.ndarray:
-    """(3, 3) Mandel affine (no relaxation) stiffness of all contacts of ``network``."""
+    """(3, 3) Mandel affine (no relaxation) stiffness of all contacts of ``network`` [N/m]."""
     _check(network, prestress)
     c = affine_tensor(network, prestress)
     if prestress:
@@ -149,23 +175,191 @@ def _check(network, prestress):
         raise ValueError("prestress=True needs the normal forces fn of the network")
 
 
-# ---- solvers ---------------------------------------------------------------------------------
+#: contact stiffness ratio max/min above which the result is flagged (floppy count and tensor
+#: lose digits: the pencil (H, diag H) then has eigenvalues down to ~ 1/ratio from rigid modes)
+RATIO_WARN = 1e6
+#: ratio above which the problem is refused: double precision cannot separate floppy from rigid
+#: modes (measured: on a diluted network with 3 floppy modes, the count held up to a ratio of
+#: 4e8 with both solvers and failed with SuperLU at 4e9: rigid pivots of 1e-11 meet the shift)
+RATIO_REFUSE = 1e9
+
+
+def _normalise(network, prestress):
+    """Step 0: check the input and divide kn, kt, fn, ft by a power of two ``s`` near max(kn)
+    (exact in floating point; the linear response scales with them). Returns (network, s, flags).
+
+    Refuses (ValueError) a contact stiffness ratio max/min above ``RATIO_REFUSE``; flags one
+    above ``RATIO_WARN``."""
+    _check(network, prestress)
+    flags = []
+    if network.n_contacts == 0:
+        return network, 1.0, flags
+    kn = network.kn
+    s = float(2.0 ** np.round(np.log2(kn.max())))
+    if not np.isfinite(s) or s == 0:
+        raise ValueError(f"kn must be finite and > 0 within the double range, got max {kn.max()!r}")
+    kt = network.effective_kt
+    ks = np.concatenate([kn, kt[kt > 0]])
+    ratio = float(ks.max() / ks.min())
+    if ratio > RATIO_REFUSE:
+        raise ValueError(f"contact stiffness ratio max/min = {ratio:.3g} (kn, kt) exceeds "
+                         f"{RATIO_REFUSE:.0e}: double precision cannot tell floppy from rigid "
+                         f"modes; allowed range of kt/kn and of kn spread: ratio <= {RATIO_REFUSE:.0e}")
+    if ratio > RATIO_WARN:
+        flags.append(f"ill-conditioned: contact stiffness ratio max/min = {ratio:.3g} > "
+                     f"{RATIO_WARN:.0e}; floppy modes counted by the shift-rescaling test, the "
+                     f"tensor may lose about log10(ratio) digits")
+    if s != 1.0:
+        network = replace(network, kn=network.kn / s, kt=network.kt / s,
+                          fn=None if network.fn is None else network.fn / s,
+                          ft=None if network.ft is None else network.ft / s)
+    return network, s, flags
+
+
+# ---- step 2: reduce the system ---------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Reduced:
+    """The assembled system without its stiffness-free unknowns.
+
+    H : (m, m) CSC Hessian of the unknowns that carry stiffness; F : (m, 3) their loads;
+    d : (m,) positive diagonal scale of H (|diag H|, zeros replaced by its max);
+    idx : (m,) their index among the assembly's unknowns; n_zero : unknowns dropped (each is a
+    floppy mode: a dof with no stiffness at all); particle : (m,) particle of each unknown."""
+
+    H: sp.csc_matrix
+    F: np.ndarray
+    d: np.ndarray
+    idx: np.ndarray
+    n_zero: int
+    particle: np.ndarray
+
+
+def reduce_system(asm) -> Reduced:
+    """Drop the unknowns whose Hessian row is zero (rattlers are already out of the assembly:
+    :func:`microhom.kinematics.assemble` removes them iteratively)."""
+    H = asm.H
+    d = H.diagonal()
+    rown = np.asarray(abs(H).sum(axis=1)).ravel()
+    zero = rown <= 1e-300 + 1e-15 * (np.abs(d).max() if d.size else 0.0)
+    idx = np.flatnonzero(~zero)
+    Hr = H[idx][:, idx].tocsc() if zero.any() else H
+    dr = np.abs(Hr.diagonal())
+    dr = np.where(dr > 0, dr, dr.max() if dr.size else 1.0)
+    N = asm.net.n_particles
+    full = np.flatnonzero(asm.dof_map >= 0)                 # full numbering of each unknown
+    part = np.empty(asm.ndof, dtype=np.int64)
+    part[asm.dof_map[full]] = np.where(full < 2 * N, full // 2, full - 2 * N)
+    return Reduced(H=Hr, F=asm.F[idx], d=dr, idx=idx, n_zero=int(zero.sum()), particle=part[idx])
+
+
+# ---- step 3: factorise -----------------------------------------------------------------------
 _ETA = 1e-12         # relative Tikhonov shift of the factorised matrix  M = H + eta diag(H)
 _FLOPPY_TOL = 1e-8   # a pivot below this fraction of its diagonal entry marks a floppy mode
 
 
+def have_cholmod() -> bool:
+    """True when CHOLMOD is importable (``scikit-sparse``; see README: needs Debian's
+    ``libsuitesparse-dev`` to build)."""
+    return _cholmod is not None
+
+
+ORDERINGS = ("auto", "amd", "metis", "nesdis")
+
+
+def particle_ordering(red, pairs, n_particles, method="auto"):
+    """Fill-reducing ordering of the unknowns computed on the particle contact graph (N nodes,
+    3x fewer than the unknowns, 9x fewer non-zeros), each particle's unknowns kept together.
+
+    method: ``"amd"``, ``"metis"`` (nested dissection; less fill on large 2D networks) or
+    ``"auto"`` (amd below 2e5 particles, metis above: measured in ``docs/stiffness.md``).
+    Returns a permutation ``perm`` of the reduced unknowns (new position -> old index)."""
+    if method not in ORDERINGS:
+        raise ValueError(f"unknown ordering {method!r}; allowed: {', '.join(ORDERINGS)}")
+    if method == "auto":
+        method = "amd" if n_particles < 200_000 else "metis"
+    i, j = pairs[:, 0], pairs[:, 1]
+    ar = np.arange(n_particles)
+    G = sp.csc_matrix((np.r_[np.full(2 * i.size, -1.0), np.full(n_particles, 10.0)],
+                       (np.r_[i, j, ar], np.r_[j, i, ar])), shape=(n_particles, n_particles))
+    fg = _cholmod.analyze(G, mode="simplicial", ordering_method=method)
+    rank = np.empty(n_particles, dtype=np.int64)
+    rank[fg.P()] = ar
+    return np.lexsort((np.arange(red.particle.size), rank[red.particle]))
+
+
+class _Cholmod:
+    """CHOLMOD supernodal Cholesky LL^T (scikit-sparse) of the SPD M = H + eta diag(H), ordered
+    on the particle graph (H is permuted once; a re-factorisation with another shift reuses the
+    permuted matrix and the symbolic analysis). Raises :class:`NotPositiveDefinite` when M is
+    not SPD (pre-stress with negative modes); the caller falls back to SuperLU, whose pivots
+    count them."""
+
+    name = "cholmod"
+
+    def __init__(self, H, d, eta, perm, _base=None):
+        self.perm = perm
+        if _base is None:
+            self._Hp = H[perm][:, perm].tocsc()
+            self._dp = d[perm]
+            self.f = None
+        else:   # take over the base's permuted matrix and factor (numeric values replaced)
+            self._Hp, self._dp, self.f = _base._Hp, _base._dp, _base.f
+        self.eta = eta
+        Mp = (self._Hp + sp.diags(eta * self._dp)).tocsc()
+        self._diag = Mp.diagonal()
+        if self.f is None:
+            self.f = _cholmod.analyze(Mp, mode="supernodal", ordering_method="natural")
+        try:
+            self.f.cholesky_inplace(Mp)
+        except _cholmod.CholmodNotPositiveDefiniteError as exc:
+            raise NotPositiveDefinite(str(exc)) from None
+
+    def refactor(self, eta):
+        """The factor of H + eta diag(H) on the same pattern, computed *in place*: the symbolic
+        analysis and the memory are reused and this object must not be used afterwards. Returns
+        None (and this object refactored back to its own shift) if the new matrix is not SPD."""
+        try:
+            new = _Cholmod(None, None, eta, self.perm, _base=self)
+        except NotPositiveDefinite:
+            _Cholmod(None, None, self.eta, self.perm, _base=self)
+            return None
+        self.f = None
+        return new
+
+    def pivots(self):
+        """(relative pivots, reliable?): D of LDL^T = diag(L)^2 over the matching diagonal of M."""
+        return self.f.D() / self._diag[self.f.P()], True
+
+    def solve(self, b):
+        x = np.empty_like(b)
+        x[self.perm] = self.f(np.ascontiguousarray(b[self.perm]))
+        return x
+
+
+class NotPositiveDefinite(RuntimeError):
+    """The shifted Hessian is not positive definite (negative modes: only with pre-stress)."""
+
+
 class _SuperLU:
     """scipy SuperLU of M = H + eta diag(H) with diagonal (symmetric) pivoting: its pivots give the
-    inertia of M (Sylvester), hence the number of (near-)zero and negative modes of H."""
+    inertia of M (Sylvester), hence the number of (near-)zero and negative modes of H. Always
+    available; the fallback of CHOLMOD."""
 
     name = "splu"
 
-    def __init__(self, M):
-        from scipy.sparse.linalg import splu
+    def __init__(self, H, d, eta):
+        self._H, self._d = H, d
+        M = (H + sp.diags(eta * d)).tocsc()
         self.lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options=dict(SymmetricMode=True))
         self.symmetric = bool(np.array_equal(self.lu.perm_r, self.lu.perm_c))
         self._M = M
+
+    def refactor(self, eta):
+        """The factor with another shift (a new object), or None if SuperLU chose another
+        ordering."""
+        new = _SuperLU(self._H, self._d, eta)
+        return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
 
     def pivots(self):
         """(relative pivots, reliable?) - pivots divided by the matching diagonal entry of M."""
@@ -184,153 +378,130 @@ class _SuperLU:
         return self.lu.solve(b)
 
 
-class _Pardiso:
-    """Intel MKL PARDISO through pypardiso (optional): real symmetric indefinite LDL^T
-    (Bunch-Kaufman) of the upper triangle; its inertia (iparm 22/23) gives the mode counts."""
-
-    name = "pardiso"
-
-    def __init__(self, M):
-        import pypardiso
-        self._pp = pypardiso
-        self.A, self.solver = self._factor(M)
-
-    def _factor(self, M):
-        s = self._pp.PyPardisoSolver(mtype=-2)
-        s.set_iparm(10, 13)          # pivot perturbation 1e-13 (default 1e-8 would hide the count)
-        A = sp.triu(M, format="csr")
-        A.sort_indices()
-        s.factorize(A)
-        return A, s
-
-    def inertia(self, solver=None):
-        s = self.solver if solver is None else solver
-        return int(s.get_iparm(22)), int(s.get_iparm(23))
-
-    def counts(self, H, d):
-        """(n_floppy, n_unstable): eigenvalues of the pencil (H, diag d) in [-eta, tol) and below
-        -eta, from the inertia of H - tol diag(d) and of the factorised H + eta diag(d)."""
-        _, neg_plus = self.inertia()
-        A, s = self._factor((H - sp.diags(_FLOPPY_TOL * d)).tocsc())
-        _, neg_minus = self.inertia(s)
-        s.free_memory(everything=True)
-        return neg_minus - neg_plus, neg_plus
-
-    def solve(self, b):
-        return self.solver.solve(self.A, np.asfortranarray(b))
+SOLVERS = ("auto", "cholmod", "splu")
+#: smallest system for which ``solver="auto"`` takes CHOLMOD (measured: 3e3 unknowns, SuperLU 0.03 s
+#: against 0.09 s; 3e4 unknowns, CHOLMOD 2.5x faster)
+AUTO_CHOLMOD_DOF = 10_000
 
 
-def _make_solver(name, M):
-    if name in ("auto", "pardiso"):
+def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="auto", eta=_ETA):
+    """Factorise ``M = H + eta diag(H)`` of a :class:`Reduced` system.
+
+    solver: ``"cholmod"`` (CHOLMOD supernodal Cholesky, needs scikit-sparse), ``"splu"`` (scipy
+    SuperLU, always available) or ``"auto"`` (cholmod if importable and the system has at least
+    ``AUTO_CHOLMOD_DOF`` unknowns, else splu: below that SuperLU is faster, see
+    ``docs/stiffness.md``). A matrix that is
+    not positive definite (pre-stress with negative modes) goes to SuperLU, whose symmetric
+    pivots count the negative modes. ``pairs``/``n_particles`` give the particle graph for the
+    CHOLMOD ordering (``ordering``: see :func:`particle_ordering`)."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    if solver == "cholmod" and _cholmod is None:
+        raise RuntimeError("solver='cholmod' needs scikit-sparse (CHOLMOD): apt-get install "
+                           "libsuitesparse-dev, then pip install 'scikit-sparse==0.4.16'")
+    if solver == "auto" and red.H.shape[0] < AUTO_CHOLMOD_DOF:
+        solver = "splu"
+    if solver in ("auto", "cholmod") and _cholmod is not None and pairs is not None:
         try:
-            return _Pardiso(M)
-        except Exception as exc:      # noqa: BLE001 - optional dependency
-            if name == "pardiso":
-                raise RuntimeError(f"pypardiso unavailable or failed: {exc}") from exc
-    if name in ("auto", "splu"):
-        return _SuperLU(M)
-    raise ValueError(f"unknown solver {name!r} (use 'splu', 'pardiso' or 'auto')")
+            return _Cholmod(red.H, red.d, eta, particle_ordering(red, pairs, n_particles, ordering))
+        except NotPositiveDefinite:
+            pass
+    return _SuperLU(red.H, red.d, eta)
 
 
-# ---- main entry ------------------------------------------------------------------------------
-def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rtol=1e-13,
-              max_refine=50, count="pivots") -> StiffnessResult:
-    """Exact linear-response stiffness tensor of a periodic contact network.
+# ---- step 4: count the modes -----------------------------------------------------------------
+@dataclass(frozen=True)
+class ModeCount:
+    """Zero (floppy) and negative modes of the reduced Hessian, from the factor's pivots.
 
-    Parameters
-    ----------
-    network : periodic ContactNetwork.
-    prestress : include the geometric stiffness of the normal forces ``fn`` and the pre-stress
-        terms of the Cauchy stress increment (needs ``network.fn``).
-    min_contacts : rattler threshold (particles with fewer contacts are removed, iteratively);
-        None = per particle 2 if it has a contact with kt_eff > 0, else 3.
-    solver : ``"splu"`` (scipy SuperLU, default, always available), ``"pardiso"`` (pypardiso),
-        ``"auto"`` (pardiso if importable, else splu).
-    count : how zero (floppy) modes are counted with splu: ``"pivots"`` (relative pivot of the
-        shifted factorisation below 1e-8; one factorisation) or ``"rescale"`` (a second
-        factorisation with a 100x smaller shift: a pivot is a zero mode iff it scales with the
-        shift - unambiguous when soft modes sit near the threshold).
-    rtol : target relative residual of the relaxation solve (iterative refinement on the
-        regularised factorisation).
-    """
-    t0 = time.perf_counter()
-    _check(network, prestress)
-    asm = assemble(network, prestress=prestress, min_contacts=min_contacts)
-    H, F = asm.H, asm.F
-    area = network.area
-    c_aff = affine_stiffness(network, prestress=prestress)
-    sigma0 = stress0(network) if prestress else None
-    t_asm = time.perf_counter() - t0
+    n_floppy, n_unstable : counts; gap : (largest relative pivot counted floppy, smallest kept);
+    method : ``"pivots"``, ``"rescale"`` or ``"eig"`` (dense/shift-invert fallback)."""
 
-    t1 = time.perf_counter()
-    n_floppy = n_unstable = n_ref = 0
-    resid = 0.0
-    gap = (np.nan, np.nan)
-    Q = np.zeros((asm.ndof, 3))
-    used = solver
-    if asm.ndof > 0:
-        d = H.diagonal()
-        rown = np.asarray(abs(H).sum(axis=1)).ravel()
-        zero = rown <= 1e-300 + 1e-15 * (np.abs(d).max() if d.size else 0.0)
-        n_floppy += int(zero.sum())            # dofs with no stiffness at all
-        idx = np.flatnonzero(~zero)
-        Hr = H[idx][:, idx].tocsc()
-        Fr = F[idx]
-        dr = np.abs(Hr.diagonal())
-        dr = np.where(dr > 0, dr, dr.max() if dr.size else 1.0)
-        M = (Hr + sp.diags(_ETA * dr)).tocsc()
-        if Hr.shape[0]:
-            slv = _make_solver(solver, M)
-            used = slv.name
-            if isinstance(slv, _SuperLU):
-                piv, ok = slv.pivots()
-                if not ok:
-                    warnings.warn("SuperLU did not pivot symmetrically: mode counts from an "
-                                  "eigen-solver fallback", RuntimeWarning, stacklevel=2)
-                    nf, nu = _count_modes_eig(Hr, dr)
-                else:
-                    small = np.abs(piv) < _FLOPPY_TOL
-                    if count == "rescale":
-                        # a pivot of a zero mode scales with the shift eta, any other does not
-                        slv2 = _SuperLU((Hr + sp.diags(1e-2 * _ETA * dr)).tocsc())
-                        piv2, ok2 = slv2.pivots()
-                        if ok2 and np.array_equal(slv2.lu.perm_c, slv.lu.perm_c):
-                            small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
-                        del slv2
-                    nf = int(small.sum())
-                    nu = int(((piv < 0) & ~small).sum())
-                    gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
-                           float(np.abs(piv[~small]).min()) if (~small).any() else np.inf)
-            else:
-                nf, nu = slv.counts(Hr, dr)
-            n_floppy += nf
-            n_unstable += nu
-            # solve H q = -F by iterated Tikhonov (refinement): exact for every mode whose
-            # stiffness >> eta diag; zero modes are not excited (F lies in the range of H)
-            Xr = slv.solve(-Fr)
-            # residual relative to the contact-level load (the norm of the per-contact affine
-            # forces before they cancel in the assembly: an affine load has F ~ round-off)
-            fn_ = asm.F_scale if asm.F_scale > 0 else 1.0
-            for n_ref in range(1, max_refine + 1):
-                R = -Fr - Hr @ Xr
-                resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-                if resid <= rtol:
-                    break
-                Xr = Xr + slv.solve(R)
-            else:
-                R = -Fr - Hr @ Xr
-                resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-            Q[idx] = Xr
-    t_solve = time.perf_counter() - t1
-    if n_unstable:
-        warnings.warn(f"the Hessian has {n_unstable} negative mode(s): the network is mechanically "
-                      "unstable under its pre-stress; the tensor is the stationary response",
-                      RuntimeWarning, stacklevel=2)
-    if resid > 1e-8:
-        warnings.warn(f"relaxation solve did not converge: relative residual {resid:.2e}",
-                      RuntimeWarning, stacklevel=2)
+    n_floppy: int
+    n_unstable: int
+    gap: tuple
+    method: str
+    #: the factor to solve with: the rescaled one when ``method == "rescale"`` replaced the input
+    #: factor in place (CHOLMOD), else None (keep using the input factor)
+    factor: object = field(default=None, repr=False, compare=False)
 
-    # contact displacements for the three unit strains, energy form of the tensor
+
+COUNTS = ("auto", "pivots", "rescale")
+#: relative pivots in this band are ambiguous (a delocalised zero mode or a soft rigid mode):
+#: ``count="auto"`` settles them with the shift-rescaling test
+_AMBIGUOUS = (1e-10, 1e-6)
+
+
+def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
+    """Count zero and negative modes from the pivots of the shifted factorisation (Sylvester's
+    law of inertia: M = H + eta diag H is congruent to the diagonal of its LDL^T).
+
+    ``count="pivots"``: a relative pivot below 1e-8 is a zero mode. ``"rescale"``: a second
+    factorisation with a 100x smaller shift; a pivot belongs to a zero mode iff it scales with
+    the shift (no threshold to tune; used automatically on ill-conditioned networks). With
+    CHOLMOD the second factorisation replaces the first in place (memory reused): solve with
+    ``ModeCount.factor`` then.
+    ``"auto"`` (default): ``"pivots"``, switching to ``"rescale"`` when a relative pivot falls in
+    the ambiguous band 1e-10..1e-6 (measured: a zero mode spread over a 1e5-disk network had a
+    pivot of 1.2e-8, above the 1e-8 threshold)."""
+    if count not in COUNTS:
+        raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
+    if red.H.shape[0] == 0:
+        return ModeCount(red.n_zero, 0, (np.nan, np.nan), count)
+    piv, ok = factor.pivots()
+    if not ok:
+        warnings.warn("SuperLU did not pivot symmetrically: mode counts from an eigen-solver "
+                      "fallback", RuntimeWarning, stacklevel=3)
+        nf, nu = _count_modes_eig(red.H, red.d)
+        return ModeCount(red.n_zero + nf, nu, (np.nan, np.nan), "eig")
+    small = np.abs(piv) < _FLOPPY_TOL
+    a = np.abs(piv)
+    if count == "auto":
+        count = "rescale" if np.any((a > _AMBIGUOUS[0]) & (a < _AMBIGUOUS[1])) else "pivots"
+    f2 = None
+    if count == "rescale":
+        f2 = factor.refactor(1e-2 * eta)
+        if f2 is not None:
+            piv2, ok2 = f2.pivots()
+            if ok2:
+                small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
+        if not isinstance(f2, _Cholmod):   # SuperLU: a separate object, the input stays valid
+            f2 = None
+    nf = int(small.sum())
+    nu = int(((piv < 0) & ~small).sum())
+    gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
+           float(np.abs(piv[~small]).min()) if (~small).any() else np.inf)
+    return ModeCount(red.n_zero + nf, nu, gap, count, factor=f2)
+
+
+# ---- step 5: solve ---------------------------------------------------------------------------
+def relax(factor, red, F_scale, rtol=1e-13, max_refine=50):
+    """Solve ``H Q = -F`` for the three unit strains by iterated Tikhonov (refinement on the
+    shifted factor against the unshifted H): exact for every mode whose stiffness >> eta diag;
+    zero modes are not excited (F lies in the range of H). Returns (Q (m, 3), residual, n_refine)
+    with the residual relative to the norm of the per-contact affine forces ``F_scale``."""
+    if red.H.shape[0] == 0:
+        return np.zeros((0, 3)), 0.0, 0
+    Xr = factor.solve(-red.F)
+    fn_ = F_scale if F_scale > 0 else 1.0
+    n_ref = 0
+    for n_ref in range(1, max_refine + 1):
+        R = -red.F - red.H @ Xr
+        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+        if resid <= rtol or not np.isfinite(resid):
+            break
+        Xr = Xr + factor.solve(R)
+    else:
+        R = -red.F - red.H @ Xr
+        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+    return Xr, resid, n_ref
+
+
+# ---- step 6: the tensor ----------------------------------------------------------------------
+def relaxed_tensor(asm, Q, area):
+    """(C, consistency): the relaxed tensor in the energy form ``(1/A) Delta^T K Delta`` at the
+    relaxed unknowns ``Q`` (ndof, 3) (without the pre-stress correction) and the relative
+    difference of the stress form ``(1/A) D^T K Delta``."""
     Df = asm.Df
     delta = asm.Bs @ Q + Df                                  # (2C, 3) contact displacements
     Kd = asm.Ks @ delta
@@ -343,11 +514,117 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
         c_str = c_str + Df.T @ Kgd
     c_rel = 0.5 * (c_rel + c_rel.T) / area
     c_str = c_str / area
-    scale = max(np.abs(c_aff).max(), 1e-300)
-    consistency = float(np.abs(c_str - c_rel).max() / scale)
+    scale = max(np.abs(c_rel).max(), np.abs(c_str).max(), 1e-300)
+    return c_rel, float(np.abs(c_str - c_rel).max() / scale)
+
+
+def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
+    """The reasons a result is degenerate: not jammed, floppy, unstable (one sentence each)."""
+    flags = []
+    scale = np.abs(C_aff).max()
+    if n_particles and n_rattlers == n_particles:
+        flags.append(f"not jammed: every particle ({n_particles}) is a rattler; C = 0")
+    elif n_dof == 0 and n_particles:
+        flags.append("not jammed: no unknown carries stiffness")
+    w = np.linalg.eigvalsh(0.5 * (C + C.T))
+    if scale > 0 and w.max() <= 1e-10 * scale and not flags:
+        flags.append(f"not jammed: the relaxed tensor vanishes (largest eigenvalue {w.max():.3g}, "
+                     f"affine scale {scale:.3g}) with {modes.n_floppy} floppy mode(s) and "
+                     f"{n_rattlers} rattler(s) of {n_particles}")
+    elif scale > 0 and not flags and -1e-10 * scale <= w.min() <= 1e-10 * scale:
+        flags.append(f"floppy: the relaxed tensor has a zero eigenvalue ({modes.n_floppy} floppy "
+                     f"mode(s)); a deformation mode costs no energy")
+    if modes.n_unstable:
+        flags.append(f"unstable: the Hessian has {modes.n_unstable} negative mode(s) under the "
+                     f"pre-stress; the tensor is the stationary response")
+    if scale > 0 and w.min() < -1e-10 * scale:
+        flags.append(f"unstable: the tensor has a negative eigenvalue ({w.min():.4g}): the "
+                     f"homogeneous state is not stable under this (pre-)stress")
+    return flags
+
+
+# ---- main entry ------------------------------------------------------------------------------
+def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
+              max_refine=50, count="auto", ordering="auto") -> StiffnessResult:
+    """Exact linear-response stiffness tensor of a periodic contact network.
+
+    The named steps, each usable on its own: :func:`_normalise` (input check, exact scaling),
+    :func:`microhom.kinematics.assemble` (Hessian and load, rattlers removed),
+    :func:`reduce_system` (stiffness-free unknowns dropped), :func:`factorise`,
+    :func:`count_modes`, :func:`relax` (solve with refinement), :func:`relaxed_tensor`.
+
+    Parameters
+    ----------
+    network : periodic ContactNetwork.
+    prestress : include the geometric stiffness of the normal forces ``fn`` and the pre-stress
+        terms of the Cauchy stress increment (needs ``network.fn``).
+    min_contacts : rattler threshold (particles with fewer contacts are removed, iteratively);
+        None = per particle 2 if it has a contact with kt_eff > 0, else 3.
+    solver : ``"auto"`` (default: CHOLMOD if scikit-sparse is importable, else SuperLU),
+        ``"cholmod"`` or ``"splu"`` (scipy SuperLU, always available).
+    count : how zero (floppy) modes are counted: ``"auto"``, ``"pivots"`` or ``"rescale"`` (see
+        :func:`count_modes`; ``"rescale"`` is forced on ill-conditioned networks).
+    ordering : CHOLMOD fill-reducing ordering on the particle graph (:func:`particle_ordering`).
+    rtol : target relative residual of the relaxation solve.
+
+    Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
+    "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
+    lattice in shear) also raise a ``RuntimeWarning`` with the reason.
+    """
+    t0 = time.perf_counter()
+    if count not in COUNTS:
+        raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
+    if ordering not in ORDERINGS:
+        raise ValueError(f"unknown ordering {ordering!r}; allowed: {', '.join(ORDERINGS)}")
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    net, s, flags = _normalise(network, prestress)
+    if flags:
+        count = "rescale"
+    asm = assemble(net, prestress=prestress, min_contacts=min_contacts)
+    c_aff = affine_stiffness(net, prestress=prestress)
+    sigma0 = stress0(net) if prestress else None
+    t_asm = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    steps = {"assemble": t_asm}
+    red = reduce_system(asm)
+    steps["reduce"] = time.perf_counter() - t1
+    factor = None
+    tc = time.perf_counter()
+    if red.H.shape[0]:
+        factor = factorise(red, solver, pairs=asm.net.pairs, n_particles=net.n_particles,
+                           ordering=ordering)
+    steps["factorise"] = time.perf_counter() - tc
+    tc = time.perf_counter()
+    modes = count_modes(factor, red, count)
+    if modes.factor is not None:      # CHOLMOD refactored in place with the smaller shift
+        factor = modes.factor
+    steps["count"] = time.perf_counter() - tc
+    tc = time.perf_counter()
+    Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+    steps["relax"] = time.perf_counter() - tc
+    used = factor.name if factor is not None else "none"
+    del factor
+    Q = np.zeros((asm.ndof, 3))
+    Q[red.idx] = Xr
+    t_solve = time.perf_counter() - t1
+    if resid > 1e-8:
+        flags.append(f"inaccurate: the relaxation solve did not converge (relative residual "
+                     f"{resid:.2e})")
+
+    tc = time.perf_counter()
+    c_rel, consistency = relaxed_tensor(asm, Q, net.area)
+    steps["tensor"] = time.perf_counter() - tc
     if prestress:
         c_rel = c_rel + prestress_correction(sigma0)
-    N = network.n_particles
+    flags += degeneracy_flags(c_rel, c_aff, modes, net.n_particles, int(asm.rattlers.sum()),
+                              red.H.shape[0])
+    for msg in flags:   # a floppy direction is a property of the network, flagged but not warned
+        if not msg.startswith("floppy"):
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    c_rel, c_aff = c_rel * s, c_aff * s
+    N = net.n_particles
     full = np.zeros((3 * N + 1, 3))
     full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
     u_f = np.stack([full[0:2 * N, b].reshape(N, 2) for b in range(3)])
@@ -356,13 +633,13 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="splu", rto
     Ka, Ga = isotropic_moduli(c_aff)
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
-        n_rattlers=int(asm.rattlers.sum()), n_floppy=int(n_floppy), n_dof=int(asm.ndof),
-        solve_time=t_solve, assembly_time=t_asm, n_particles=network.n_particles,
-        n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(n_unstable),
-        prestress=bool(prestress), solver=used, residual=resid, consistency=consistency,
-        n_refine=n_ref, pivot_gap=gap,
-        stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0),
-        u=u_f, omega=w_f, rattler_mask=asm.rattlers)
+        n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),
+        solve_time=t_solve, assembly_time=t_asm, n_particles=N,
+        n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(modes.n_unstable),
+        prestress=bool(prestress), solver=used, residual=resid,
+        consistency=consistency, n_refine=n_ref, pivot_gap=modes.gap,
+        stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0) * s,
+        flags=tuple(flags), stiffness_scale=s, count_method=modes.method, step_times=steps, u=u_f, omega=w_f, rattler_mask=asm.rattlers)
 
 
 def stress_increment(network, grad, u=None, omega=None) -> np.ndarray:
@@ -397,7 +674,6 @@ def _count_modes_eig(H, d):
     if A.shape[0] <= 3000:
         w = np.linalg.eigvalsh(A.toarray())
     else:   # pragma: no cover - large fallback
-        from scipy.sparse.linalg import eigsh
         w = eigsh(A, k=min(200, A.shape[0] - 1), sigma=-1e-3, return_eigenvectors=False)
     small = np.abs(w) < _FLOPPY_TOL
     return int(small.sum()), int(((w < 0) & ~small).sum())

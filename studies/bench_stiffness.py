@@ -1,13 +1,17 @@
 """Benchmark of the exact stiffness solver (dem.stiffness) and comparison with jax-md.
 
-    python -m studies.bench_stiffness [--quick] [--no-jax] [--sizes 1000,10000,100000]
+    python -m studies.bench_stiffness [--quick] [--no-jax] [--sizes 1e4,1e5,1e6] [--repeats 2]
 
 1. Timing on large disordered *frictional* networks. Until the project's DEM packer exists the
    network is built, not packed: a triangular lattice of N disks, positions jittered by +-5 % of D,
    every contact kept with probability 4.1/6 (mean coordination ~4.1 before rattler removal), kn = kt
    = 1, branch vectors from the jittered positions. It is rigid (z > 3 for frictional disks) apart
    from a handful of local zero modes, which the solver reports.
-   Solvers: scipy SuperLU (default, always installed) and pypardiso (MKL PARDISO) if importable.
+   Solvers: CHOLMOD (scikit-sparse, when installed) beside scipy SuperLU (always installed), in
+   the same run, interleaved, each run in its own process (peak memory from getrusage). Printed:
+   wall time of the assembly, of the solve (factorisation, mode count, refinement) and in total,
+   the CPU time of the call (user + system, all threads: less sensitive to other processes'
+   load than the wall time), the time of each named step, and the floppy-count rule used.
 2. Frictionless harmonic soft disks, bidisperse 1:1.4, phi = 0.88, minimised with scipy L-BFGS:
    exact moduli with pre-stress vs jax-md ``elasticity.athermal_moduli`` (if ``import jax_md``
    works), after the conversion K = B_jaxmd + p/2, G = G_jaxmd - p/2 (full tensor: C = C_jaxmd +
@@ -16,13 +20,18 @@
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
 import time
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
-from dem.stiffness import stiffness
+from dem.stiffness import have_cholmod, stiffness
 from microhom.tensors import isotropic_moduli, mandel_to_strain, prestress_correction, tensor_to_mandel
 from microhom import lattices
 from microhom.network import ContactNetwork, from_overlaps
@@ -118,39 +127,77 @@ def jaxmd_moduli(pos, rad, L, cg_tol=1e-7, tether=1e-10):
     return np.asarray(C), bool(conv), t_first, t_run, n
 
 
-# ---- main ------------------------------------------------------------------------------------
+# ---- main ----------------------------------------------------------------------------------
 def _solvers():
-    out = ["splu"]
-    try:
-        import pypardiso  # noqa: F401
-        out.append("pardiso")
-    except Exception:   # noqa: BLE001
-        pass
-    return out
+    return (["cholmod"] if have_cholmod() else []) + ["splu"]
+
+
+def one_run(n, solver):
+    """Build the network, run ``stiffness`` once; a dict of figures (peak memory of this process)."""
+    t0 = time.perf_counter()
+    net = diluted_triangular(n)
+    t_net = time.perf_counter() - t0
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    t0 = time.perf_counter()
+    r = stiffness(net, solver=solver)
+    tt = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    return dict(n=net.n_particles, solver=r.solver, dof=r.n_dof, rattlers=r.n_rattlers,
+                floppy=r.n_floppy, K_ratio=r.K / r.K_affine, G_ratio=r.G / r.G_affine,
+                assembly=r.assembly_time, solve=r.solve_time, total=tt, build=t_net, cpu=cpu,
+                residual=r.residual, C=r.C_mandel.tolist(), count=r.count_method,
+                steps={k: round(v, 3) for k, v in r.step_times.items()},
+                peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
+
+
+def _child(n, solver):
+    """One run in a fresh process, so that its peak resident memory is its own."""
+    out = subprocess.run([sys.executable, "-m", "studies.bench_stiffness", "--one", f"{n}:{solver}"],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="N = 1e3, 1e4 and a 256-disk jax-md check")
     ap.add_argument("--no-jax", action="store_true")
-    ap.add_argument("--sizes", default=None)
+    ap.add_argument("--sizes", default=None, help="comma-separated N (default 1e4,1e5,1e6)")
+    ap.add_argument("--repeats", type=int, default=2, help="interleaved repeats per size")
+    ap.add_argument("--splu-max", type=float, default=2e5,
+                    help="largest N also solved with SuperLU (1e6 takes ~400 s and ~16 GB)")
+    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
-    sizes = [1000, 10000] if a.quick else [1000, 10000, 100000]
+    if a.one:
+        n, s = a.one.split(":")
+        print(json.dumps(one_run(int(float(n)), s)))
+        return
+    sizes = [1000, 10000] if a.quick else [10000, 100000, 1000000]
     if a.sizes:
         sizes = [int(float(s)) for s in a.sizes.split(",")]
 
     print("## exact stiffness, frictional diluted triangular network (kt = kn, z ~ 4.1)")
+    print(f"load average {os.getloadavg()} on {os.cpu_count()} cores; each run in its own process; "
+          f"runs interleaved (new solver, SuperLU, new, SuperLU ...)")
     print(f"{'N':>8} {'solver':>8} {'dof':>8} {'ratt':>6} {'flop':>5} {'K/K_aff':>9} {'G/G_aff':>9} "
-          f"{'assembly s':>10} {'solve s':>8} {'total s':>8} {'resid':>8}")
+          f"{'assembly s':>10} {'solve s':>8} {'total s':>8} {'cpu s':>8} {'peak GB':>8} {'resid':>8}")
     for n in sizes:
-        net = diluted_triangular(n)
-        for s in _solvers():
-            t0 = time.perf_counter()
-            r = stiffness(net, solver=s)
-            tt = time.perf_counter() - t0
-            print(f"{net.n_particles:>8} {s:>8} {r.n_dof:>8} {r.n_rattlers:>6} {r.n_floppy:>5} "
-                  f"{r.K / r.K_affine:>9.6f} {r.G / r.G_affine:>9.6f} {r.assembly_time:>10.3f} "
-                  f"{r.solve_time:>8.3f} {tt:>8.3f} {r.residual:>8.1e}", flush=True)
+        runs = {}
+        solvers = [s for s in _solvers() if s != "splu" or n <= a.splu_max]
+        for _ in range(a.repeats if n < 500_000 else 1):
+            for s in solvers:
+                r = _child(n, s)
+                runs.setdefault(s, []).append(r)
+                print(f"{r['n']:>8} {r['solver']:>8} {r['dof']:>8} {r['rattlers']:>6} {r['floppy']:>5} "
+                      f"{r['K_ratio']:>9.6f} {r['G_ratio']:>9.6f} {r['assembly']:>10.3f} "
+                      f"{r['solve']:>8.3f} {r['total']:>8.3f} {r['cpu']:>8.2f} {r['peak_gb']:>8.2f} "
+                      f"{r['residual']:>8.1e}  count {r['count']}, steps {r['steps']}", flush=True)
+        tot = {s: [r["total"] for r in v] for s, v in runs.items()}
+        line = ", ".join(f"{s} {min(v):.3f}-{max(v):.3f} s" for s, v in tot.items())
+        if len(runs) == 2:
+            c1, c2 = (np.array(v[0]["C"]) for v in runs.values())
+            line += f"; max |dC| / max |C| between solvers {np.abs(c1 - c2).max() / np.abs(c2).max():.1e}"
+        print(f"  N = {n}: total {line}; load {os.getloadavg()[0]:.2f}", flush=True)
 
     if a.no_jax:
         return

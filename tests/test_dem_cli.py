@@ -85,7 +85,8 @@ def test_resume_after_interruption_is_bit_exact(straight, tmp_path):
     (["--n", "50", "--dispersity", "0.7"], "--dispersity", "[0, 0.5)"),
     (["--n", "50", "--kt", "20"], "--kt", "[0, 10 kn]"),
     (["--n", "50", "--tol-unbalanced", "2"], "--tol-unbalanced", "(0, 1)"),
-    (["--n", "50", "--checkpoint-every", "0"], "--checkpoint-every", "> 0"),
+    (["--n", "50", "--checkpoint-seconds", "0"], "--checkpoint-seconds", "> 0"),
+    (["--n", "50", "--checkpoint-every", "0"], "--checkpoint-every", ">= 1"),
     (["--n", "50", "--pressure-pa", "100"], "--pressure-pa", "--kn"),
     (["--n", "50", "--pressure-pa", "1e3", "--kn", "1e3"], "--pressure-pa", "(0, 0.1]"),
     (["--n", "50", "--out", "x.txt"], "--out", ".npz"),
@@ -132,7 +133,7 @@ def test_unstable_run_exits_4_and_keeps_checkpoint(tmp_path, monkeypatch, capsys
 
     monkeypatch.setattr(Simulation, "run", poisoned)
     out = tmp_path / "u.npz"
-    rc = main(["pack", *BASE, "--out", str(out), "--checkpoint-every", "1e-9"])
+    rc = main(["pack", *BASE, "--out", str(out), "--checkpoint-seconds", "1e-9"])
     assert rc == 4
     err = capsys.readouterr().err
     assert "unstable" in err and "NaN" in err and "step 1000" in err

@@ -1,12 +1,21 @@
 """Packing generator: stop criteria met and reported, bit-identical with the same seed, resumable
 from a checkpoint, ContactNetwork hand-over consistent with the engine's own stress."""
+import csv
+import json
 import math
 
 import numpy as np
 import pytest
 
+from scipy.spatial import Delaunay
+
+import dem.__main__ as cli
 from dem import measure
-from dem.packing import PackingResult, pack, random_gas
+from dem.integrate import InstabilityError, Simulation
+from dem.packing import PackingResult, PackReport, hexatic_psi6, network_from_state, pack, random_gas
+from dem.scenes import isotropic
+from dem.state import State
+from microhom import lattices
 
 PACK_KW = dict(p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3, tol_unbalanced=1e-4,
                tol_ke=1e-6, max_steps=200_000)
@@ -24,8 +33,38 @@ def test_packing_meets_its_stop_criteria(small_packing):
     assert r["unbalanced"] < 1e-4 and r["unbalanced_max"] >= r["unbalanced"]
     assert r["ke_rel"] < 1e-6
     assert 0.7 < r["phi"] < 0.91  # between a loose random packing and the triangular crystal
-    assert 0 <= r["psi6"] <= 1
+    # psi6 recomputed here from the positions alone (periodic Delaunay written in this test)
+    psi6, psi6_local = _psi6_delaunay(small_packing.to_network())
+    assert r["psi6"] == pytest.approx(psi6, abs=1e-12)
+    assert r["psi6_local"] == pytest.approx(psi6_local, abs=1e-12)
+    assert r["psi6"] < 0.5        # frictional preparation of identical disks: not a crystal
     assert r["dt_over_dtcrit"] == pytest.approx(0.8)
+
+
+def _psi6_delaunay(net):
+    """psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)| over the Delaunay neighbours of the 3x3
+    periodic tiling (independent of dem.measure)."""
+    x, h = net.positions, net.cell
+    n = x.shape[0]
+    shifts = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    tiled = np.concatenate([x + h @ np.array(s, float) for s in shifts])
+    tri = Delaunay(tiled)
+    nb = [set() for _ in range(n)]
+    for simplex in tri.simplices:
+        for u in simplex:
+            if u // n == shifts.index((0, 0)):
+                nb[u % n].update(int(v) for v in simplex if v != u)
+    centre = shifts.index((0, 0)) * n
+    loc = np.array([np.mean([np.exp(6j * np.arctan2(*(tiled[v] - tiled[centre + i])[::-1]))
+                             for v in nb[i]]) for i in range(n)])
+    return abs(loc.mean()), np.abs(loc).mean()
+
+
+def test_psi6_of_a_crystal_is_one():
+    net = lattices.triangular(6, 6, angle=0.3)
+    hx = hexatic_psi6(net)
+    assert hx["psi6"] == pytest.approx(1.0, abs=1e-12)
+    assert _psi6_delaunay(net)[0] == pytest.approx(1.0, abs=1e-12)
 
 
 def test_network_handover_matches_pressure(small_packing):
@@ -91,18 +130,26 @@ def test_random_gas_seeded_and_bad_input():
 
 
 def test_isotropic_scene_wiring():
-    from dem.scenes import isotropic
+    """The scene's servo brings a frictionless gas to the target pressure, and the pressure it
+    reports is the Love-Weber pressure of the contact network computed independently."""
     st = random_gas(80, seed=2, spins=False)
     sim = isotropic.simulation(st, p_target=1e-3, kn=1.0)  # frictionless: no spins, no history
-    sim.run(3000)
+    for _ in range(100):
+        sim.run(500)
+        m = sim.measure()
+        if abs(m["pressure"] - 1e-3) < 1e-3 * 1e-2 and m["unbalanced"] < 1e-2:
+            break
     assert st.omega is None and st.nl_ft is None
-    assert sim.measure()["pressure"] > 0
+    assert m["pressure"] == pytest.approx(1e-3, rel=1e-2)
+    net = network_from_state(st, sim.law)
+    i, j = net.pairs.T
+    f = net.fn[:, None] * net.normals                       # compression positive, along i -> j
+    sigma = -(f[:, :, None] * net.branch[:, None, :]).sum(0) / net.area
+    # (the engine's stress is from the forces of the last step, one drift before these positions)
+    assert -np.trace(sigma) / 2 == pytest.approx(m["pressure"], rel=1e-4)
 
 
 def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
-    from dem.integrate import InstabilityError, Simulation
-    from dem.state import State
-
     orig = Simulation.run
 
     def poisoned(self, n, **kw):  # a NaN appears between steps 1000 and 1100
@@ -142,3 +189,47 @@ def test_compaction_phase_then_equilibrium_damping(small_packing):
     assert old.report["compaction_steps"] is None
     with pytest.raises(ValueError, match="damping_compaction"):
         pack(60, damping_compaction=1.0)
+
+
+# the npz meta and the summary CSV of `python -m dem pack` as they were before the report became
+# a dataclass (keys and order): the output a user's scripts read must not change
+META_KEYS = ['source', 'note', 'timestep', 'n', 'seed', 'converged', 'steps', 'compaction_steps',
+             'wall_s', 'resumed', 'p_target', 'pressure', 'rel_p_err', 'p_over_kn', 'unbalanced',
+             'unbalanced_max', 'ke_rel', 'kinetic_energy', 'kinetic_energy_in_contact',
+             'elastic_energy', 'phi', 'n_contacts', 'Z', 'sliding_fraction', 'dt', 'dt_over_dtcrit',
+             'mu', 'mu_prep', 'kn', 'kt', 'tol_p', 'tol_unbalanced', 'tol_ke', 'damping',
+             'damping_compaction', 'damping_work', 'psi6', 'psi6_local', 'timing',
+             'particle_steps_per_s', 'law']
+CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_per_s', 'n', 'seed',
+            'p_target', 'pressure', 'p_over_kn', 'rel_p_err', 'tol_p', 'unbalanced',
+            'unbalanced_max', 'tol_unbalanced', 'ke_rel', 'tol_ke', 'phi', 'Z', 'n_contacts',
+            'psi6', 'psi6_local', 'sliding_fraction', 'mu_prep', 'mu', 'kn', 'kt', 'dt',
+            'dt_over_dtcrit', 'damping_compaction', 'damping', 'damping_work', 'resumed',
+            'phase_steps']
+
+
+def test_cli_outputs_keep_their_schema(tmp_path):
+    out = tmp_path / "p.npz"
+    assert cli.main(["pack", "--n", "40", "--pressure", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
+                     "--seed", "2", "--tol-unbalanced", "1e-3", "--no-progress",
+                     "--out", str(out)]) == 0
+    with np.load(out) as z:
+        meta = json.loads(str(z["meta_json"]))
+    assert list(meta) == META_KEYS
+    with open(tmp_path / "p_summary.csv") as fh:
+        rows = [r for r in csv.reader(fh)][1:]
+    assert [k for s, k, _ in rows if s == "packing"] == CSV_KEYS
+    rep = PackingResult.load(out).report
+    assert isinstance(rep, PackReport)
+    for s, k, v in rows:
+        if s == "packing" and k != "phase_steps":
+            assert v == (repr(rep[k]) if isinstance(rep[k], float) else str(rep[k])), k
+            assert meta[k] == rep[k] or (rep[k] != rep[k] and meta[k] != meta[k]), k
+    assert json.loads(json.dumps(rep.as_dict()))["steps"] == rep.steps   # JSON-ready
+    with pytest.raises(Exception):
+        rep.steps = 0                                                    # frozen
+    with pytest.raises(TypeError, match="read-only"):
+        rep["steps"] = 0
+    rep["wall_time"] = 1.5                   # a caller's annotation travels with the packing
+    PackingResult(PackingResult.load(out).state, PackingResult.load(out).law, rep).save(out)
+    assert PackingResult.load(out).report["wall_time"] == 1.5

@@ -1,0 +1,95 @@
+"""A full `dem.packing.pack` of 1e4 disks against LAMMPS' preparation of 1e4 disks, in the same run.
+
+    python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0]
+
+Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (p/kn = 1e-4,
+mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic energy
+of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at mu_prep
+-> equilibrium at mu, each phase with its own stop criterion (the step at which each ended is
+printed).
+
+LAMMPS: ``studies/lammps_bench/in.prep`` (carried in the repository, shared with bench_throughput): random insertion,
+soft push-off, isotropic compression at a constant rate to phi = 0.84 with GRANULAR
+gran/hooke/history, relaxation until the translational kinetic energy per particle is below
+1e-12 kn d^2; serial, one thread. Its stop criterion is its own; the comparison is the wall time
+of a complete preparation of a jammed, relaxed 1e4-disk packing on each side.
+
+The two sides alternate (ours, LAMMPS, ours, LAMMPS ...) so that load from other processes hits
+both alike; the spread over the repeats and the load average are printed. Says so and runs ours
+alone when ``lmp`` is not on PATH (Debian: ``apt-get install -y lammps``).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+
+from dem.packing import pack
+
+PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
+#: the defaults of ``python -m dem pack``
+CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispersity=0.0,
+                    tol_unbalanced=1e-5)
+
+
+def run_ours(n, seed):
+    t0 = time.perf_counter()
+    r = pack(n, seed=seed, **CLI_DEFAULTS)
+    wall = time.perf_counter() - t0
+    rep = r.report
+    return dict(wall=wall, steps=rep["steps"], converged=rep["converged"], phases=rep["phase_steps"],
+                phi=rep["phi"], Z=rep["Z"], ps=rep["particle_steps_per_s"])
+
+
+def run_lammps(n, seed, work):
+    log = os.path.join(work, "prep.log")
+    t0 = time.perf_counter()
+    subprocess.run(["lmp", "-in", PREP_IN, "-var", "N", str(n), "-var", "seed", str(4242 + seed),
+                    "-var", "out", os.path.join(work, "dense.data"), "-log", log, "-screen", "none"],
+                   check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    wall = time.perf_counter() - t0
+    steps, res = 0, ""
+    for line in open(log, errors="replace"):
+        m = re.match(r"Loop time of \S+ on \d+ procs for (\d+) steps", line)
+        if m:
+            steps += int(m.group(1))
+        if line.startswith("PREP_RESULT"):
+            res = line.strip()
+    return dict(wall=wall, steps=steps, result=res)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=10000)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    have_lmp = shutil.which("lmp") is not None
+    if not have_lmp:
+        print("lmp not on PATH: the LAMMPS side is skipped (Debian: apt-get install -y lammps)")
+    print(f"N = {a.n}, load average {os.getloadavg()} on {os.cpu_count()} cores")
+    ours, theirs = [], []
+    with tempfile.TemporaryDirectory(prefix="bench_pack_") as work:
+        for k in range(a.repeats):
+            o = run_ours(a.n, a.seed + k)
+            ours.append(o["wall"])
+            print(f"ours   seed {a.seed + k}: {o['wall']:7.2f} s, {o['steps']} steps, converged "
+                  f"{o['converged']}, phases {[(p['phase'], p['step']) for p in o['phases']]}, "
+                  f"phi {o['phi']:.4f}, Z {o['Z']:.3f}, {o['ps']:.3g} particle-steps/s; "
+                  f"load {os.getloadavg()[0]:.2f}", flush=True)
+            if have_lmp:
+                t = run_lammps(a.n, a.seed + k, work)
+                theirs.append(t["wall"])
+                print(f"LAMMPS seed {4242 + a.seed + k}: {t['wall']:7.2f} s, {t['steps']} steps; "
+                      f"{t['result']}; load {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"ours {min(ours):.2f}-{max(ours):.2f} s" + (
+        f", LAMMPS in.prep {min(theirs):.2f}-{max(theirs):.2f} s, ratio of means "
+        f"{(sum(ours) / len(ours)) / (sum(theirs) / len(theirs)):.2f} (ours / LAMMPS)" if theirs else ""))
+
+
+if __name__ == "__main__":
+    main()
