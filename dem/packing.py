@@ -53,7 +53,7 @@ Protocol (default, :func:`pack`):
 Same seed, same parameters -> bit-identical packing (serial kernels, fixed summation order).
 :class:`PackingResult` carries the final :class:`dem.state.State` (a checkpoint: ``save``/``load``),
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
-:meth:`PackingResult.save` writes one npz that is both a checkpoint (:meth:`PackingResult.load`)
+:meth:`PackingResult.save` writes one npz that is both a checkpoint (``PackingResult.load``)
 and a ``dem.io`` configuration (:func:`dem.io.read`).
 The phases are objects (:class:`Grow`, :class:`Compact`, :class:`Equilibrate`), each with its own
 parameters and stop criterion; :func:`pack` runs them in order and reports them in
@@ -167,7 +167,7 @@ def network_from_state(state, law):
 
 
 def hexatic_psi6(net) -> dict:
-    """psi6 (global |mean|) and mean local |psi6_i| over periodic Delaunay neighbours (dict)."""
+    """psi6 (global ``|mean|``) and mean local ``|psi6_i|`` over periodic Delaunay neighbours (dict)."""
     return hexatic_order(net).as_dict()
 
 
@@ -207,7 +207,7 @@ class PackReport(Result):
     ``compaction_steps`` step at the end of the compaction (None without one), ``wall_s`` [s],
     ``resumed``, ``particle_steps_per_s``, ``timing`` (table of the engine's sections), ``dt`` [s],
     ``dt_over_dtcrit``.
-    Stop criteria (final values): ``p_target``, ``pressure`` [N/m], ``rel_p_err`` |p - p_t|/p_t,
+    Stop criteria (final values): ``p_target``, ``pressure`` [N/m], ``rel_p_err`` ``|p - p_t|``/p_t,
     ``p_over_kn``, ``unbalanced`` (Yade mean ratio), ``unbalanced_max``, ``ke_rel`` (kinetic
     energy of particles in contact over elastic energy), ``kinetic_energy``,
     ``kinetic_energy_in_contact``, ``elastic_energy`` [J/m], their tolerances ``tol_p``,
@@ -315,7 +315,14 @@ class PackReport(Result):
 
 @dataclass
 class PackingResult:
-    """Final state of a packing run with its law and :class:`PackReport` (see :func:`pack`)."""
+    """Final state of a packing run (see :func:`pack`).
+
+    Attributes
+    ----------
+    state : the final :class:`dem.state.State` (positions [m], velocities [m/s], cell [m], ...).
+    law : the contact law of the last phase (a ``dem.contact_laws`` law, stiffnesses in N/m).
+    report : the :class:`PackReport` of the run (criteria, counts, timings).
+    """
     state: State
     law: object
     report: PackReport
@@ -325,7 +332,7 @@ class PackingResult:
         return network_from_state(self.state, self.law)
 
     def save(self, path):
-        """One npz that is a checkpoint (:meth:`load`, bit-exact state) and a ``dem.io``
+        """One npz that is a checkpoint (``load``, bit-exact state) and a ``dem.io``
         configuration (:func:`dem.io.read`: positions, radii, cell, ids, velocities); atomic."""
         self.state.meta["packing_report"] = self.report.scalars()
         self.state.meta["packing_law"] = self.law.to_meta()
@@ -422,7 +429,15 @@ class Equilibrate:
     """Phase ``prep`` (at the preparation friction) or ``test`` (at the test friction): hold the
     target pressure with the equilibrium ``damping`` until all three criteria hold:
     ``|p - p_t|/p_t < tol_p``, unbalanced ratio < ``tol_unbalanced``, kinetic energy of the
-    particles in contact < ``tol_ke`` x elastic energy (evaluated only when the first two hold)."""
+    particles in contact < ``tol_ke`` x elastic energy (evaluated only when the first two hold).
+
+    Attributes
+    ----------
+    name : ``"prep"`` or ``"test"``, the phase's name in the report and the progress lines.
+    law : the contact law of the phase (its friction is the phase's friction).
+    damping : Cundall local damping of the phase, in [0, 1).
+    tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
+    """
     name: str
     law: object
     damping: float
@@ -475,45 +490,71 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
          frictionless=None, growth_dispersity=0.0, restore_increments=50, meta=None) -> PackingResult:
     """Dense random packing of ``n`` disks at a target pressure (protocol in the module docstring).
 
-    Parameters (units consistent; 2D per unit thickness)
+    Units are any consistent set, 2D per unit thickness. The run is a sequence of named phases
+    (:class:`Grow`, :class:`Compact`, :class:`Equilibrate` "prep" and "test"), each with its own
+    parameters and stop criterion. ``n`` is checked against the available memory first
+    (:func:`check_memory`, ValueError).
+
+    Parameters
     ----------
-    n : number of disks.  p_over_kn : target p/kn (used if ``pressure`` is None).
-    pressure : target pressure [N/m] (force per length, compression positive).
-    kn, kt : contact stiffnesses [N/m]; ``kt=None`` -> kt = kn.  mu : test friction;
-    mu_prep : preparation friction (default: mu).  frictionless : force the specialised
-        frictionless law (no spins, no history); default True when mu == mu_prep == 0.
-    radius [m], dispersity, rho [kg/m^2], seed, phi0 : see :func:`random_gas`.
-    damping : Cundall local damping of the equilibrium phases (default 0.7).
-    damping_compaction : local damping of the compaction phase, in [0, 1) (default 0.1); None:
-        no separate compaction phase (``damping`` throughout: the earlier protocol).
-    jam_unbalanced : unbalanced force ratio (with ``|p - p_target| < 1e-2 p_target``) that ends
-        the compaction phase.  restitution : optional viscous contact damping.
-    max_strain_per_step : cap on the isotropic strain per step of the servo.
-    alpha : servo gain (fraction of the pressure error corrected per step, affine stiffness).
-    tol_p, tol_unbalanced, tol_ke : stop criteria.  max_steps : cap on the total step count
-        (the result then has ``report['converged'] = False``).
-    check_every : steps between checks of the criteria and of the instability guard.
-    growth_dispersity : relative radius spread used only during the first compression (radii
+    n : int
+        Number of disks.
+    p_over_kn : float
+        Target p/kn [-] (used if ``pressure`` is None).
+    pressure : float or None
+        Target pressure [N/m] (force per length, compression positive).
+    kn, kt : float
+        Contact stiffnesses [N/m]; ``kt=None`` means kt = kn.
+    mu, mu_prep : float
+        Test friction and preparation friction (default: mu) [-].
+    frictionless : bool or None
+        Force the specialised frictionless law (no spins, no history); default True when
+        mu == mu_prep == 0.
+    radius, dispersity, rho, seed, phi0 :
+        Radius [m], relative radius spread [-], areal density [kg/m^2], random seed, initial
+        solid fraction [-]: see :func:`random_gas`.
+    damping : float
+        Cundall local damping of the equilibrium phases, in [0, 1) (default 0.7).
+    damping_compaction : float or None
+        Local damping of the compaction phase, in [0, 1) (default 0.1); None: no separate
+        compaction phase (``damping`` throughout: the earlier protocol).
+    jam_unbalanced : float
+        Unbalanced force ratio (with ``|p - p_target| < 1e-2 p_target``) that ends the
+        compaction phase [-].
+    restitution : float or None
+        Optional viscous contact damping (coefficient of restitution, [-]).
+    max_strain_per_step : float
+        Cap on the isotropic strain per step of the servo [-].
+    alpha : float
+        Servo gain: fraction of the pressure error corrected per step, with the affine
+        stiffness [-].
+    tol_p, tol_unbalanced, tol_ke : float
+        Stop criteria [-] (module docstring).
+    max_steps : int
+        Cap on the total step count (the report then has ``converged = False``).
+    check_every : int
+        Steps between checks of the criteria and of the instability guard.
+    growth_dispersity : float
+        Relative radius spread used only during the first compression (radii
         ``r_i (1 + g u_i)``, ``u_i`` uniform in [-1, 1], masses of the final disks), removed in
         ``restore_increments`` steps of ``check_every`` steps once the target pressure is first
         reached (within 5 %); 0 disables it.
-    checkpoint : path of an npz checkpoint (written atomically every ``checkpoint_every`` time
-        steps and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed
-        from if it exists; the CLI's ``--checkpoint-every`` and ``--checkpoint-seconds`` have the
+    checkpoint : path or None
+        Path of an npz checkpoint, written atomically every ``checkpoint_every`` time steps
+        and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed from
+        if it exists (the CLI's ``--checkpoint-every`` and ``--checkpoint-seconds`` have the
         same units). Either trigger may be None. The final checkpoint of a converged run holds
         its report: resuming it returns that report with ``already_converged=True``. Temporary
         files of a killed checkpoint write are removed on resume.
+    progress : callable or None
+        ``progress(info)`` called at every check with a dict (``step``, ``max_steps``,
+        ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` (None when not
+        evaluated at this check), ``checkpoint_step``).
+    meta : dict or None
+        JSON-able dict merged into ``state.meta`` of a new run (it travels in every checkpoint;
+        a resumed run keeps the checkpoint's).
 
-    The run is a sequence of named phases (:class:`Grow`, :class:`Compact`,
-    :class:`Equilibrate` "prep" and "test"), each with its own parameters and stop criterion.
-    ``n`` is checked against the available memory first (:func:`check_memory`, ValueError).
-    progress : optional ``progress(info)`` called at every check with a dict (``step``,
-        ``max_steps``, ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` — None
-        when not evaluated at this check —, ``checkpoint_step``).
-    meta : optional JSON-able dict merged into ``state.meta`` of a new run (it travels in every
-        checkpoint; a resumed run keeps the checkpoint's).
-
-    An unstable run raises :class:`dem.integrate.InstabilityError` (``state`` = last good state);
+    An unstable run raises :class:`dem.runtime.InstabilityError` (``state`` = last good state);
     its ``checkpoint``/``checkpoint_step`` attributes name the last checkpoint written (None if
     none), which the error never overwrites.
     """

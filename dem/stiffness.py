@@ -82,6 +82,16 @@ class StiffnessResult(Result):
     sentence each (not jammed, floppy, unstable, ill-conditioned); empty for a rigid, stable
     network. ``stiffness_scale``: the power of two the contact stiffnesses were divided by
     before the solve (exact; the tensor is scaled back).
+    Sizes: ``n_particles`` of the network, ``n_contacts`` kept (between non-rattlers),
+    ``n_spins`` spin unknowns kept. ``prestress``: whether the geometric stiffness of the normal
+    forces and the pre-stress terms of the Cauchy increment are included; ``stress0_mandel``: the
+    pre-stress (3,) Mandel [N/m, tension positive] or None. Accuracy: ``residual`` =
+    ``max_j |H q_j + F_j|`` over the norm of the per-contact affine forces, after ``n_refine``
+    steps of iterative refinement [-]; ``consistency`` = ``|stress form - energy form| / |C|``
+    [-]; ``pivot_gap`` = (largest floppy, smallest kept) relative pivot [-];
+    ``count_method`` how the floppy modes were counted (see :func:`count_modes`); ``step_times``
+    the wall time of each named step [s]. Not exported: ``u`` (3, N, 2) relaxed fluctuations [m]
+    and ``omega`` (3, N) spins [rad] per Mandel unit strain, ``rattler_mask`` (N,) bool.
     """
 
     C_mandel: np.ndarray
@@ -222,7 +232,7 @@ class Reduced:
     """The assembled system without its stiffness-free unknowns.
 
     H : (m, m) CSC Hessian of the unknowns that carry stiffness; F : (m, 3) their loads;
-    d : (m,) positive diagonal scale of H (|diag H|, zeros replaced by its max);
+    d : (m,) positive diagonal scale of H (``|diag H|``, zeros replaced by its max);
     idx : (m,) their index among the assembly's unknowns; n_zero : unknowns dropped (each is a
     floppy mode: a dof with no stiffness at all); particle : (m,) particle of each unknown."""
 
@@ -415,14 +425,14 @@ class ModeCount:
     """Zero (floppy) and negative modes of the reduced Hessian, from the factor's pivots.
 
     n_floppy, n_unstable : counts; gap : (largest relative pivot counted floppy, smallest kept);
-    method : ``"pivots"``, ``"rescale"`` or ``"eig"`` (dense/shift-invert fallback)."""
+    method : ``"pivots"``, ``"rescale"`` or ``"eig"`` (dense/shift-invert fallback);
+    factor : the factor to solve with (the rescaled one when ``method == "rescale"`` replaced the
+    input factor in place, CHOLMOD), or None (keep using the input factor)."""
 
     n_floppy: int
     n_unstable: int
     gap: tuple
     method: str
-    #: the factor to solve with: the rescaled one when ``method == "rescale"`` replaced the input
-    #: factor in place (CHOLMOD), else None (keep using the input factor)
     factor: object = field(default=None, repr=False, compare=False)
 
 
@@ -548,7 +558,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
               max_refine=50, count="auto", ordering="auto") -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
-    The named steps, each usable on its own: :func:`_normalise` (input check, exact scaling),
+    The named steps, each usable on its own: ``_normalise`` (input check, exact scaling),
     :func:`microhom.kinematics.assemble` (Hessian and load, rattlers removed),
     :func:`reduce_system` (stiffness-free unknowns dropped), :func:`factorise`,
     :func:`count_modes`, :func:`relax` (solve with refinement), :func:`relaxed_tensor`.

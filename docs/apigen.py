@@ -42,6 +42,10 @@ def write_api_pages(docs_dir):
             _write(os.path.join(out, f"{mod}.rst"), "\n".join(body))
         index.append("")
     _write(os.path.join(out, "index.rst"), "\n".join(index))
+    written = {f"{m}.rst" for p in PACKAGES for m in public_modules(p)} | {"index.rst"}
+    for name in os.listdir(out):            # pages of modules that no longer exist
+        if name.endswith(".rst") and name not in written:
+            os.remove(os.path.join(out, name))
 
 
 def _write(path, text):

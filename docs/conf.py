@@ -22,6 +22,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
+    "IPython.sphinxext.ipython_console_highlighting",   # the ipython3 lexer of executed cells
 ]
 
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence"]
