@@ -105,7 +105,7 @@ class Model:
     wc, wk : ndarray of int, shape (nw,)
         Cell and node (0..5) of each Eshelby wall load.
     FE0 : ndarray, shape (nw, 2)
-        Eshelby wall force at t = 0 [N/m], scaled by :func:`ramp_value`.
+        Eshelby wall force at t = 0 [N/m], scaled by ``ramp_value``.
     ramp_kind : int
         Code of the release ramp (values of ``RAMP_CODES``).
     ramp_time : float
@@ -150,7 +150,7 @@ class Model:
     u0 : ndarray, shape (N, 12)
         Displacements at the start of the run [m].
     U0 : float
-        Stored energy at the start of the run [J/m] (:func:`stored_energy_abs`).
+        Stored energy at the start of the run [J/m] (:func:`dem.hexagons.dynamics.stored_energy_abs`).
     cvis : ndarray, shape (N, 12)
         Per-dof boundary dashpot [N s/m per m] (None: zeros).
     kspr : ndarray, shape (N, 12)
@@ -586,7 +586,7 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
 
     ``dt_limit``: the safe bound (Gershgorin); ``dt > dt_limit`` raises ValueError. Pass
     ``dt_limit=np.inf`` only in tests that probe instability on purpose. A runaway (node speed above
-    ``v_abort`` or NaN) raises :class:`dem.integrate.InstabilityError` (a RuntimeError) naming the
+    ``v_abort`` or NaN) raises :class:`dem.runtime.InstabilityError` (a RuntimeError) naming the
     step; the model is left at that step (the runner attaches its last good snapshot).
     """
     if dt_limit is None:
@@ -657,7 +657,7 @@ def assemble_stiffness(model: Model, intact_only: bool = False):
 
 
 def gershgorin_dt(model: Model, K=None, contact: bool = True) -> float:
-    """Safe critical step [s]: 2/sqrt(omega^2) with omega^2 = max_i sum_j |K_ij| / m_i over the free
+    """Safe critical step [s]: 2/sqrt(omega^2) with ``omega^2 = max_i sum_j |K_ij| / m_i`` over the free
     dofs of the assembled lattice (elements + all interface springs), plus, when the proximity
     contact is on (and ``contact``), the bound 2 kc / m_node of the contact springs. They act on the
     cells' mean translation only: a cell of mass 6 m_node pressed by at most 6 others has

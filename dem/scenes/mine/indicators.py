@@ -142,7 +142,7 @@ class MineIndicators(Result):
     contact_max_overlap_rel : float
         Largest contact overlap over the inscribed diameter d, over the run [-].
     max_rot_broken_deg : float
-        Largest rotation of a cell with a broken interface [deg] (:func:`broken_kinematics`).
+        Largest rotation of a cell with a broken interface [deg] (:func:`dem.scenes.mine.indicators.broken_kinematics`).
     max_slip_over_L : float
         Largest ``|slip|`` of a broken interface over the edge length L [-].
     max_open_over_d : float
