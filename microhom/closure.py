@@ -66,10 +66,21 @@ def features(nc, kt_over_kn, dispersity, r):
 class ClosurePrediction(Result):
     """Statistics-only moduli (arrays of the broadcast input shape, unit of kn, N/m for 2D).
 
-    K, G : predicted moduli; K_mf, G_mf : mean field (37) at the same Z, phi;
-    error_K, error_G : the closure's measured rms relative error on packings it was not fitted to
-        (``ERROR``), as absolute values (``ERROR * modulus``);
-    valid : False where a flag applies; flags : bit mask; reason: text per entry.
+    Attributes
+    ----------
+    K, G : ndarray
+        Predicted bulk and shear moduli [N/m].
+    K_mf, G_mf : ndarray
+        Mean field (37) at the same Z, phi [N/m].
+    error_K, error_G : ndarray
+        The closure's measured rms relative error on packings it was not fitted to (``ERROR``), as
+        absolute values (``ERROR * modulus``) [N/m].
+    valid : ndarray of bool
+        False where a flag applies.
+    flags : ndarray of int8
+        Bit mask: 1 outside the fitted range, 2 near-isostatic, 4 frictionless (kt = 0).
+    reason : ndarray of str
+        Text of the flags per entry (``"ok"`` when none; property).
     """
 
     K: np.ndarray
@@ -83,6 +94,7 @@ class ClosurePrediction(Result):
 
     @property
     def reason(self) -> np.ndarray:
+        """Text of the flags of each entry (``"ok"`` when none), shape of the inputs."""
         texts = np.array(["; ".join(t for bit, t in _REASONS if code & bit) or "ok"
                           for code in range(1 << len(_REASONS))], dtype=object)
         return texts[np.asarray(self.flags)]
@@ -101,12 +113,30 @@ def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
                     coef_K=None, coef_G=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
-    nc : mean contacts per load-bearing particle (rattlers excluded), > 0.
-    r : contact-number fluctuation ``var(Nc)/Nc^2`` of the load-bearing particles, >= 0.
-    phi : solid fraction, in (0, 1).  kt_over_kn : >= 0.  dispersity : radius spread
-    (radii uniform in r (1 +- dispersity)), >= 0.  kn : normal stiffness [N/m], > 0.
+    Parameters
+    ----------
+    nc : array_like
+        Mean contacts per load-bearing particle (rattlers excluded), > 0.
+    r : array_like
+        Contact-number fluctuation ``var(Nc)/Nc^2`` of the load-bearing particles, >= 0.
+    phi : array_like
+        Solid fraction, in (0, 1].
+    kt_over_kn : array_like
+        Tangential over normal contact stiffness, >= 0.
+    dispersity : array_like
+        Radius spread (radii uniform in r (1 +- dispersity)), >= 0.
+    kn : array_like
+        Normal contact stiffness [N/m], > 0.
+    coef_K, coef_G : array_like, optional
+        Override the stored coefficients (used by the refit study).
+
     The pressure enters through nc (fitted and validated for p/kn in [1e-4, 5e-2]).
-    coef_K, coef_G : override the stored coefficients (used by the refit study).
+
+    Returns
+    -------
+    ClosurePrediction
+        Arrays of the broadcast input shape [N/m]. Raises ``ValueError`` naming the parameter for
+        input outside its range.
     """
     nc = _check("nc", nc, 0.0, lo_open=True)
     r = _check("r", r, 0.0)

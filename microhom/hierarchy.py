@@ -56,13 +56,20 @@ _ZERO_EIG = 1e-9      # pencil eigenvalues below this fraction of the largest ar
 class Estimate(Result):
     """One modulus with its interval [N/m, the unit of kn].
 
-    value : best estimate (the extrapolated value, clipped into [lower, upper]);
-    upper : rigorous upper bound (Gauss quadrature / CG; requires a stable network, H >= 0);
-    lower : rigorous lower bound, or None when no certified spectral bound is available;
-    error : stated error of ``value``: the half-width of the rigorous interval (then ``value`` is
+    Attributes
+    ----------
+    value : float
+        Best estimate (the extrapolated value, clipped into [lower, upper]) [N/m].
+    upper : float
+        Rigorous upper bound (Gauss quadrature / CG; requires a stable network, H >= 0) [N/m].
+    lower : float or None
+        Rigorous lower bound [N/m], or None when no certified spectral bound is available.
+    error : float
+        Stated error of ``value`` [N/m]: the half-width of the rigorous interval (then ``value`` is
         its midpoint) when that is the tighter claim, else the extrapolation's estimated error;
-        inf when neither is available (then ``value = upper``);
-    error_rigorous : True if ``|value - exact| <= error`` is guaranteed (rigorous interval).
+        inf when neither is available (then ``value = upper``).
+    error_rigorous : bool
+        True if ``|value - exact| <= error`` is guaranteed (rigorous interval).
     """
 
     value: float
@@ -83,29 +90,57 @@ class Estimate(Result):
 class HierarchyResult(Result):
     """Result of :func:`relaxation_hierarchy` (moduli in the unit of kn, N/m for 2D disks).
 
-    K, G : :class:`Estimate` of the bulk and shear moduli (isotropic projections, see
-        ``microhom.tensors.isotropic_moduli``).
-    K_orders, G_orders : (k+1,) upper bounds of orders 0..k (order 0 = affine, non-increasing).
-    K_lower_orders, G_lower_orders : (k+1,) rigorous lower bounds per order (NaN where unavailable).
-    C_orders : (k+1, 3, 3) Mandel tensors of orders 0..k [N/m].
-    C_upper, C_lower : (3, 3) tensors at the last order; ``C_lower`` None without a spectral bound.
+    ``k`` is the number of CG steps taken (``order``); tensors are 3x3 Mandel matrices
+    (``microhom.tensors``).
+
+    Attributes
+    ----------
+    K, G : Estimate
+        Bulk and shear moduli with their intervals (isotropic projections, see
+        ``microhom.tensors.isotropic_moduli``) [N/m].
+    K_orders, G_orders : ndarray, shape (k+1,)
+        Upper bounds of orders 0..k (order 0 = affine, non-increasing) [N/m].
+    K_lower_orders, G_lower_orders : ndarray, shape (k+1,)
+        Rigorous lower bounds per order (NaN where unavailable) [N/m].
+    C_orders : ndarray, shape (k+1, 3, 3)
+        Mandel tensors of orders 0..k [N/m].
+    C_upper, C_lower : ndarray, shape (3, 3)
+        Tensors at the last order [N/m]; ``C_lower`` None without a spectral bound.
         ``C_upper - C_exact`` and ``C_exact - C_lower`` are positive semi-definite.
-    K_first_order, G_first_order, C_first_order : the single-particle (first-order Kroener)
-        estimate ``C_aff - F^T M^-1 F / A`` (not a bound).
-    K_affine_all, G_affine_all : affine moduli of all contacts (rattlers' included), as
-        ``dem.stiffness`` reports them.
-    order : CG steps taken (Gauss points); n_moments : moments used, ``2 * order``.
-    tol : requested relative width; converged : True if K and G met ``tol`` (with the rigorous
-        interval if available, else with the extrapolation's stated error: see ``reasons``).
-    spectral_bound : certified lower bound of the non-zero spectrum of ``M^-1 H`` used for the
-        lower bounds, or None; spectral_bound_source : "dense", "user" or "none".
-    reasons : tuple of strings naming every condition that limits the result (empty = none).
-    unstable : negative curvature met (pre-stressed network not stable): bounds are void.
-    empty : no contacts or no load-bearing backbone (the zero tensor is returned, flagged).
-    n_floppy_directions : search directions dropped as floppy (zero stiffness).
-    n_dof, n_rattlers, n_particles, n_contacts : problem size (contacts kept).
-    prestress : pre-stress terms included (geometric stiffness and the Cauchy-increment correction).
-    assembly_time, solve_time, bound_time : wall times [s].
+    K_first_order, G_first_order : float
+        Single-particle (first-order Kroener) estimate of the moduli [N/m] (not a bound).
+    C_first_order : ndarray, shape (3, 3)
+        Its tensor ``C_aff - F^T M^-1 F / A`` [N/m].
+    K_affine_all, G_affine_all : float
+        Affine moduli of all contacts (rattlers' included), as ``dem.stiffness`` reports them [N/m].
+    order : int
+        CG steps taken (Gauss points).
+    n_moments : int
+        Moments used, ``2 * order``.
+    tol : float
+        Requested relative width [-].
+    converged : bool
+        True if K and G met ``tol`` (with the rigorous interval if available, else with the
+        extrapolation's stated error: see ``reasons``).
+    spectral_bound : float or None
+        Certified lower bound of the non-zero spectrum of ``M^-1 H`` used for the lower bounds
+        [unit of kn], or None.
+    spectral_bound_source : str
+        ``"dense"``, ``"user"`` or ``"none"``.
+    reasons : tuple of str
+        Every condition that limits the result (empty = none).
+    unstable : bool
+        Negative curvature met (pre-stressed network not stable): the bounds are void.
+    empty : bool
+        No contacts or no load-bearing backbone (the zero tensor is returned, flagged).
+    n_floppy_directions : int
+        Search directions dropped as floppy (zero stiffness).
+    n_dof, n_rattlers, n_particles, n_contacts : int
+        Problem size (contacts kept).
+    prestress : bool
+        Pre-stress terms included (geometric stiffness and the Cauchy-increment correction).
+    assembly_time, solve_time, bound_time : float
+        Wall times [s].
     """
 
     K: Estimate
@@ -147,6 +182,7 @@ class HierarchyResult(Result):
         return self.converged and not self.unstable and not self.empty
 
     def summary(self) -> str:
+        """One line of text: order, tolerance met or not, K and G with their intervals [N/m]."""
         lo = lambda e: "n/a" if e.lower is None else f"{e.lower:.6g}"  # noqa: E731
         return (f"hierarchy (order {self.order}, {self.n_moments} moments, tol {self.tol:g}, "
                 f"{'met' if self.converged else 'NOT met'}): K = {self.K.value:.6g} "
@@ -425,19 +461,34 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
 
     Parameters
     ----------
-    network : periodic ContactNetwork (sliding contacts have kt_eff = 0, exactly as in the exact
+    network : ContactNetwork
+        A periodic network (sliding contacts have kt_eff = 0, exactly as in the exact
         solver; rattlers are removed iteratively, ``min_contacts`` as in ``dem.stiffness``).
-    prestress : include the geometric stiffness of the normal forces and the pre-stress
+    prestress : bool
+        Include the geometric stiffness of the normal forces and the pre-stress
         correction of the Cauchy increment (needs ``network.fn``), as ``dem.stiffness`` does.
-    tol : target relative width of the interval of K and of G, in (0, 1). The iteration stops at
+    tol : float
+        Target relative width of the interval of K and of G, in (0, 1). The iteration stops at
         the first order where both meet it, or at ``max_order``; the result says which.
-    max_order : maximum number of CG steps (Gauss points), 1..10000; order k uses 2k moments.
-    spectral_bound : "auto" (exact dense bound if ``ndof <= dense_max``, else none), "none", or a
+    max_order : int
+        Maximum number of CG steps (Gauss points), 1..10000; order k uses 2k moments.
+    spectral_bound : {"auto", "none"} or float
+        "auto" (exact dense bound if ``ndof <= dense_max``, else none), "none", or a
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
         responsibility).
-    reorthogonalize : H-conjugate each new search block against all earlier ones (True), only the
+    dense_max : int
+        Largest number of unknowns for the dense spectral bound.
+    min_contacts : int, optional
+        Contacts below which a particle is a rattler (as in ``dem.stiffness``).
+    reorthogonalize : bool or "auto"
+        H-conjugate each new search block against all earlier ones (True), only the
         last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000
         unknowns: exact-arithmetic behaviour when runs go to convergence on small systems).
+
+    Returns
+    -------
+    HierarchyResult
+        Moduli [unit of kn, N/m] with bounds, orders and flags.
     """
     t0 = time.perf_counter()
     if not isinstance(network, ContactNetwork):

@@ -74,11 +74,33 @@ def rho_from_alpha(alpha):
 class Prediction:
     """Result of :func:`predict_moduli`; every field is an array of the broadcast input shape.
 
-    Moduli in the unit of kn (N/m for 2D disks per unit thickness). ``drop_*`` is the fraction
-    change ``1 - modulus/mean field`` (the seed table's "fraction change"). ``delta`` is the
-    biaxial volume-change ratio ``(G - K)/(G + K)`` and ``poisson`` the 2D Poisson ratio
-    ``(K - G)/(K + G)``. ``valid`` is False where the first-order theory is out of range; ``reason``
-    says why (``"ok"`` otherwise).
+    Moduli in the unit of kn (N/m for 2D disks per unit thickness).
+
+    Attributes
+    ----------
+    K_mf, G_mf : ndarray
+        Mean-field (37) bulk and shear moduli [N/m].
+    K, G : ndarray
+        Fluctuation-corrected (50)-(51) bulk and shear moduli [N/m].
+    drop_K, drop_G : ndarray
+        Fraction change ``1 - modulus/mean field`` (the seed table's "fraction change") [-].
+    delta_mf, delta : ndarray
+        Biaxial volume-change ratio ``(G - K)/(G + K)``, mean field and corrected [-].
+    poisson_mf, poisson : ndarray
+        2D Poisson ratio ``(K - G)/(K + G)``, mean field and corrected [-].
+    nbar : ndarray
+        Mean number of near neighbours Nbar used [-].
+    rho : ndarray
+        Correlation factor ``Nc sum V.W / sum V^2`` used [-].
+    valid : ndarray of bool
+        False where the first-order theory is out of range.
+    flags : ndarray of int8
+        Bit mask of the reasons (1 correction >= 1, 2 correction above ``max_correction``,
+        4 phi above close packing, 8 near-isostatic, 16 above the hierarchy's upper bound).
+    index : pandas Index or None
+        Index of the inputs when they were pandas Series, else None.
+    reason : ndarray of str
+        Why a result is flagged, per parameter set (``"ok"`` where valid; property).
     """
 
     K_mf: np.ndarray
@@ -128,26 +150,40 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
                    max_correction=0.5, warn=True) -> Prediction:
     """Mean-field and fluctuation-corrected 2D bulk and shear moduli of a random disk packing.
 
-    Parameters (all broadcast together; numpy arrays or pandas Series)
+    All array arguments broadcast together (numpy arrays or pandas Series).
+
+    Parameters
     ----------
-    kn : normal contact stiffness [N/m], > 0.
-    kt : tangential contact stiffness [N/m], >= 0 (0 = all contacts sliding/frictionless).
-    nc : mean coordination number Nc (contacts per particle), > 0.
-    phi : solid (area) fraction, in (0, pi/(2 sqrt 3)].
-    r : contact-number fluctuation mean((Nc_mu - Nc)^2)/Nc^2, >= 0; r = 0 gives the mean field.
-    alpha : alignment width of the paper's model (54), in [0, 2]. Used when ``rho`` is None;
+    kn : array_like
+        Normal contact stiffness [N/m], > 0.
+    kt : array_like
+        Tangential contact stiffness [N/m], >= 0 (0 = all contacts sliding/frictionless).
+    nc : array_like
+        Mean coordination number Nc (contacts per particle), > 0.
+    phi : array_like
+        Solid (area) fraction, in (0, pi/(2 sqrt 3)].
+    r : array_like
+        Contact-number fluctuation mean((Nc_mu - Nc)^2)/Nc^2, >= 0; r = 0 gives the mean field.
+    alpha : array_like, optional
+        Alignment width of the paper's model (54), in [0, 2]. Used when ``rho`` is None;
         if both are None, the paper's estimate ``alpha = 2 (1 - 1/Nbar)`` is used.
-    rho : measured ``Nc sum V.W / sum V^2`` (overrides ``alpha``), finite.
-    diameter : particle diameter [m], > 0. The 2D moduli do not depend on it (they scale with
+    rho : array_like, optional
+        Measured ``Nc sum V.W / sum V^2`` (overrides ``alpha``), finite.
+    diameter : float
+        Particle diameter [m], > 0. The 2D moduli do not depend on it (they scale with
         D^2/v = 4 phi/pi); it is validated and kept for symmetry with the 3D theory.
-    nbar : mean number of near neighbours; default from ``phi`` (requires phi >= pi/4).
-    max_correction : fraction change above which a result is flagged as outside the first-order
-        range (default 0.5).
-    warn : emit a RuntimeWarning when any result is flagged invalid.
+    nbar : array_like, optional
+        Mean number of near neighbours; default from ``phi`` (requires phi >= pi/4).
+    max_correction : float
+        Fraction change above which a result is flagged as outside the first-order
+        range, in (0, 1] (default 0.5).
+    warn : bool
+        Emit a RuntimeWarning when any result is flagged invalid.
 
     Returns
     -------
-    Prediction. Reproduces the seed's table: Nc = 4.1, r = 0.35, Nbar = 5, alpha = 1.76, kt = kn
+    Prediction
+        Moduli [N/m] of the broadcast shape. Reproduces the seed's table: Nc = 4.1, r = 0.35, Nbar = 5, alpha = 1.76, kt = kn
     gives fraction changes 0.19 (bulk) and 0.28 (shear).
     """
     index = getattr(next((a for a in (kn, kt, nc, phi, r, alpha, rho, nbar) if hasattr(a, "index")), None),

@@ -47,7 +47,117 @@ N_ACC = len(ACC)
 
 @dataclass
 class Model:
-    """Plain arrays of one hexagon assembly (the state the integrator needs, nothing more)."""
+    """Plain arrays of one hexagon assembly (the state the integrator needs, nothing more).
+
+    SI per m of thickness. ``N`` cells, ``nif`` interfaces (pairs of facing edges), ``nw`` Eshelby
+    wall loads. A cell has 6 nodes, 12 dofs ordered (x0, y0, x1, y1, ...); arrays of shape (N, 12)
+    are per-dof.
+
+    Attributes
+    ----------
+    centres : ndarray, shape (N, 2)
+        Reference cell centres [m].
+    mat : ndarray of int, shape (N,)
+        Material index of each cell (row of ``Kmat``).
+    is_coal : ndarray of bool, shape (N,)
+        True for cells of the coal seam.
+    Kmat : ndarray, shape (nmat, 12, 12)
+        Element stiffness per material [N/m per m].
+    f0 : ndarray, shape (N, 12)
+        Prestress edge forces sigma0 n L [N/m].
+    fext : ndarray, shape (N, 12)
+        Dead external loads (boundary tractions, gravity) [N/m].
+    mnode : ndarray, shape (N,)
+        Node mass m_cell / 6 [kg/m].
+    minv : ndarray, shape (N, 12)
+        Inverse node mass [m/kg], 0 on constrained dofs.
+    geo : dict
+        Hexagon geometry of :func:`dem.hexagons.lattice.make_lattice` (node offsets ``x`` [m],
+        area ``A`` [m^2], ...).
+    ci, ca, cj, cb : ndarray of int, shape (nif,)
+        Interface e joins edge ``ca[e]`` (0..5) of cell ``ci[e]`` to edge ``cb[e]`` of cell ``cj[e]``.
+    nx, ny : ndarray, shape (nif,)
+        Unit normal of the interface, pointing from cell i to cell j [-].
+    L : float
+        Edge length [m].
+    kn, kt : ndarray, shape (nif,)
+        Normal and shear penalty stiffness [Pa/m].
+    ft : ndarray, shape (nif,)
+        Tensile strength [Pa].
+    coh : ndarray, shape (nif,)
+        Cohesion [Pa].
+    tanphi, tanphi_r : ndarray, shape (nif,)
+        Tangent of the peak and of the residual friction angle [-].
+    vent : ndarray, shape (nif,)
+        Opening beyond which the gas of a cracked interface escapes [m].
+    sn0 : ndarray, shape (nif,)
+        Virgin normal traction of the interface [Pa], tension positive.
+    is_disl : ndarray of bool, shape (nif,)
+        True on dislocation (fault) interfaces.
+    sn, tau : ndarray, shape (nif,)
+        Current normal and shear traction [Pa] (interface state).
+    jtp, jnp : ndarray, shape (nif,)
+        Tangential and normal displacement jump at the previous step [m].
+    broken : ndarray of int, shape (nif,)
+        0 intact, 1 broke in tension, 2 broke in shear.
+    pg : ndarray, shape (nif,)
+        Gas pressure on the interface faces [Pa] (0 once vented).
+    wc, wk : ndarray of int, shape (nw,)
+        Cell and node (0..5) of each Eshelby wall load.
+    FE0 : ndarray, shape (nw, 2)
+        Eshelby wall force at t = 0 [N/m], scaled by ``ramp_value``.
+    ramp_kind : int
+        Code of the release ramp (values of ``RAMP_CODES``).
+    ramp_time : float
+        Duration of the release ramp [s].
+    alpha : float
+        Mass-proportional damping [1/s].
+    cdash : float
+        Dashpot on cracked, closed interfaces [N s/m per m].
+    v_abort : float
+        Runaway guard: a speed above it raises ``InstabilityError`` [m/s].
+    dt_last : float
+        Last time step used [s].
+    u : ndarray, shape (N, 12)
+        Node displacements [m].
+    vh : ndarray, shape (N, 12)
+        Half-step velocity v^{n-1/2} (after a step v^{n+1/2}) [m/s].
+    vh_prev : ndarray, shape (N, 12)
+        Half-step velocity of the step before [m/s].
+    f : ndarray, shape (N, 12)
+        Node forces at the current step [N/m].
+    t : float
+        Time [s].
+    nstep : int
+        Number of steps taken.
+    acc : ndarray, shape (9,)
+        Energy and contact accounts: W_E, W_gas, D_break, D_fric, D_damp, D_dash (accumulated)
+        [J/m], V_contact (current) [J/m], n_contacts (current), max overlap / d (so far) [-].
+    contact : bool
+        Proximity (new-neighbour) contact switched on (:meth:`enable_contact`).
+    nbc : ndarray of int, shape (N, 6)
+        Lattice neighbour across each edge in this model, -1 if none.
+    nif : ndarray of int, shape (N,)
+        Number of interfaces of each cell.
+    kc : float
+        Contact penalty stiffness [N/m per m].
+    cc : float
+        Contact dashpot [N s/m per m].
+    c_cut : float
+        Contact distance, the inscribed diameter d = 2 r_in [m].
+    grid : ndarray, shape (5,)
+        (x0 [m], y0 [m], h [m], nbx, nby) of the fixed binning grid of the contact search.
+    u0 : ndarray, shape (N, 12)
+        Displacements at the start of the run [m].
+    U0 : float
+        Stored energy at the start of the run [J/m] (:func:`dem.hexagons.dynamics.stored_energy_abs`).
+    cvis : ndarray, shape (N, 12)
+        Per-dof boundary dashpot [N s/m per m] (None: zeros).
+    kspr : ndarray, shape (N, 12)
+        Per-dof ground spring [N/m per m] (None: zeros).
+    uref : ndarray, shape (N, 12)
+        Reference displacement of the ground springs [m] (None: zeros).
+    """
     centres: np.ndarray           # (N,2) m
     mat: np.ndarray               # (N,) int material index
     is_coal: np.ndarray           # (N,) bool
@@ -129,10 +239,12 @@ class Model:
 
     @property
     def n_cells(self):
+        """Number of cells N."""
         return len(self.centres)
 
     @property
     def n_ifc(self):
+        """Number of interfaces."""
         return len(self.ci)
 
     def enable_contact(self, kc: float, cc: float = 0.0, margin: float | None = None):
@@ -159,7 +271,7 @@ class Model:
         return self
 
     def contact_args(self):
-        """Arguments of :func:`_contacts` (scratch arrays allocated once, not part of the state)."""
+        """Arguments of the numba contact kernel ``_contacts`` (scratch arrays allocated once, not part of the state)."""
         N = self.n_cells
         if getattr(self, "_cscratch", None) is None:
             nbins = int(self.grid[3]) * int(self.grid[4])
@@ -169,6 +281,7 @@ class Model:
                 self.cc, self.grid, *self._cscratch)
 
     def ifc_args(self):
+        """The interface arrays in the argument order of the numba force kernel."""
         return (self.ci, self.ca, self.cj, self.cb, self.nx, self.ny, self.L, self.kn, self.kt, self.ft,
                 self.coh, self.tanphi, self.tanphi_r, self.vent, self.sn0,
                 self.sn, self.tau, self.jtp, self.jnp, self.broken, self.pg)
@@ -473,7 +586,7 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
 
     ``dt_limit``: the safe bound (Gershgorin); ``dt > dt_limit`` raises ValueError. Pass
     ``dt_limit=np.inf`` only in tests that probe instability on purpose. A runaway (node speed above
-    ``v_abort`` or NaN) raises :class:`dem.integrate.InstabilityError` (a RuntimeError) naming the
+    ``v_abort`` or NaN) raises :class:`dem.runtime.InstabilityError` (a RuntimeError) naming the
     step; the model is left at that step (the runner attaches its last good snapshot).
     """
     if dt_limit is None:
@@ -544,7 +657,7 @@ def assemble_stiffness(model: Model, intact_only: bool = False):
 
 
 def gershgorin_dt(model: Model, K=None, contact: bool = True) -> float:
-    """Safe critical step [s]: 2/sqrt(omega^2) with omega^2 = max_i sum_j |K_ij| / m_i over the free
+    """Safe critical step [s]: 2/sqrt(omega^2) with ``omega^2 = max_i sum_j |K_ij| / m_i`` over the free
     dofs of the assembled lattice (elements + all interface springs), plus, when the proximity
     contact is on (and ``contact``), the bound 2 kc / m_node of the contact springs. They act on the
     cells' mean translation only: a cell of mass 6 m_node pressed by at most 6 others has
@@ -621,6 +734,8 @@ def _spring_energy(model: Model) -> float:
 
 
 def stored_energy_abs(model: Model) -> float:
+    """Absolute stored energy [J/m]: cell strain energy with the prestress, interface springs
+    L (sn^2/(2 kn) + tau^2/(2 kt)) and ground springs 1/2 kspr (u - uref)^2."""
     Uc = _energy_cells(model.u, model.Kmat, model.mat, model.f0)
     Ui = model.L * np.sum(0.5 * model.sn ** 2 / model.kn + 0.5 * model.tau ** 2 / model.kt)
     return Uc + Ui + _spring_energy(model)

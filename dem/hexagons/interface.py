@@ -7,14 +7,20 @@ State of one interface: total normal traction ``sn``, shear traction ``tau``, pr
 ``jt_prev``, ``broken`` (0 intact, 1 broke in tension, 2 broke in shear) and the gas pressure ``pg``
 (set to 0 once the crack has opened more than ``vent_open`` — the gas escaped).
 
-Intact (trial):   sn = sn0 + kn [u]n,   tau = tau_old + kt (jt - jt_prev),   sn' = sn + pg.
-  tension failure if sn' >= ft;  shear failure if |tau| >= c - sn' tan(phi).
-Broken (also right after failing):   sn' = min(sn0 + kn [u]n + pg, 0)  (no tension; contact re-closes
-  where the intact spring would be at zero effective stress),  sn = sn' - pg  (faces carry the gas),
-  |tau| <= -sn' tan(phi_r)  (Coulomb friction, return mapping).
+Intact (trial)::
+
+    sn = sn0 + kn [u]n,   tau = tau_old + kt (jt - jt_prev),   sn' = sn + pg
+    tension failure if sn' >= ft;  shear failure if |tau| >= c - sn' tan(phi)
+
+Broken (also right after failing): no tension, and the contact re-closes where the intact spring
+would be at zero effective stress; the faces carry the gas; Coulomb friction by return mapping::
+
+    sn' = min(sn0 + kn [u]n + pg, 0),   sn = sn' - pg,   |tau| <= -sn' tan(phi_r)
+
 Energy: stored e = L (sn^2/(2kn) + tau^2/(2kt)); the drop of e from the trial state at a break is
-``d_break``; the plastic work |tau| |tau_tr - tau|/kt at a frictional return is ``d_fric`` (both per unit length
-here, the kernel multiplies by L). While a gassy crack is open the gas does external work pg L d[u]n.
+``d_break``; the plastic work ``|tau| |tau_tr - tau| / kt`` at a frictional return is ``d_fric`` (both
+per unit length here, the kernel multiplies by L). While a gassy crack is open the gas does external
+work pg L d[u]n.
 """
 from __future__ import annotations
 

@@ -69,7 +69,7 @@ class KirschModel:
 
 def kirsch_model(a=4.0, R_out=16.0, r_in=0.25, E=50e9, nu=0.25, kn_factor=100.0, kt_over_kn=1.0,
                  theta0=0.0, element="hybrid") -> KirschModel:
-    """Hexagon lattice (one cell centred at the origin) clipped to a <= |centre| <= R_out, with
+    """Hexagon lattice (one cell centred at the origin) clipped to ``a <= |centre| <= R_out``, with
     penalty springs kn = kn_factor * E / d on every interface (test T6 uses 100)."""
     if not (0 < a < R_out):
         raise ValueError(f"need 0 < a < R_out, got a={a}, R_out={R_out}")

@@ -5,3 +5,5 @@
 * :mod:`dem.scenes.mine` — the mine scene of the second paper, on the free-hexagon method
   (:mod:`dem.hexagons`), not on the disk engine.
 """
+
+__all__: list[str] = []

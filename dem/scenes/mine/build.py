@@ -27,9 +27,42 @@ LEFT, RIGHT, BOTTOM, TOP = 0, 1, 2, 3
 
 @dataclass
 class Scene:
-    """A built scene. ``model`` is the excavated hexagon model (opening cells removed);
-    ``keep`` (n,) the full-lattice index of each model cell; ``labels`` (n,) the block of each cell
-    (:func:`~dem.scenes.mine.geometry.block_labels`); ``gassy`` (n,) cells of the eigenstrain zone."""
+    """A built scene: ``N`` cells in the full lattice, ``n`` in the excavated model. SI per m of
+    thickness.
+
+    Attributes
+    ----------
+    params : MineParams
+        The scene file it was built from.
+    geometry : Geometry
+        The domain, dislocation lines and blocks (:func:`~dem.scenes.mine.geometry.resolve`).
+    model : Model
+        The excavated hexagon model (opening cells removed), ready to run.
+    full_centres : ndarray, shape (N, 2)
+        Cell centres of the full lattice before excavation [m].
+    opening_cells : ndarray of int
+        Full-lattice indices of the excavated (opening) cells.
+    keep : ndarray of int, shape (n,)
+        Full-lattice index of each model cell.
+    kn, kt : float
+        Interface penalty stiffness, normal and shear [Pa/m].
+    labels : ndarray, shape (n,)
+        Block of each cell (:func:`~dem.scenes.mine.geometry.block_labels`).
+    gassy : ndarray of bool, shape (n,)
+        Cells of the eigenstrain (gas) zone.
+    E_eff : dict
+        Per material (``"rock"``, ``"coal"``): input ``E`` [Pa], ``nu`` [-], the lattice's effective
+        ``E_eff`` [Pa], ``nu_eff`` [-] and ``E_eff_over_E`` [-].
+    virgin_residual : float
+        Relative force residual of the virgin equilibrium [-].
+    virgin_utilisation : float
+        Largest Mohr-Coulomb utilisation of the interfaces in the virgin state [-] (0 if elastic).
+    sigma0 : ndarray, shape (3,)
+        Virgin stress [sxx, syy, sxy] at the top of the domain [Pa].
+    info : dict
+        Sizes and inputs for the record (cell, interface, wall-node counts; kn, kt [Pa/m];
+        rho [kg/m^3]; p_top [Pa]).
+    """
     params: MineParams
     geometry: Geometry
     model: Model
@@ -47,6 +80,7 @@ class Scene:
     info: dict = field(default_factory=dict)
 
     def virgin_stress(self, y):
+        """Virgin stress (..., 3) [sxx, syy, sxy] [Pa] at heights ``y`` [m] (:func:`virgin_stress`)."""
         return virgin_stress(self.params, self.geometry, y)
 
 

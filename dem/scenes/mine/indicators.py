@@ -28,14 +28,30 @@ __all__ = ["BlockIndicators", "SeamProfile", "MineIndicators", "cell_flags", "se
            "seam_profile", "broken_kinematics", "compute", "STAGES"]
 
 STAGES = (1.0, 0.75, 0.5, 0.25, 0.0)
+"""Eshelby factors g [-] of the stages recorded in :class:`SeamProfile` (1 virgin, 0 excavated)."""
 
 
 @dataclass(frozen=True)
 class BlockIndicators(Result):
-    """One block of coal. ``disp_mean_m``/``disp_max_m``: mean / max over its cells of the cell
-    displacement toward the opening at the end [m]; ``peak_Ek_J_per_m``: the largest kinetic energy
-    of the block over the run [J/m]; ``broken_fraction``: broken / all interfaces with both cells in
-    the block [-]; ``ejected_mass_kg_per_m``: mass of its detached cells with an open crack [kg/m]."""
+    """One block of coal (SI per m of thickness).
+
+    Attributes
+    ----------
+    name : str
+        Name of the block (:func:`~dem.scenes.mine.geometry.block_names`).
+    n_cells : int
+        Number of cells in the block.
+    mass_kg_per_m : float
+        Mass of the block [kg/m].
+    disp_mean_m, disp_max_m : float
+        Mean / max over its cells of the cell displacement toward the opening at the end [m].
+    peak_Ek_J_per_m : float
+        Largest kinetic energy of the block over the run [J/m].
+    broken_fraction : float
+        Broken / all interfaces with both cells in the block [-].
+    ejected_mass_kg_per_m : float
+        Mass of its detached cells with an open crack [kg/m].
+    """
     name: str
     n_cells: int
     mass_kg_per_m: float
@@ -54,9 +70,20 @@ class BlockIndicators(Result):
 
 @dataclass(frozen=True)
 class SeamProfile(Result):
-    """sigma_yy along the seam mid-height row. ``dist_m`` (n,) distance of each cell centre from the
-    rib [m]; ``g`` (k,) the Eshelby factor of each stage (1 virgin, 0 fully excavated; the last row is
-    the end of the run, g = 0); ``t_s`` (k,) its time; ``syy_Pa`` (k, n)."""
+    """sigma_yy along the seam mid-height row, ``n`` cells at ``k`` stages.
+
+    Attributes
+    ----------
+    dist_m : ndarray, shape (n,)
+        Distance of each cell centre from the rib [m].
+    g : ndarray, shape (k,)
+        Eshelby factor of each stage (1 virgin, 0 fully excavated; the last row is the end of the
+        run, g = 0) [-].
+    t_s : ndarray, shape (k,)
+        Time of each stage [s].
+    syy_Pa : ndarray, shape (k, n)
+        Vertical stress of each cell at each stage [Pa], tension positive.
+    """
     dist_m: np.ndarray
     g: np.ndarray
     t_s: np.ndarray
@@ -70,16 +97,71 @@ class SeamProfile(Result):
 
 @dataclass(frozen=True)
 class MineIndicators(Result):
-    """Indicators of one run (J/m, kg/m, m, m/s, MPa as named).
+    """Indicators of one run (J/m, kg/m, m, m/s, MPa as named), SI per m of thickness.
 
-    Global: peak kinetic energy (all, coal, free cells), released Eshelby work ``released_WE``, its
-    kinetic fraction, broken interfaces (tension, shear, on a dislocation), ``ejected_*`` (cells
-    detached with an open crack), ``damage_depth_m`` (99th percentile of the distance from the rib of
-    broken seam interfaces), ``yield_depth_m`` (distance from the rib of the abutment peak of sigma_yy
-    at the end: the classical edge of the yield zone), ``rib_disp_m`` (mean displacement toward the
-    opening of the rib cells, the cells that carried Eshelby forces within the seam), the energy
-    residual relative to max |W_ext|, kinematic checks (``broken_kinematics``), steps and wall time.
-    ``blocks``: :class:`BlockIndicators` of the scene's own partition; ``profile``: :class:`SeamProfile`."""
+    Attributes
+    ----------
+    peak_Ek_J_per_m, final_Ek_J_per_m : float
+        Peak and final kinetic energy of all cells [J/m].
+    peak_Ek_coal_J_per_m, peak_Ek_free_J_per_m : float
+        Peak kinetic energy of the coal cells and of the free cells (detached, crack open) [J/m].
+    released_WE_J_per_m : float
+        Released Eshelby work ``-W_E`` at the end [J/m].
+    kinetic_fraction : float
+        Peak kinetic energy over the released Eshelby work [-].
+    n_tension, n_shear : int
+        Interfaces broken in tension, in shear.
+    n_broken_disl : int
+        Broken interfaces on a dislocation.
+    damage_depth_m : float
+        99th percentile of the distance from the rib of broken seam interfaces [m].
+    yield_depth_m : float
+        Distance from the rib of the abutment peak of sigma_yy at the end (the classical edge of
+        the yield zone) [m].
+    rib_disp_m : float
+        Mean displacement toward the opening of the rib cells (the cells that carried Eshelby forces
+        within the seam) [m].
+    ejected_mass_kg_per_m : float
+        Mass of the cells detached with an open crack [kg/m].
+    ejected_cells : int
+        Number of those cells.
+    ejected_vmax_m_s, ejected_vmean_m_s : float
+        Max and mean speed of those cells at the end [m/s].
+    detached_cells : int
+        Cells with all their interfaces broken.
+    syy_peak_MPa : float
+        Most compressive sigma_yy on the seam row at the end [MPa], tension positive.
+    syy_peak_dist_m : float
+        Its distance from the rib [m].
+    energy_residual_rel : float
+        Largest energy-balance residual relative to max(``|W_ext|``, ``|W_E|``) [-].
+    D_dash_over_W_ext : float
+        Work of the contact dashpots relative to the same scale [-].
+    contacts_end : int
+        Proximity contacts at the end.
+    contact_max_overlap_rel : float
+        Largest contact overlap over the inscribed diameter d, over the run [-].
+    max_rot_broken_deg : float
+        Largest rotation of a cell with a broken interface [deg] (:func:`dem.scenes.mine.indicators.broken_kinematics`).
+    max_slip_over_L : float
+        Largest ``|slip|`` of a broken interface over the edge length L [-].
+    max_open_over_d : float
+        Largest opening of a broken interface over d = 2 r_in [-].
+    closed_max_slip_over_L : float
+        Largest ``|slip|`` / L over the closed (force-carrying) broken interfaces [-].
+    steps : int
+        Time steps taken.
+    dt_s : float
+        Time step [s].
+    wall_time_s : float
+        Wall time of the run [s].
+    stopped : str
+        Why the run stopped early ("" if it ran to the end).
+    blocks : tuple of BlockIndicators
+        The blocks of the scene's own partition.
+    profile : SeamProfile
+        sigma_yy along the seam row at the excavation stages (not exported by ``as_dict``).
+    """
     peak_Ek_J_per_m: float
     final_Ek_J_per_m: float
     peak_Ek_coal_J_per_m: float
@@ -115,6 +197,7 @@ class MineIndicators(Result):
     profile: SeamProfile = field(default=None, metadata={"export": False})
 
     def block(self, name: str) -> BlockIndicators:
+        """The :class:`BlockIndicators` named ``name``; ``KeyError`` listing the names otherwise."""
         for b in self.blocks:
             if b.name == name:
                 return b
@@ -157,8 +240,8 @@ def seam_profile(scene, u=None):
 
 def broken_kinematics(model):
     """How far the fixed-normal (linear-kinematics) interfaces are stretched at broken interfaces:
-    max rotation [deg] of a cell with a broken interface, max |slip| / L and max opening / d over the
-    broken interfaces, max |slip| / L over the closed (force-carrying) broken ones."""
+    max rotation [deg] of a cell with a broken interface, max ``|slip|`` / L and max opening / d over
+    the broken interfaces, max ``|slip|`` / L over the closed (force-carrying) broken ones."""
     x = model.geo["x"]
     r_in = float(np.linalg.norm(x[0]))
     du = (model.u - model.u0).reshape(-1, 6, 2)

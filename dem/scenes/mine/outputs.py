@@ -79,6 +79,10 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
 
 
 def plot_series(series, path, title=""):
+    """Save a three-panel picture of the time series of a run (``RunResult.series``) to ``path``:
+    kinetic energy (all, coal, free cells) [kJ/m], broken interfaces (tension, shear), and the
+    energy accounts W_ext, W_E, U, D_fric, D_break, D_dash and the balance residual [kJ/m], against
+    time [ms]."""
     plt, _, _ = _mpl()
     t = np.asarray(series["t"]) * 1e3
     fig, axs = plt.subplots(1, 3, figsize=(15, 4))
@@ -104,6 +108,9 @@ def plot_series(series, path, title=""):
 
 
 def plot_profile(scene, path, title="", extra=None):
+    """Save sigma_yy along the seam mid-height row [MPa] against the distance from the rib [m] to
+    ``path``, with the virgin stress. ``extra``: {label: (distance (n,) [m], sigma_yy (n,) [Pa])}
+    of other runs drawn on the same axes."""
     plt, _, _ = _mpl()
     d, s = seam_profile(scene)
     fig, ax = plt.subplots(figsize=(7, 4))

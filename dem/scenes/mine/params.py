@@ -38,6 +38,7 @@ from .geometry import resolve
 __all__ = ["MineParams", "load_toml", "UNITS", "READINGS", "G_ACC"]
 
 G_ACC = 9.81
+"""Gravitational acceleration [m/s^2]."""
 
 READINGS = {
     "placement": ("near", "far"),
@@ -66,7 +67,104 @@ UNITS = {
 
 @dataclass(frozen=True)
 class MineParams:
-    """Every parameter of the scene, SI units (see ``UNITS``); readings in ``READINGS``."""
+    """Every parameter of the scene, SI units (see ``UNITS``); readings in ``READINGS``.
+
+    Frozen; :meth:`validate` raises ``ValueError`` naming a bad field and its allowed range.
+
+    Attributes
+    ----------
+    placement, floor, loading, gas, lattice, model : str
+        Readings of the paper (allowed values in ``READINGS``; see the module docstring).
+    absorbing : bool
+        Lysmer-Kuhlemeyer dashpots on the far boundaries.
+    width : float
+        Half-model width [m]; the full model is 2 ``width`` wide.
+    height : float
+        Seam + roof rock [m] (a rock floor or a taller model add to it).
+    seam_bottom, seam_top : float
+        Seam position within ``height`` [m] (above a rock floor if any).
+    adit_width : float
+        Width of the adit (opening) [m].
+    cell_size : float
+        Inner radius (``lattice="inner"``) or side (``lattice="side"``) of the hexagons [m].
+    orientation_deg : float
+        Normal of edge 0 [deg]; 0 = pointy-top (normals 0, +-60 deg).
+    element : str
+        Cell element, ``"hybrid"`` or ``"bem"``.
+    floor_layer : float
+        Rock floor thickness for ``floor="rock"`` [m].
+    overburden_height : float
+        Rock column the top spring stands for (``loading="spring"``) [m].
+    tall_extra : float
+        Extra rock above for ``loading="tall"`` [m].
+    rock_E, coal_E : float
+        Young's modulus of rock and coal [Pa].
+    rock_nu, coal_nu : float
+        Poisson's ratio of rock and coal [-], in (-1, 0.5).
+    rock_phi_deg, coal_phi_deg : float
+        Interface friction angle in rock and coal [deg], in [0, 90).
+    rock_c, coal_c : float
+        Interface cohesion in rock and coal [Pa].
+    rock_ft, coal_ft : float
+        Interface tensile strength in rock and coal [Pa].
+    unit_weight : float
+        Unit weight of the rock gamma [N/m^3].
+    friction_residual_deg : float
+        Residual friction angle of broken interfaces [deg]; < 0: the interface's peak angle.
+    penalty_factor : float
+        kn = factor * max(K + 4G/3) / r_in (Itasca rule) [-].
+    kn : float
+        Interface normal stiffness [Pa/m]; > 0 overrides the rule.
+    kt_over_kn : float
+        Shear over normal interface stiffness [-].
+    depth : float
+        Depth of the seam; sets the overburden traction ``p_top = unit_weight * depth`` [m].
+    K0 : float
+        Horizontal over vertical virgin stress [-].
+    gravity : bool
+        Volume weight in the model (the paper neglects it).
+    ramp : str
+        Release ramp of the excavation forces (``"instant"``, ``"linear"``, ``"nonlinear"``,
+        ``"none"``).
+    ramp_time : float
+        Duration of the ramp [s].
+    n_disl : int
+        Number of dislocations, 0..3.
+    disl_angle_deg : float
+        Dislocation angle counter-clockwise from +x (right rib) [deg], in (0, 180).
+    disl_first : float
+        Distance of the named end of the first dislocation from the rib [m].
+    disl_spacing : float
+        Spacing of the dislocations [m].
+    disl_side : str
+        Rib holding the dislocations (``"left"`` only in the full model).
+    disl_phi_deg : float
+        Friction angle of the dislocations [deg]; < 0: the coal's.
+    gas_pressure : float
+        Gas pressure [Pa].
+    gas_vent_opening : float
+        Crack opening above which the gas has escaped [m].
+    elastic : bool
+        Infinite strengths (verification runs).
+    elastic_layer : float
+        Top rock layer with unbreakable interfaces [m].
+    duration : float
+        Dynamics after the end of the ramp [s].
+    dt_safety : float
+        Time step as a fraction of the Gershgorin bound [-], in (0, 1].
+    damping : float
+        Mass-proportional damping alpha [1/s].
+    contact_damping : float
+        Dashpot of contacts and cracked closed interfaces as a fraction of critical damping [-].
+    contact : bool
+        Proximity contact between cells that were not neighbours.
+    contact_factor : float
+        Contact penalty kc = factor * kn * L [-].
+    v_abort : float
+        Runaway guard [m/s].
+    output_every : float
+        Interval of the recorded series [s].
+    """
     # readings of the paper
     placement: str = "near"
     floor: str = "rollers"
@@ -134,6 +232,7 @@ class MineParams:
 
     # ------------------------------------------------------------------ validation
     def validate(self) -> "MineParams":
+        """Return ``self`` if every field is in range, else raise ``ValueError`` naming the field."""
         def bad(name, msg):
             raise ValueError(f"{name}={getattr(self, name)!r}: {msg}")
 
@@ -210,20 +309,25 @@ class MineParams:
 
     @property
     def theta0(self) -> float:
+        """Orientation of edge 0's normal [rad]."""
         return math.radians(self.orientation_deg)
 
     @property
     def rho(self) -> float:
+        """Density of the rock, ``unit_weight / G_ACC`` [kg/m^3]."""
         return self.unit_weight / G_ACC
 
     @property
     def p_top(self) -> float:
+        """Overburden pressure at the top of the model, ``unit_weight * depth`` [Pa]."""
         return self.unit_weight * self.depth
 
     def replace(self, **kw) -> "MineParams":
+        """A copy with the given fields changed (not validated: call :meth:`validate`)."""
         return dataclasses.replace(self, **kw)
 
     def to_dict(self):
+        """The fields as a plain dict (the scene file's keys)."""
         return dataclasses.asdict(self)
 
 

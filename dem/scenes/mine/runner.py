@@ -26,9 +26,35 @@ _STATE = ["u", "vh", "vh_prev", "f", "sn", "tau", "jtp", "jnp", "broken", "pg", 
 
 @dataclass
 class RunResult:
-    """One run: the scene in its final state, the time series (dict of arrays: scalars (S,), per-cell
-    kinetic energy ``Ek_cells`` (S, N) [J/m], seam-row ``syy_seam`` (S, n) [Pa]), the typed
-    indicators, the step used and the safe bound [s], wall time [s], timings, the stop reason."""
+    """One run of a mine scene (SI per m of thickness). ``S`` samples, ``N`` cells, ``n`` cells
+    on the seam row.
+
+    Attributes
+    ----------
+    scene : Scene
+        The scene in its final state.
+    series : dict of ndarray
+        Time series, one entry per name of ``SERIES``: scalars (S,) (``t`` [s], ``g`` [-], energies
+        and works [J/m], counts, ``vmax`` [m/s]), per-cell kinetic energy ``Ek_cells`` (S, N) [J/m],
+        seam-row ``syy_seam`` (S, n) [Pa].
+    indicators : MineIndicators
+        The typed indicators of the run.
+    dt : float
+        Time step used [s].
+    dt_gershgorin : float
+        Safe bound of the time step [s].
+    wall_time : float
+        Wall time of the run [s].
+    timings : dict
+        Phase times ``build_s``, ``dynamics_s``, ``sampling_s``, ``checkpoint_s`` [s] and throughput
+        ``steps_per_s``, ``cell_steps_per_s`` [1/s].
+    stopped : str
+        Why the run stopped early ("" if it ran to the end).
+    report : RunReport
+        LAMMPS-like timing table (``dem.runtime.RunReport``).
+    error : InstabilityError or None
+        Set when the runaway guard stopped the run (``dem.runtime.InstabilityError``).
+    """
     scene: Scene
     series: dict
     indicators: MineIndicators
@@ -37,7 +63,7 @@ class RunResult:
     wall_time: float
     timings: dict = field(default_factory=dict)
     stopped: str = ""
-    report: RunReport = None          # LAMMPS-like timing table (dem.integrate.RunReport)
+    report: RunReport = None          # LAMMPS-like timing table (dem.runtime.RunReport)
     error: InstabilityError = None    # set when the runaway guard stopped the run
 
 
@@ -57,8 +83,9 @@ def _sample(scene, g):
 
 
 class Snapshot(dict):
-    """Copy of the model state arrays (the checkpoint content) at a step; ``.step`` for
-    :class:`dem.integrate.InstabilityError`."""
+    """Copy of the model state arrays (the checkpoint content) at a step, a dict of ndarray keyed
+    by the names of the ``Model`` state (``u`` [m], ``vh`` [m/s], ``sn`` [Pa], ...) plus ``t`` [s]
+    and ``nstep``; ``.step`` (int) for ``dem.runtime.InstabilityError``."""
 
     def __init__(self, model):
         super().__init__({k: np.array(getattr(model, k), copy=True) for k in _STATE})
@@ -77,6 +104,10 @@ def save_checkpoint(path, model, series, meta, snapshot=None):
 
 
 def load_checkpoint(path, model):
+    """Restore the state of ``model`` in place from an npz checkpoint of :func:`save_checkpoint`.
+
+    Returns (series, meta): the time series so far (dict of lists) and the stored metadata (dict).
+    """
     z = np.load(path, allow_pickle=False)
     for k in _STATE:
         arr = z[k]
