@@ -39,7 +39,7 @@ from studies.common import cli_out_dir, markdown_table, write_table
 SEED = {"nc": 4.1, "phi": 0.82, "r": 0.35, "nbar": 5.0, "alpha": 1.76,
         "K_mf": 2.8e7, "K": 2.3e7, "drop_K": 0.18, "G_mf": 2.6e7, "G": 1.9e7, "drop_G": 0.28}
 PSI6_MAX = 0.5  # above: polycrystalline, excluded from the means
-KN_SEED = 5.0e7  # N/m: OVAL's kn = 1e8 multiplies half the overlap (PEERS.md)
+KN_SEED = 5.0e7  # N/m: OVAL's kn = 1e8 multiplies half the overlap (docs/formats.md, conventions of peers)
 
 
 def seed_theory():
