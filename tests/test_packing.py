@@ -232,4 +232,5 @@ def test_cli_outputs_keep_their_schema(tmp_path):
         rep["steps"] = 0
     rep["wall_time"] = 1.5                   # a caller's annotation travels with the packing
     PackingResult(PackingResult.load(out).state, PackingResult.load(out).law, rep).save(out)
-    assert PackingResult.load(out).report["wall_time"] == 1.5
+    annotation = PackingResult.load(out).report["wall_time"]   # a caller's annotation, not a timing
+    assert annotation == 1.5
