@@ -57,8 +57,8 @@ from numba.extending import overload
 
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
-           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "make_pair_constants",
-           "kick_drift", "kick_spin", "SUBMODELS"]
+           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "compact_list", "make_pair_constants",
+           "kick_range", "kick_all", "SUBMODELS"]
 
 
 def _check(name, value, low, *, low_open=False, high=math.inf):
@@ -88,6 +88,7 @@ tangential_force = _hook("tangential_force")
 rolling_torque = _hook("rolling_torque")
 force_magnitude = _hook("force_magnitude")
 history_slots = _hook("history_slots")
+spin_flag = _hook("spin_flag")
 
 
 def _implements(hook, *classes):
@@ -320,9 +321,9 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j,
-#                    fn, kn, ct, dt, torque) -> (ftx, fty, elastic energy)
-#   adds the torques of the tangential force itself; ``hist`` is the flat (P * nh,) history, the
+#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
+#                    fn, kn, ct, dt, ti, tj) -> (ftx, fty, elastic energy, ti, tj)
+#   adds the torques of the tangential force itself to ti, tj (torques on i and j); ``hist`` is the flat (P * nh,) history, the
 #   pair's slots start at nh * p.
 # --------------------------------------------------------------------------------------------------
 class NoTangential(NamedTuple):
@@ -348,11 +349,11 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-            torque):
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
-        return 0.0, 0.0, 0.0
+def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+            ti, tj):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
+        return 0.0, 0.0, 0.0, ti, tj
     return impl
 
 
@@ -421,16 +422,16 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
-                       kn, ct, dt, torque):
+def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, ti, tj):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
         tx = -ny
         ty = nx
-        vt = dvx * tx + dvy * ty - (omega[i] * ri + omega[j] * rj)
+        vt = dvx * tx + dvy * ty - (wi * ri + wj * rj)
         if mindlin:
             kt = model.kt_ratio * kn
         else:
@@ -443,9 +444,9 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         U = 0.0
         if kt > 0.0:
             U = 0.5 * fs * fs / kt
-        torque[i] -= ri * ftot
-        torque[j] -= rj * ftot
-        return ftot * tx, ftot * ty, U
+        ti -= ri * ftot
+        tj -= rj * ftot
+        return ftot * tx, ftot * ty, U, ti, tj
     return impl
 
 
@@ -479,22 +480,22 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
-                       kn, ct, dt, torque):
+def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, ti, tj):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
     # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
     # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
     # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
     # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
         kt = model.kt
         q = nh * p
         # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
         vt1 = dvx - nx * vn
         vt2 = dvy - ny * vn
-        ws = ri * omega[i] + rj * omega[j]
+        ws = ri * wi + rj * wj
         vtr1 = vt1 + ny * ws
         vtr2 = vt2 - nx * ws
         s1 = hist[q]
@@ -527,9 +528,9 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         hist[q] = s1
         hist[q + 1] = s2
         tor = nx * fs2 - ny * fs1
-        torque[i] -= ri * tor
-        torque[j] -= rj * tor
-        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2)
+        ti -= ri * tor
+        tj -= rj * tor
+        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ti, tj
     return impl
 
 
@@ -549,7 +550,7 @@ _implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(
 
 
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque)
+# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj)
 #   h0 = the first history slot of this sub-model; returns its elastic energy.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
@@ -567,9 +568,9 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-        return 0.0
+def _noroll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+        return 0.0, ti, tj
     return impl
 
 
@@ -595,87 +596,33 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+def _roll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
         q = nh * p + h0
         reff = ri * rj / (ri + rj)
         kr = model.kr_ratio * kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu_r * reff * fc
-        m = hist[q] - kr * (omega[j] - omega[i]) * dt
+        m = hist[q] - kr * (wj - wi) * dt
         if abs(m) > lim:
             m = lim if m > 0.0 else -lim
         hist[q] = m
-        torque[j] += m
-        torque[i] -= m
+        tj += m
+        ti -= m
         U = 0.0
         if kr > 0.0:
             U = 0.5 * m * m / kr
-        return U
+        return U, ti, tj
     return impl
 
 
 # --------------------------------------------------------------------------------------------------
 # integration hooks (fused kick)
 # --------------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
-def kick_drift(k, xf, vf, ff, rf, mass, dtk, dt, damping, L00, L01, L10, L11, F00, F01, F10, F11, acc):
-    """Kick-drift of particle k (flat (2N,) views): v += dtk (F + F_damp)/m, x += dt (v + L x).
-    acc[0] = max non-affine displacement^2, acc[1] += kinetic energy at the integer time,
-    acc[2] += work of the local damping (same arithmetic as :mod:`dem.integrate`)."""
-    m = mass[k]
-    for c in range(2):
-        F = ff[2 * k + c]
-        vo = vf[2 * k + c]
-        Fd = 0.0
-        if damping > 0.0:
-            if vo > 0.0:
-                Fd = -damping * abs(F)
-            elif vo < 0.0:
-                Fd = damping * abs(F)
-        vn = vo + dtk * (F + Fd) / m
-        vm = 0.5 * (vo + vn)
-        acc[1] += 0.5 * m * vm * vm
-        acc[2] += Fd * vm * dt
-        vf[2 * k + c] = vn
-    x0 = xf[2 * k]
-    x1 = xf[2 * k + 1]
-    y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
-    y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
-    xf[2 * k] = y0
-    xf[2 * k + 1] = y1
-    r0 = rf[2 * k]
-    r1 = rf[2 * k + 1]
-    dx = y0 - (F00 * r0 + F01 * r1)
-    dy = y1 - (F10 * r0 + F11 * r1)
-    d2 = dx * dx + dy * dy
-    if d2 > acc[0]:
-        acc[0] = d2
-
-
-@njit(cache=True, inline="always")
-def kick_spin(k, omega, theta, torque, inertia, dtk, dt, damping, acc):
-    """Spin kick and rotation of particle k; acc[3] += rotational kinetic energy, acc[4] += work."""
-    T = torque[k]
-    wo = omega[k]
-    Td = 0.0
-    if damping > 0.0:
-        if wo > 0.0:
-            Td = -damping * abs(T)
-        elif wo < 0.0:
-            Td = damping * abs(T)
-    wn = wo + dtk * (T + Td) / inertia[k]
-    wm = 0.5 * (wo + wn)
-    acc[3] += 0.5 * inertia[k] * wm * wm
-    acc[4] += Td * wm * dt
-    omega[k] = wn
-    theta[k] += dt * wn
-
-
 class Kick(NamedTuple):
     """Integration inside the force loop (``fused``): kick step ``dtk``, drift step ``dt``, Cundall
     ``damping``, the cell's ``L`` and the deformation ``F = h_{n+1} h_ref^{-1}`` of the rebuild
-    test. ``fused = False``: the loop computes forces only."""
+    test; ``tally``: sum the kinetic energy. ``fused = False``: the loop computes forces only."""
     fused: bool
     dtk: float
     dt: float
@@ -688,23 +635,98 @@ class Kick(NamedTuple):
     F01: float
     F10: float
     F11: float
+    tally: bool = True
 
 
-NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, False)
 
 
 KICK_BLOCK = 64
 
 
 @njit(cache=True)
-def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc):
-    """Kick and drift particles lo..hi-1 (translation, then spin if the state has spins)."""
+def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums):
+    """Kick and drift particles lo..hi-1 (flat (2N,) views of x, v, f, x_ref), then their spins if
+    ``omega`` is not empty:
+
+    * ``v += dtk (F + F_damp) / m``, ``x += dt (v + L x)`` with the Cundall damping
+      ``F_damp,c = -damping |F_c| sign(v_c)`` per component;
+    * ``omega += dtk (T + T_damp) / I``, ``theta += dt omega``.
+
+    ``sums`` = (max non-affine displacement^2 ``|x - F x_ref|^2``, translational KE at the integer
+    time, its damping work, rotational KE, its damping work) is returned updated; the kinetic
+    energies only if ``kick.tally``, the damping work only if ``kick.damping > 0`` (it is 0
+    otherwise). The sums are added to particle by particle, in order, so that blocks of particles
+    give the same bits as one pass.
+    """
+    d2m, ke, wd, ker, wdr = sums
+    dtk = kick.dtk
+    dt = kick.dt
+    damping = kick.damping
+    tally = kick.tally
+    L00, L01, L10, L11 = kick.L00, kick.L01, kick.L10, kick.L11
+    F00, F01, F10, F11 = kick.F00, kick.F01, kick.F10, kick.F11
     for k in range(lo, hi):
-        kick_drift(k, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
-                   kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
+        m = mass[k]
+        for c in range(2):
+            F = ff[2 * k + c]
+            vo = vf[2 * k + c]
+            Fd = 0.0
+            if damping > 0.0:
+                if vo > 0.0:
+                    Fd = -damping * abs(F)
+                elif vo < 0.0:
+                    Fd = damping * abs(F)
+            vn = vo + dtk * (F + Fd) / m
+            if tally or damping > 0.0:
+                vm = 0.5 * (vo + vn)
+                if tally:
+                    ke += 0.5 * m * vm * vm
+                if damping > 0.0:
+                    wd += Fd * vm * dt
+            vf[2 * k + c] = vn
+        x0 = xf[2 * k]
+        x1 = xf[2 * k + 1]
+        y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
+        y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
+        xf[2 * k] = y0
+        xf[2 * k + 1] = y1
+        r0 = rf[2 * k]
+        r1 = rf[2 * k + 1]
+        dx = y0 - (F00 * r0 + F01 * r1)
+        dy = y1 - (F10 * r0 + F11 * r1)
+        d2 = dx * dx + dy * dy
+        if d2 > d2m:
+            d2m = d2
     if omega.shape[0] > 0:
         for k in range(lo, hi):
-            kick_spin(k, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+            T = torque[k]
+            wo = omega[k]
+            Td = 0.0
+            if damping > 0.0:
+                if wo > 0.0:
+                    Td = -damping * abs(T)
+                elif wo < 0.0:
+                    Td = damping * abs(T)
+            wn = wo + dtk * (T + Td) / inertia[k]
+            if tally or damping > 0.0:
+                wm = 0.5 * (wo + wn)
+                if tally:
+                    ker += 0.5 * inertia[k] * wm * wm
+                if damping > 0.0:
+                    wdr += Td * wm * dt
+            omega[k] = wn
+            theta[k] += dt * wn
+    return d2m, ke, wd, ker, wdr
+
+
+@njit(cache=True)
+def kick_all(x, v, f, x_ref, mass, omega, theta, torque, inertia, kick):
+    """:func:`kick_range` over every particle: x, v, f, x_ref (N, 2), omega, theta, torque,
+    inertia (N,) or empty. Returns its five sums. (In this module, next to :func:`kick_range`:
+    numba's disk cache of a function is invalidated by changes to its own file only.)"""
+    return kick_range(0, x.shape[0], x.reshape(-1), v.reshape(-1), f.reshape(-1), x_ref.reshape(-1), mass, omega,
+                      theta, torque, inertia, kick, (0.0, 0.0, 0.0, 0.0, 0.0))
 
 
 class Cell(NamedTuple):
@@ -722,30 +744,83 @@ class Cell(NamedTuple):
 # --------------------------------------------------------------------------------------------------
 # the pair loop
 # --------------------------------------------------------------------------------------------------
+SHIFT_BITS = 4
+
+
 @njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hist, pc, cell, normal,
+def compact_list(n, pi, pj, ps):
+    """The Verlet list (ordered by ``pi``, ``pj > pi``, image shifts in {-1, 0, 1}) as the pair
+    loop reads it: ``start`` (n + 1,) the first pair of each particle (CSR) and ``jc`` (P,) int32
+    ``pj << SHIFT_BITS | code``, ``code = 3 (s_a + 1) + (s_b + 1)``. Returns ``ok = False`` if
+    the list is not ordered by ``pi`` or has a shift outside {-1, 0, 1}."""
+    m = pi.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    jc = np.empty(m, np.int32)
+    ok = True
+    for p in range(m):
+        i = pi[p]
+        if p > 0 and i < pi[p - 1]:
+            ok = False
+        sa = ps[p, 0]
+        sb = ps[p, 1]
+        if sa < -1 or sa > 1 or sb < -1 or sb > 1:
+            ok = False
+        start[i + 1] += 1
+        jc[p] = np.int32((pj[p] << SHIFT_BITS) | (3 * (sa + 1) + (sb + 1)))
+    for i in range(n):
+        start[i + 1] += start[i]
+    return start, jc, ok
+
+
+@njit(cache=True, inline="always")
+def _image_offsets(h00, h01, h10, h11):
+    """(36,) per shift code: h00 s_a, h01 s_b, h10 s_a, h11 s_b (the branch is summed in this order)."""
+    o = np.empty(36)
+    for c in range(9):
+        sa = float(c // 3 - 1)
+        sb = float(c % 3 - 1)
+        o[4 * c] = h00 * sa
+        o[4 * c + 1] = h01 * sb
+        o[4 * c + 2] = h10 * sa
+        o[4 * c + 3] = h11 * sb
+    return o
+
+
+def _spin_flag(model, rolling):
+    flag = bool(_cls(model).SPIN) or _cls(rolling) is not NoRolling
+
+    def impl(model, rolling):
+        return flag
+    return impl
+
+
+_implements(spin_flag, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_spin_flag)
+
+
+@njit(cache=True)
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, start, jc, hist, pc, cell, normal,
                 damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, pj (P,), ps (P, 2) the Verlet list
-    (ordered by pi, pj > pi);
+    x, v (N, 2); omega, theta, inertia (N,) or empty; start (N + 1,), jc (P,) the Verlet list
+    (:func:`compact_list`: pairs ordered by i, j > i);
     hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
-    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) =
-    (max non-affine displacement^2, translational KE, translational damping work, rotational KE,
-    rotational damping work).
+    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) = the sums of
+    :func:`kick_range`.
+
+    The pairs of particle i are a block: i's position, velocity, spin and radius are read once
+    and its force and torque summed in registers (in the same order as pair by pair, so the
+    result is bit-identical), j's are read and written per pair.
     """
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    h00, h01, h10, h11 = cell.h00, cell.h01, cell.h10, cell.h11
+    off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
     f[:, :] = 0.0
     torque[:] = 0.0
-    for k in range(acc.shape[0]):
-        acc[k] = 0.0
     xf = x.reshape(-1)
     vf = v.reshape(-1)
     ff = f.reshape(-1)
-    psf = ps.reshape(-1)
     rf = x_ref.reshape(-1)
     s00 = 0.0
     s01 = 0.0
@@ -756,64 +831,93 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     U = 0.0
     kl2 = 0.0
     fused = kick.fused
+    spin = spin_flag(tangential, rolling)
     nh = history_slots(tangential, rolling)
+    sums = (0.0, 0.0, 0.0, 0.0, 0.0)
+    n = np.uint64(x.shape[0])
     done = np.uint64(0)
     one = np.uint64(1)
     block = np.uint64(KICK_BLOCK)
-    for p in range(pj.shape[0]):
-        # unsigned indices: numba then skips its negative-index wraparound on every access
-        i = np.uint64(pi[p])
+    mask = np.uint32((1 << SHIFT_BITS) - 1)
+    # unsigned indices: numba then skips its negative-index wraparound on every access
+    for i in range(n):
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
-            kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
             done = i
-        j = np.uint64(pj[p])
-        i2 = i + i
-        j2 = j + j
-        pp = np.uint64(p)
-        sa = psf[pp + pp]
-        sb = psf[pp + pp + one]
-        lx = xf[j2] + h00 * sa + h01 * sb - xf[i2]
-        ly = xf[j2 + one] + h10 * sa + h11 * sb - xf[i2 + one]
-        ri = radius[i]
-        rj = radius[j]
-        rs = ri + rj
-        d2 = lx * lx + ly * ly
-        if d2 >= rs * rs:
-            for k in range(nh * p, nh * p + nh):
-                hist[k] = 0.0
+        if start[i] == start[i + one]:
             continue
-        d = math.sqrt(d2)
-        nx = lx / d
-        ny = ly / d
-        delta = rs - d
-        dvx = vf[j2] - vf[i2] + L00 * lx + L01 * ly
-        dvy = vf[j2 + one] - vf[i2 + one] + L10 * lx + L11 * ly
-        fn, kn, Un = normal_force(normal, delta)
-        vn = dvx * nx + dvy * ny
-        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-        ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri,
-                                        rj, omega, i, j, fn, kn, ct, dt, torque)
-        Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
-        fx = fn * nx + ftx
-        fy = fn * ny + fty
-        ff[j2] += fx
-        ff[j2 + one] += fy
-        ff[i2] -= fx
-        ff[i2 + one] -= fy
-        if tally:
-            U += Un
-            U += Ut
-            U += Ur
-            s00 += fx * lx
-            s01 += fx * ly
-            s10 += fy * lx
-            s11 += fy * ly
-            nc += 1.0
-            fsum += force_magnitude(tangential, fn, fx, fy)
-            kl2 += kn * d2
+        i2 = i + i
+        xi0 = xf[i2]
+        xi1 = xf[i2 + one]
+        vi0 = vf[i2]
+        vi1 = vf[i2 + one]
+        ri = radius[i]
+        fi0 = ff[i2]
+        fi1 = ff[i2 + one]
+        wi = 0.0
+        ti = 0.0
+        if spin:
+            wi = omega[i]
+            ti = torque[i]
+        for p in range(start[i], start[i + one]):
+            c = np.uint32(jc[p])
+            j = np.uint64(c >> np.uint32(SHIFT_BITS))
+            o = np.uint64(4) * np.uint64(c & mask)
+            j2 = j + j
+            lx = xf[j2] + off[o] + off[o + one] - xi0
+            ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xi1
+            rj = radius[j]
+            rs = ri + rj
+            d2 = lx * lx + ly * ly
+            if d2 >= rs * rs:
+                for k in range(nh * p, nh * p + nh):
+                    hist[k] = 0.0
+                continue
+            d = math.sqrt(d2)
+            nx = lx / d
+            ny = ly / d
+            delta = rs - d
+            dvx = vf[j2] - vi0 + L00 * lx + L01 * ly
+            dvy = vf[j2 + one] - vi1 + L10 * lx + L11 * ly
+            fn, kn, Un = normal_force(normal, delta)
+            vn = dvx * nx + dvy * ny
+            fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
+            wj = 0.0
+            tj = 0.0
+            if spin:
+                wj = omega[j]
+                tj = torque[j]
+            ftx, fty, Ut, ti, tj = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
+                                                    ny, ri, rj, wi, wj, fn, kn, ct, dt, ti, tj)
+            Ur, ti, tj = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, wi, wj, fn, kn, dt, ti, tj)
+            if spin:
+                torque[j] = tj
+            fx = fn * nx + ftx
+            fy = fn * ny + fty
+            ff[j2] += fx
+            ff[j2 + one] += fy
+            fi0 -= fx
+            fi1 -= fy
+            if tally:
+                U += Un
+                U += Ut
+                U += Ur
+                s00 += fx * lx
+                s01 += fx * ly
+                s10 += fy * lx
+                s11 += fy * ly
+                nc += 1.0
+                fsum += force_magnitude(tangential, fn, fx, fy)
+                kl2 += kn * d2
+        ff[i2] = fi0
+        ff[i2 + one] = fi1
+        if spin:
+            torque[i] = ti
     if fused:
-        kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+        sums = kick_range(done, n, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+        for k in range(5):
+            acc[k] = sums[k]
     if not tally:
         return
     out[0] = s00
