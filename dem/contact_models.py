@@ -748,13 +748,14 @@ SHIFT_BITS = 4
 
 
 @njit(cache=True)
-def compact_list(n, pi, pj, ps):
+def compact_list(pi, pj, ps):
     """The Verlet list (ordered by ``pi``, ``pj > pi``, image shifts in {-1, 0, 1}) as the pair
-    loop reads it: ``start`` (n + 1,) the first pair of each particle (CSR) and ``jc`` (P,) int32
-    ``pj << SHIFT_BITS | code``, ``code = 3 (s_a + 1) + (s_b + 1)``. Returns ``ok = False`` if
-    the list is not ordered by ``pi`` or has a shift outside {-1, 0, 1}."""
+    loop reads it, 8 bytes per pair instead of 32: ``pi32`` (P,) int32 and ``jc`` (P,) int32
+    ``pj << SHIFT_BITS | code`` with ``code = 3 (s_a + 1) + (s_b + 1)``. Returns
+    ``(pi32, jc, ok)``, ``ok = False`` if the list is not ordered by ``pi`` (the fused kick needs
+    that order) or has a shift outside {-1, 0, 1}."""
     m = pi.shape[0]
-    start = np.zeros(n + 1, np.int64)
+    pi32 = np.empty(m, np.int32)
     jc = np.empty(m, np.int32)
     ok = True
     for p in range(m):
@@ -765,11 +766,9 @@ def compact_list(n, pi, pj, ps):
         sb = ps[p, 1]
         if sa < -1 or sa > 1 or sb < -1 or sb > 1:
             ok = False
-        start[i + 1] += 1
+        pi32[p] = np.int32(i)
         jc[p] = np.int32((pj[p] << SHIFT_BITS) | (3 * (sa + 1) + (sb + 1)))
-    for i in range(n):
-        start[i + 1] += start[i]
-    return start, jc, ok
+    return pi32, jc, ok
 
 
 @njit(cache=True, inline="always")
@@ -798,21 +797,21 @@ _implements(spin_flag, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_spi
 
 
 @njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, start, jc, hist, pc, cell, normal,
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
                 damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; start (N + 1,), jc (P,) the Verlet list
+    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, jc (P,) the Verlet list
     (:func:`compact_list`: pairs ordered by i, j > i);
     hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
-    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) = the sums of
-    :func:`kick_range`.
+    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
+    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`.
 
-    The pairs of particle i are a block: i's position, velocity, spin and radius are read once
-    and its force and torque summed in registers (in the same order as pair by pair, so the
-    result is bit-identical), j's are read and written per pair.
+    One flat loop over the pairs: i's force is added to in memory pair by pair (summing it in
+    registers per block of i's pairs was measured slower: the block's end is a branch that the
+    processor mispredicts about once per particle).
     """
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
     off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
@@ -834,88 +833,76 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, start, jc, his
     spin = spin_flag(tangential, rolling)
     nh = history_slots(tangential, rolling)
     sums = (0.0, 0.0, 0.0, 0.0, 0.0)
-    n = np.uint64(x.shape[0])
     done = np.uint64(0)
     one = np.uint64(1)
     block = np.uint64(KICK_BLOCK)
     mask = np.uint32((1 << SHIFT_BITS) - 1)
-    # unsigned indices: numba then skips its negative-index wraparound on every access
-    for i in range(n):
+    for p in range(jc.shape[0]):
+        # unsigned indices: numba then skips its negative-index wraparound on every access
+        i = np.uint64(np.uint32(pi[p]))
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
             sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
             done = i
-        if start[i] == start[i + one]:
-            continue
+        c = np.uint32(jc[p])
+        j = np.uint64(c >> np.uint32(SHIFT_BITS))
+        o = np.uint64(4) * np.uint64(c & mask)
         i2 = i + i
-        xi0 = xf[i2]
-        xi1 = xf[i2 + one]
-        vi0 = vf[i2]
-        vi1 = vf[i2 + one]
+        j2 = j + j
+        lx = xf[j2] + off[o] + off[o + one] - xf[i2]
+        ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xf[i2 + one]
         ri = radius[i]
-        fi0 = ff[i2]
-        fi1 = ff[i2 + one]
+        rj = radius[j]
+        rs = ri + rj
+        d2 = lx * lx + ly * ly
+        if d2 >= rs * rs:
+            for k in range(nh * p, nh * p + nh):
+                hist[k] = 0.0
+            continue
+        d = math.sqrt(d2)
+        nx = lx / d
+        ny = ly / d
+        delta = rs - d
+        dvx = vf[j2] - vf[i2] + L00 * lx + L01 * ly
+        dvy = vf[j2 + one] - vf[i2 + one] + L10 * lx + L11 * ly
+        fn, kn, Un = normal_force(normal, delta)
+        vn = dvx * nx + dvy * ny
+        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
         wi = 0.0
+        wj = 0.0
         ti = 0.0
+        tj = 0.0
         if spin:
             wi = omega[i]
+            wj = omega[j]
             ti = torque[i]
-        for p in range(start[i], start[i + one]):
-            c = np.uint32(jc[p])
-            j = np.uint64(c >> np.uint32(SHIFT_BITS))
-            o = np.uint64(4) * np.uint64(c & mask)
-            j2 = j + j
-            lx = xf[j2] + off[o] + off[o + one] - xi0
-            ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xi1
-            rj = radius[j]
-            rs = ri + rj
-            d2 = lx * lx + ly * ly
-            if d2 >= rs * rs:
-                for k in range(nh * p, nh * p + nh):
-                    hist[k] = 0.0
-                continue
-            d = math.sqrt(d2)
-            nx = lx / d
-            ny = ly / d
-            delta = rs - d
-            dvx = vf[j2] - vi0 + L00 * lx + L01 * ly
-            dvy = vf[j2 + one] - vi1 + L10 * lx + L11 * ly
-            fn, kn, Un = normal_force(normal, delta)
-            vn = dvx * nx + dvy * ny
-            fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-            wj = 0.0
-            tj = 0.0
-            if spin:
-                wj = omega[j]
-                tj = torque[j]
-            ftx, fty, Ut, ti, tj = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
-                                                    ny, ri, rj, wi, wj, fn, kn, ct, dt, ti, tj)
-            Ur, ti, tj = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, wi, wj, fn, kn, dt, ti, tj)
-            if spin:
-                torque[j] = tj
-            fx = fn * nx + ftx
-            fy = fn * ny + fty
-            ff[j2] += fx
-            ff[j2 + one] += fy
-            fi0 -= fx
-            fi1 -= fy
-            if tally:
-                U += Un
-                U += Ut
-                U += Ur
-                s00 += fx * lx
-                s01 += fx * ly
-                s10 += fy * lx
-                s11 += fy * ly
-                nc += 1.0
-                fsum += force_magnitude(tangential, fn, fx, fy)
-                kl2 += kn * d2
-        ff[i2] = fi0
-        ff[i2 + one] = fi1
+            tj = torque[j]
+        ftx, fty, Ut, ti, tj = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
+                                                ny, ri, rj, wi, wj, fn, kn, ct, dt, ti, tj)
+        Ur, ti, tj = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, wi, wj, fn, kn, dt, ti, tj)
         if spin:
             torque[i] = ti
+            torque[j] = tj
+        fx = fn * nx + ftx
+        fy = fn * ny + fty
+        ff[j2] += fx
+        ff[j2 + one] += fy
+        ff[i2] -= fx
+        ff[i2 + one] -= fy
+        if tally:
+            U += Un
+            U += Ut
+            U += Ur
+            s00 += fx * lx
+            s01 += fx * ly
+            s10 += fy * lx
+            s11 += fy * ly
+            nc += 1.0
+            fsum += force_magnitude(tangential, fn, fx, fy)
+            kl2 += kn * d2
     if fused:
-        sums = kick_range(done, n, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+        sums = kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick,
+                          sums)
         for k in range(5):
             acc[k] = sums[k]
     if not tally:
