@@ -139,9 +139,9 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
         xs[q, 1] = x[i, 1]
         rs[q] = radius[i]
         fill[c] = q + 1
-    pi = np.empty(cap, np.int64)
-    pj = np.empty(cap, np.int64)
-    ps = np.empty((cap, 2), np.int64)
+    pi = np.empty(cap + 1, np.int64)
+    pj = np.empty(cap + 1, np.int64)
+    ps = np.empty((cap + 1, 2), np.int64)
     m = 0
     for i in range(n):
         ca = binof[i] % nba
@@ -178,13 +178,14 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
                     dx = xs[q, 0] + ox - xi0
                     dy = xs[q, 1] + oy - xi1
                     rc = ri + rs[q] + skin
-                    if dx * dx + dy * dy < rc * rc:
-                        if m < cap:
-                            pi[m] = i
-                            pj[m] = j
-                            ps[m, 0] = sa
-                            ps[m, 1] = sb
-                        m += 1
+                    # branch-free append: written at slot min(m, cap) (slot cap is scratch), kept
+                    # by advancing m (an unpredictable test costs more than the stores)
+                    w = m if m < cap else cap
+                    pi[w] = i
+                    pj[w] = j
+                    ps[w, 0] = sa
+                    ps[w, 1] = sb
+                    m += dx * dx + dy * dy < rc * rc
         if m <= cap:
             _sort_group(pj, ps, m0, m)
     return pi, pj, ps, m
