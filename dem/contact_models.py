@@ -69,6 +69,11 @@ def _check(name, value, low, *, low_open=False, high=math.inf):
         raise ValueError(f"{name} must be in {lo}{low:g}, {hi}, got {value}")
 
 
+def _check_bool(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+
+
 # --------------------------------------------------------------------------------------------------
 # hooks: stubs that the loop calls, resolved at compile time from the sub-model's type
 # --------------------------------------------------------------------------------------------------
@@ -367,9 +372,16 @@ def _notang_mag(model, fn, fx, fy):
 class LinearHistory(NamedTuple):
     """Tangential spring ``kt`` [N/m] with history, Coulomb ``mu``: a scalar force ``ft`` along the
     current tangent ``t`` (the spring turns rigidly with the contact), incremented by
-    ``-kt vt dt`` and capped at ``mu max(fn, 0)``; reset when the contact opens."""
+    ``-kt vt dt`` and capped at ``mu max(fn, 0)``; reset when the contact opens.
+
+    ``contact_arms``: the spin arms (in the contact point's velocity ``w_i a_i + w_j a_j`` and in
+    the torques ``-a ft``). False: the radii ``a = r`` (LAMMPS ``gran/*``); True: the distances
+    to the contact point ``a_i = |l| r_i / (r_i + r_j)`` (as :mod:`microhom.kinematics` and the
+    exact stiffness), with ``a_i + a_j = |l|``, so that a rigid rotation of overlapping disks
+    slides no contact."""
     kt: float
     mu: float
+    contact_arms: bool = False
 
     HISTORY = 1
     PARITY = (1,)
@@ -378,6 +390,7 @@ class LinearHistory(NamedTuple):
     def check(self):
         _check("kt", self.kt, 0.0)
         _check("mu", self.mu, 0.0)
+        _check_bool("contact_arms", self.contact_arms)
 
     def dt_stiffness(self, normal):
         # rotational modes of disks (I = m r^2 / 2): z contacts resisting one rotation give
@@ -389,9 +402,11 @@ class LinearHistory(NamedTuple):
 
 
 class Mindlin(NamedTuple):
-    """As :class:`LinearHistory` with the incremental Mindlin stiffness ``kt = kt_ratio k_n(delta)``."""
+    """As :class:`LinearHistory` (``contact_arms`` included) with the incremental Mindlin stiffness
+    ``kt = kt_ratio k_n(delta)``."""
     kt_ratio: float
     mu: float
+    contact_arms: bool = False
 
     HISTORY = 1
     PARITY = (1,)
@@ -400,6 +415,7 @@ class Mindlin(NamedTuple):
     def check(self):
         _check("kt_ratio", self.kt_ratio, 0.0)
         _check("mu", self.mu, 0.0)
+        _check_bool("contact_arms", self.contact_arms)
 
     def dt_stiffness(self, normal):
         return 2.0 * self.kt_ratio * normal.dt_stiffness()
@@ -431,7 +447,13 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
              ti, tj):
         tx = -ny
         ty = nx
-        vt = dvx * tx + dvy * ty - (wi * ri + wj * rj)
+        ai = ri
+        aj = rj
+        if model.contact_arms:
+            s = d / (ri + rj)
+            ai = s * ri
+            aj = s * rj
+        vt = dvx * tx + dvy * ty - (wi * ai + wj * aj)
         if mindlin:
             kt = model.kt_ratio * kn
         else:
@@ -444,8 +466,8 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         U = 0.0
         if kt > 0.0:
             U = 0.5 * fs * fs / kt
-        ti -= ri * ftot
-        tj -= rj * ftot
+        ti -= ai * ftot
+        tj -= aj * ftot
         return ftot * tx, ftot * ty, U, ti, tj
     return impl
 

@@ -33,11 +33,14 @@ CASES = {
                      lambda: dict(startup="lammps", control=_servo())),
     "lammps_fused": (lambda: LammpsHookeHistory(kn=1e4, kt=1e4, gamma_n=3.0, mu=0.5, gamma_t=1.0),
                      lambda: dict(startup="lammps", fuse=True)),
-    "hertz_rolling": (lambda: HertzRolling(kh=3e5, mu=0.4, delta_ref=0.02, mu_r=0.1, restitution=0.5),
+    # contact_arms=False: the recorded runs took the radii as spin arms
+    "hertz_rolling": (lambda: HertzRolling(kh=3e5, mu=0.4, delta_ref=0.02, mu_r=0.1, restitution=0.5,
+                                           contact_arms=False),
                       lambda: dict(control=_servo())),
-    "linear_shear": (lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7, tangential_damping=True),
+    "linear_shear": (lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7, tangential_damping=True,
+                                            contact_arms=False),
                      lambda: dict(control=StrainRate([[0.0, 0.2], [0.0, 0.0]]))),
-    "linear_fused": (lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3), lambda: dict(fuse=True)),
+    "linear_fused": (lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3, contact_arms=False), lambda: dict(fuse=True)),
 }
 STEPS = 400
 FIELDS = ref.FIELDS + ("L",)

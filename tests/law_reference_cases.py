@@ -20,12 +20,14 @@ RHO = 1.0 / (np.pi * R * R)
 CASES = {
     "frictionless": lambda: Frictionless(kn=1e4),
     "frictionless_e": lambda: Frictionless(kn=1e4, restitution=0.6),
-    "linear": lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3),
-    "linear_e": lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7),
+    # contact_arms=False: the recorded kernels took the radii as spin arms
+    "linear": lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3, contact_arms=False),
+    "linear_e": lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7, contact_arms=False),
     "linear_e_tdamp": lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7,
-                                             tangential_damping=True),
-    "hertz": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02),
-    "hertz_e": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, kt_ratio=0.5, restitution=0.5),
+                                             tangential_damping=True, contact_arms=False),
+    "hertz": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, contact_arms=False),
+    "hertz_e": lambda: HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, kt_ratio=0.5, restitution=0.5,
+                                    contact_arms=False),
 }
 STEPS = 400
 FIELDS = ("x", "v", "omega", "theta", "h", "nl_ft", "ids")
