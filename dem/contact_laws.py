@@ -7,9 +7,9 @@ Conventions (2D, per unit thickness; any consistent units, e.g. SI: forces [N/m]
 * overlap ``delta = r_i + r_j - |l|`` (> 0 in contact);
 * force on j ``F = fn n + ft t`` (fn > 0 repulsive), on i ``-F``; torques on i and j ``-a_i ft`` and
   ``-a_j ft`` with the spin arms ``a``: the distances to the contact point
-  ``a_i = |l| r_i / (r_i + r_j)`` (``contact_arms=True``, the default of this project's laws, as
-  :mod:`microhom.kinematics`) or the radii ``a = r`` (``contact_arms=False``, LAMMPS ``gran/*``
-  and :class:`LammpsHookeHistory`);
+  ``a_i = |l| r_i / (r_i + r_j)`` (``contact_arms=True``, as :mod:`microhom.kinematics`) or the
+  radii ``a = r`` (``contact_arms=False``, the default, as LAMMPS ``gran/*`` and
+  :class:`LammpsHookeHistory`);
 * relative velocity of j's contact point w.r.t. i's: ``dv = v_j - v_i + L l - (w_i a_i + w_j a_j) t``
   (fluctuation velocities plus the affine field of the cell);
 * tangential history (this project's rule, :class:`~dem.contact_models.LinearHistory`): a scalar
@@ -165,16 +165,16 @@ class LinearFriction(_Composed):
         If True the same dashpot also acts on the tangential relative velocity (the Coulomb cap
         applies to the total tangential force).
     contact_arms : bool
-        Spin arms: True (default) the distances to the contact point ``|l| r_i / (r_i + r_j)``,
-        as the exact stiffness (:mod:`microhom.kinematics`) takes them, so that a rigid rotation
-        slides no contact; False the radii, as LAMMPS ``gran/*`` (see ``docs/dem.md``).
+        Spin arms: False (default) the radii, as LAMMPS ``gran/*``; True the distances to the
+        contact point ``|l| r_i / (r_i + r_j)``, as the exact stiffness (:mod:`microhom.kinematics`)
+        takes them, so that a rigid rotation slides no contact (see ``docs/dem.md``).
     """
     kn: float
     kt: float
     mu: float
     restitution: float | None = None
     tangential_damping: bool = False
-    contact_arms: bool = True
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hooke(self.kn), _viscous(self.restitution, self.tangential_damping),
@@ -205,14 +205,14 @@ class HertzMindlin(_Composed):
     restitution : float or None
         Coefficient of restitution ``e`` in (0, 1] of a viscous normal dashpot; None: no damping.
     contact_arms : bool
-        Spin arms, as in :class:`LinearFriction` (default True: distances to the contact point).
+        Spin arms, as in :class:`LinearFriction` (default False: the radii).
     """
     kh: float
     mu: float
     delta_ref: float
     kt_ratio: float = 2.0 / 3.0
     restitution: float | None = None
-    contact_arms: bool = True
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hertz(self.kh, self.delta_ref), _viscous(self.restitution),
@@ -239,7 +239,7 @@ class HertzRolling(_Composed):
     kr_ratio : float
         Rolling stiffness in units of ``k_n(delta) R_eff^2`` (default 0.25).
     contact_arms : bool
-        Spin arms, as in :class:`LinearFriction` (default True: distances to the contact point).
+        Spin arms, as in :class:`LinearFriction` (default False: the radii).
     """
     kh: float
     mu: float
@@ -248,7 +248,7 @@ class HertzRolling(_Composed):
     kr_ratio: float = 0.25
     kt_ratio: float = 2.0 / 3.0
     restitution: float | None = None
-    contact_arms: bool = True
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hertz(self.kh, self.delta_ref), _viscous(self.restitution),
@@ -365,9 +365,6 @@ _LAWS = {c.__name__: c for c in (Frictionless, LinearFriction, HertzMindlin, Her
                                  LammpsHookeHistory, ContactLaw)}
 
 
-_ARMS_DEFAULT_CHANGED = ("LinearFriction", "HertzMindlin", "HertzRolling")
-
-
 def law_from_meta(meta: dict):
     """Rebuild a law from its ``to_meta()`` dict (used by checkpoints)."""
     meta = dict(meta)
@@ -376,7 +373,4 @@ def law_from_meta(meta: dict):
         raise ValueError(f"unknown contact law {kind!r} (known: {sorted(_LAWS)})")
     if kind == "ContactLaw":
         meta = {role: cm.SUBMODELS[m.pop("model")](**m) for role, m in ((r, dict(v)) for r, v in meta.items())}
-    elif kind in _ARMS_DEFAULT_CHANGED:
-        # checkpoints written before the spin arms were a choice ran with the radii
-        meta.setdefault("contact_arms", False)
     return _LAWS[kind](**meta)

@@ -235,28 +235,28 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
 
 @njit(cache=True)
 def _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
-    """As :func:`_carry_history` for an old list still ordered by i (no re-ordering since it was
-    built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
-    written) if the old list is not ordered by i."""
+    """As :func:`_carry_history` for an old list still ordered by (i, j) (no re-ordering since it
+    was built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
+    written) if the old list is not ordered by (i, j)."""
     for q in range(1, oi.shape[0]):
-        if oi[q] < oi[q - 1]:
+        if oi[q] < oi[q - 1] or (oi[q] == oi[q - 1] and oj[q] < oj[q - 1]):
             return False
     nk = ft.shape[1]
-    q0 = 0
+    q = 0
     nold = oi.shape[0]
     for p in range(pi.shape[0]):
+        # both lists are ordered by (i, j): advance the old one to the first pair >= (i, j)
         i = pi[p]
-        while q0 < nold and oi[q0] < i:
-            q0 += 1
-        q = q0
-        while q < nold and oi[q] == i:
-            j = oj[q]
-            if j == pj[p] and osh[q, 0] + k[j, 0] - k[i, 0] == ps[p, 0] \
-                    and osh[q, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
-                for c in range(nk):
-                    ft[p, c] = oft[q, c]
-                break
+        j = pj[p]
+        while q < nold and (oi[q] < i or (oi[q] == i and oj[q] < j)):
             q += 1
+        r = q
+        while r < nold and oi[r] == i and oj[r] == j:
+            if osh[r, 0] + k[j, 0] - k[i, 0] == ps[p, 0] and osh[r, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
+                for c in range(nk):
+                    ft[p, c] = oft[r, c]
+                break
+            r += 1
     return True
 
 

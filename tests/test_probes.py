@@ -99,12 +99,12 @@ def test_rigid_rotation_of_a_frictionless_packing():
 
 
 def test_rigid_rotation_of_a_frictional_packing():
-    """With the spin arms at the contact point (the default of LinearFriction) a rigid rotation w of
-    an overlapping frictional packing only rotates the stress (error O(w^2)). With the radii as arms
-    (LAMMPS gran/*: contact_arms=False) the spins cannot cancel every tangential slip and the
-    stress error is O(w * overlap / r) (0.08 w p here)."""
+    """With the spin arms at the contact point (contact_arms=True, as microhom.kinematics) a rigid
+    rotation w of an overlapping frictional packing only rotates the stress (error O(w^2)). With
+    the radii as arms (the default, as LAMMPS gran/*) the spins cannot cancel every tangential
+    slip and the stress error is O(w * overlap / r) (0.08 w p here)."""
     res = pack(200, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.5, mu_prep=0.02, seed=5)
-    assert res.law.contact_arms
+    assert not res.law.contact_arms
     w = 1e-5
     rot = np.array([[0.0, -w], [w, 0.0]])
     errors = {}
