@@ -13,8 +13,6 @@ tests/engine_reference_cases.py``), never with the code under test.
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import law_reference_cases as ref  # noqa: E402
@@ -58,18 +56,5 @@ def run_case(name):
     return st, sim.out.copy(), sim.n_rebuilds
 
 
-def record(path):
-    data = {}
-    for name in CASES:
-        st, out, nreb = run_case(name)
-        for f in FIELDS:
-            a = getattr(st, f)
-            if a is not None:
-                data[f"{name}/{f}"] = a
-        data[f"{name}/out"] = out
-        data[f"{name}/n_rebuilds"] = np.array(nreb)
-    np.savez_compressed(path, **data)
-
-
 if __name__ == "__main__":
-    record(Path(__file__).resolve().parent / "data" / "engine_reference.npz")
+    ref.record(Path(__file__).resolve().parent / "data" / "engine_reference.npz", CASES, run_case, FIELDS)

@@ -58,11 +58,15 @@ def run_case(name):
     return st, sim.out.copy(), sim.n_rebuilds
 
 
-def record(path):
+def record(path, cases=None, run=None, fields=FIELDS):
+    """Run every case (default: this module's ``CASES`` with :func:`run_case`) and save the final
+    ``fields`` of the state, the last ``out`` and the number of builds to ``path``."""
+    cases = CASES if cases is None else cases
+    run = run_case if run is None else run
     data = {}
-    for name in CASES:
-        st, out, nreb = run_case(name)
-        for f in FIELDS:
+    for name in cases:
+        st, out, nreb = run(name)
+        for f in fields:
             a = getattr(st, f)
             if a is not None:
                 data[f"{name}/{f}"] = a
@@ -73,3 +77,18 @@ def record(path):
 
 if __name__ == "__main__":
     record("tests/data/law_reference.npz")
+
+
+def assert_reproduces(reference, name, run, fields=FIELDS):
+    """Run case ``name`` with ``run`` and check the final state, ``out`` and the number of builds
+    against the recorded ``reference`` (an ``np.load`` of a :func:`record` file), bit for bit."""
+    st, out, nreb = run(name)
+    assert nreb == int(reference[f"{name}/n_rebuilds"])
+    for f in fields:
+        key = f"{name}/{f}"
+        a = getattr(st, f)
+        if key not in reference.files:
+            assert a is None, f
+            continue
+        assert np.array_equal(a, reference[key]), f"{name}: {f} differs from the recorded trajectory"
+    assert np.array_equal(out, reference[f"{name}/out"])

@@ -19,16 +19,7 @@ REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "law_refere
 
 @pytest.mark.parametrize("name", list(ref.CASES))
 def test_composed_laws_reproduce_the_old_kernels_bit_for_bit(name):
-    st, out, nreb = ref.run_case(name)
-    assert nreb == int(REF[f"{name}/n_rebuilds"])
-    for f in ref.FIELDS:
-        key = f"{name}/{f}"
-        a = getattr(st, f)
-        if key not in REF.files:
-            assert a is None, f
-            continue
-        assert np.array_equal(a, REF[key]), f"{name}: {f} differs from the recorded trajectory"
-    assert np.array_equal(out, REF[f"{name}/out"])
+    ref.assert_reproduces(REF, name, ref.run_case)
 
 
 @pytest.mark.parametrize("name", ["frictionless_e", "linear_e_tdamp", "hertz_e"])
@@ -186,16 +177,7 @@ ENGINE_REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "eng
 def test_engine_refactors_reproduce_the_recorded_runs_bit_for_bit(name):
     """The LAMMPS law, rolling resistance, a sheared cell and the fused kick against runs recorded
     with the engine before the throughput refactors (tests/engine_reference_cases.py)."""
-    st, out, nreb = eref.run_case(name)
-    assert nreb == int(ENGINE_REF[f"{name}/n_rebuilds"])
-    for f in eref.FIELDS:
-        key = f"{name}/{f}"
-        a = getattr(st, f)
-        if key not in ENGINE_REF.files:
-            assert a is None, f
-            continue
-        assert np.array_equal(a, ENGINE_REF[key]), f"{name}: {f} differs from the recorded trajectory"
-    assert np.array_equal(out, ENGINE_REF[f"{name}/out"])
+    ref.assert_reproduces(ENGINE_REF, name, eref.run_case, eref.FIELDS)
 
 
 def test_contact_arms_torque_and_slip_closed_form():
