@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .kinematics import Assembly, affine_tensor, assemble, stress0
+from .multilevel import amg_preconditioner
 from .network import ContactNetwork
 from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
@@ -141,6 +142,11 @@ class HierarchyResult(Result):
         Pre-stress terms included (geometric stiffness and the Cauchy-increment correction).
     assembly_time, solve_time, bound_time : float
         Wall times [s].
+    preconditioner : str
+        ``"amg"`` (smoothed-aggregation multilevel, ``microhom.multilevel``) or ``"block"``
+        (particle-block Jacobi ``M``: order k = the relaxation k contact shells carry).
+    preconditioner_time : float
+        Wall time of the preconditioner's setup [s] (included in ``solve_time``).
     """
 
     K: Estimate
@@ -175,6 +181,8 @@ class HierarchyResult(Result):
     assembly_time: float
     solve_time: float
     bound_time: float
+    preconditioner: str = "block"
+    preconditioner_time: float = 0.0
 
     @property
     def valid(self) -> bool:
@@ -184,7 +192,7 @@ class HierarchyResult(Result):
     def summary(self) -> str:
         """One line of text: order, tolerance met or not, K and G with their intervals [N/m]."""
         lo = lambda e: "n/a" if e.lower is None else f"{e.lower:.6g}"  # noqa: E731
-        return (f"hierarchy (order {self.order}, {self.n_moments} moments, tol {self.tol:g}, "
+        return (f"hierarchy ({self.preconditioner}, order {self.order}, {self.n_moments} moments, tol {self.tol:g}, "
                 f"{'met' if self.converged else 'NOT met'}): K = {self.K.value:.6g} "
                 f"[{lo(self.K)}, {self.K.upper:.6g}] +- {self.K.error:.2g}, G = {self.G.value:.6g} "
                 f"[{lo(self.G)}, {self.G.upper:.6g}] +- {self.G.error:.2g}"
@@ -456,7 +464,8 @@ def _extrapolate(seq):
 # ---- main entry ------------------------------------------------------------------------------
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = 1e-2,
                          max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
-                         min_contacts=None, reorthogonalize="auto") -> HierarchyResult:
+                         min_contacts=None, reorthogonalize="auto",
+                         preconditioner: str = "amg") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     Parameters
@@ -484,6 +493,13 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         H-conjugate each new search block against all earlier ones (True), only the
         last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000
         unknowns: exact-arithmetic behaviour when runs go to convergence on small systems).
+    preconditioner : {"amg", "block"}
+        Preconditioner of the conjugate gradients. "amg" (default): smoothed-aggregation
+        multilevel (``microhom.multilevel``), converges in a few steps even near isostaticity.
+        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block), for which
+        order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
+        section 9). The bounds are rigorous with either; the lower bound and the first-order
+        estimate always use ``M``.
 
     Returns
     -------
@@ -508,6 +524,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         user_lam = float(spectral_bound)
         if not (np.isfinite(user_lam) and user_lam > 0):
             raise ValueError(f"spectral_bound must be a positive finite float, got {spectral_bound!r}")
+    if preconditioner not in ("amg", "block"):
+        raise ValueError(f"preconditioner must be 'amg' or 'block', got {preconditioner!r}")
     if prestress and network.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network (ContactNetwork.fn)")
 
@@ -560,13 +578,18 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     converged = False
     order = 0
     n_floppy = 0
+    t_prec = 0.0
     if trivial:
         # nothing to relax (affine network, e.g. a perfect triangular lattice): exact at order 0
         lowers[0] = C0.copy()
         converged = True
     else:
         full = asm.ndof <= 50_000 if reorthogonalize == "auto" else bool(reorthogonalize)
-        cg = _BlockPCG(asm.H, M, Minv, B, full=full)
+        P = Minv
+        if preconditioner == "amg":
+            P, info = amg_preconditioner(asm)
+            t_prec = info.setup_time
+        cg = _BlockPCG(asm.H, M, P, B, full=full)
         for order in range(1, int(max_order) + 1):
             cg.step()
             if cg.unstable:
@@ -575,7 +598,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                 break
             C = _tensor(C_aff, cg.Rk, area, corr)
             Cs.append(C)
-            lowers.append(_lower(C, cg, lam, lam_hi, area) if lam is not None else None)
+            lowers.append(_lower(C, cg, Minv, lam, lam_hi, area) if lam is not None else None)
             if _met(C, lowers[-1], tol, Cs):
                 converged = True
                 break
@@ -623,24 +646,27 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         reasons=tuple(reasons), unstable=bool(unstable), empty=bool(empty), n_floppy_directions=int(n_floppy),
         n_dof=int(asm.ndof), n_rattlers=int(asm.rattlers.sum()), n_particles=network.n_particles,
         n_contacts=asm.net.n_contacts, prestress=bool(prestress), assembly_time=t_asm,
-        solve_time=t_solve, bound_time=t_bound)
+        solve_time=t_solve, bound_time=t_bound,
+        preconditioner=preconditioner if not trivial else "none", preconditioner_time=t_prec)
 
 
-def _lower(C, cg, lam, lam_hi, area):
+def _lower(C, cg, Minv, lam, lam_hi, area):
     """Rigorous lower bound of C from the residual ``Res`` of the iterate (docs/theory.md, sec. 9).
 
-    With ``m0 = Res^T M^-1 Res``, ``m1 = Z^T H Z`` (``Z = M^-1 Res``) and the spectrum of the
+    With ``m0 = Res^T M^-1 Res``, ``m1 = Z^T H Z`` (``Z = M^-1 Res``, ``M`` the particle-block
+    diagonal whatever preconditioner produced the iterate) and the spectrum of the
     pencil (H, M) on range(H) inside ``[a, b]``: ``Res^T H^+ Res <= ((a + b) m0 - m1)/(a b)``
     (the chord of the convex 1/lambda over the residual's spectral measure); ``b = inf`` gives
     the plain residual bound ``m0 / a``.
     """
     if C is None or cg is None:
         return None
-    m0 = cg.R.T @ cg.Z
+    Z = Minv @ cg.R
+    m0 = cg.R.T @ Z
     m0 = 0.5 * (m0 + m0.T)
     if lam_hi is None or not np.isfinite(lam_hi):
         return C - m0 / (lam * area)
-    m1 = cg.Z.T @ (cg.H @ cg.Z)
+    m1 = Z.T @ (cg.H @ Z)
     m1 = 0.5 * (m1 + m1.T)
     return C - ((lam + lam_hi) * m0 - m1) / (lam * lam_hi * area)
 
