@@ -357,7 +357,10 @@ def test_block_cg_recurrence_without_reorthogonalisation(packing):
     one over a few tens of steps, and its upper bounds hold (energy form, valid for any iterate)."""
     a = relaxation_hierarchy(packing, tol=1e-12, max_order=24, reorthogonalize=True, spectral_bound="none")
     b = relaxation_hierarchy(packing, tol=1e-12, max_order=24, reorthogonalize=False, spectral_bound="none")
-    assert np.allclose(a.G_orders, b.G_orders, rtol=1e-6) and np.allclose(a.K_orders, b.K_orders, rtol=1e-6)
+    n = min(a.order, b.order) + 1          # both stop when the tolerance is met; compare the common orders
+    assert n >= 6
+    assert np.allclose(a.G_orders[:n], b.G_orders[:n], rtol=1e-6)
+    assert np.allclose(a.K_orders[:n], b.K_orders[:n], rtol=1e-6)
     ex = stiffness(packing)
     assert np.all(b.G_orders >= ex.G * (1 - 1e-10)) and np.all(b.K_orders >= ex.K * (1 - 1e-10))
 
