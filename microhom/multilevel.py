@@ -34,13 +34,14 @@ import scipy.sparse.linalg as sla
 from .kinematics import Assembly
 from .results import Result
 
-__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo"]
+__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout"]
 
 _SHIFT = 1e-10        # H + shift * mean(diag H) * I: removes the two global translations (pin=False)
 
 
-def _layout(asm: Assembly):
-    """(particle, component) of every reduced unknown; component 0, 1 = translation x, y, 2 = spin."""
+def dof_layout(asm: Assembly):
+    """(particle, component), two (ndof,) int arrays: the particle of every reduced unknown and its
+    component (0, 1 = translation x, y; 2 = spin)."""
     N = asm.net.n_particles
     full = np.flatnonzero(asm.dof_map >= 0)
     red = asm.dof_map[full]
@@ -57,7 +58,7 @@ def near_null_space(asm: Assembly) -> np.ndarray:
     translation y, rigid rotation ``(-y, x)`` with unit spin, unit spin alone [m for the rotation's
     translation entries, 1 otherwise]. Positions are those of the network (inside the cell); zero
     columns (no spins) are dropped."""
-    part, comp = _layout(asm)
+    part, comp = dof_layout(asm)
     x = np.asarray(asm.net.positions, dtype=float)[part]
     B = np.zeros((asm.ndof, 4))
     B[comp == 0, 0] = 1.0
@@ -114,7 +115,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
         raise ValueError(f"sweeps must be an integer in [1, 10], got {sweeps!r}")
     t0 = time.perf_counter()
     n = asm.ndof
-    part, comp = _layout(asm)
+    part, comp = dof_layout(asm)
     order = np.lexsort((comp, part))                     # particle-major: (x, y, spin) per particle
     inv = np.empty_like(order)
     inv[order] = np.arange(n)

@@ -1,12 +1,14 @@
 """The relaxation hierarchy against closed forms, the exact solver (dem.stiffness, a separate
 factorisation) and dense linear algebra; its bound properties; bad input."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from dem.packing import pack
 from dem.stiffness import stiffness
 from microhom import lattices
-from microhom.hierarchy import (block_preconditioner, isotropic_weights, moments,
+from microhom.hierarchy import (block_preconditioner, lowest_modes, isotropic_weights, moments,
                                 relaxation_hierarchy, spectral_lower_bound)
 from microhom.kinematics import assemble
 from microhom.network import ContactNetwork, from_overlaps
@@ -386,3 +388,33 @@ def test_two_moment_lower_bound_is_tighter_and_holds():
     assert K_plain <= h.K_lower_orders[6] <= ex.K
     assert h.G_lower_orders[6] <= ex.G
     assert np.allclose(plain.K_lower_orders, h.K_lower_orders, equal_nan=True)
+
+
+def test_stability_check_finds_the_buckling_mode():
+    """The honeycomb under a large contact force buckles (see test_unstable_prestress_is_flagged):
+    with the dense check off, the LOBPCG search finds a negative Rayleigh quotient (a proof), and its
+    lowest value agrees with the dense pencil spectrum. A stable packing is not flagged, and its
+    lowest estimate is an upper estimate of the dense minimum."""
+    net = lattices.honeycomb(6, 4, kt=0.5, angle=0.1)
+    net = replace(net, fn=np.full(net.n_contacts, 0.3))
+    asm = assemble(net, prestress=True, pin=False)
+    M, _, Msq, _ = block_preconditioner(asm)
+    A = (Msq @ asm.H @ Msq).toarray()
+    dense = np.linalg.eigvalsh(0.5 * (A + A.T))
+    assert dense.min() < -1e-3
+    rq, lam = lowest_modes(asm)
+    assert lam == pytest.approx(dense.min(), rel=1e-6)
+    h = relaxation_hierarchy(net, prestress=True, spectral_bound="none", check_stability=True)
+    assert h.unstable and not h.valid and any("negative eigenvalue" in r for r in h.reasons)
+
+
+def test_stability_check_passes_a_stable_packing(packing):
+    asm = assemble(packing, prestress=True, pin=False)
+    M, _, Msq, _ = block_preconditioner(asm)
+    A = (Msq @ asm.H @ Msq).toarray()
+    w = np.linalg.eigvalsh(0.5 * (A + A.T))
+    pos = w[w > 1e-9 * w.max()]
+    rq, lam = lowest_modes(asm)
+    assert lam >= pos.min() * (1 - 1e-8) and lam == pytest.approx(pos.min(), rel=1e-3)
+    h = relaxation_hierarchy(packing, prestress=True, spectral_bound="none", check_stability=True)
+    assert not h.unstable
