@@ -51,6 +51,7 @@ __all__ = ["Estimate", "HierarchyResult", "relaxation_hierarchy", "block_precond
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
 _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy direction, dropped
 _CHUNK = 48          # columns per storage chunk of the re-orthogonalisation basis
+SOFT_MODES_AUTO_MAX = 20_000   # soft_modes="auto": search 3 soft modes up to this many unknowns
 _FAST_RATIO = 0.3     # increment ratios below this: geometric convergence, geometric tail (k >= 4)
 _ZERO_EIG = 1e-9      # pencil eigenvalues below this fraction of the largest are floppy modes
 
@@ -150,6 +151,8 @@ class HierarchyResult(Result):
         (particle-block Jacobi ``M``: order k = the relaxation k contact shells carry).
     preconditioner_time : float
         Wall time of the preconditioner's setup [s] (included in ``solve_time``).
+    n_soft_modes : int
+        Soft modes deflated (``soft_modes`` > 0): their span augments every order's space.
     """
 
     K: Estimate
@@ -186,6 +189,7 @@ class HierarchyResult(Result):
     bound_time: float
     preconditioner: str = "block"
     preconditioner_time: float = 0.0
+    n_soft_modes: int = 0
 
     @property
     def valid(self) -> bool:
@@ -283,7 +287,8 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     return (out[0], hi, out[1], out[2]) if return_max else out
 
 
-def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40, seed: int = 0):
+def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40, seed: int = 0,
+                 return_vectors: bool = False):
     """Lowest eigenvalues of the pencil ``(H, M)`` by LOBPCG, the two global translations deflated.
 
     LOBPCG runs twice, preconditioned by the multilevel V-cycle ``P`` (default
@@ -291,8 +296,9 @@ def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40
     however indefinite ``H`` is: it finds strongly negative modes the V-cycle of an indefinite
     ``H`` cannot), and the Ritz vectors of both are kept.
 
-    Returns (rq, lam): ``rq`` (2k,) the exact Rayleigh quotients ``v^T H v / v^T M v`` of the Ritz
-    vectors, sorted [-], ``lam`` the smallest. A negative ``rq`` *proves* that ``H`` has a negative
+    Returns (rq, lam), or (rq, lam, V) with ``return_vectors``: ``rq`` (2k,) the exact Rayleigh
+    quotients ``v^T H v / v^T M v`` of the Ritz vectors, sorted [-], ``lam`` the smallest, ``V``
+    (ndof, 2k) the Ritz vectors in the same order. A negative ``rq`` *proves* that ``H`` has a negative
     eigenvalue (the network is not stable); a positive ``lam`` estimates the smallest non-zero
     eigenvalue from above (not a certified lower bound: LOBPCG may miss a lower one). About 2 s for
     8000 unknowns.
@@ -308,15 +314,18 @@ def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40
     Y[comp == 0, 0] = 1.0
     Y[comp == 1, 1] = 1.0
     Y = Y[:, Y.any(axis=0)] if asm.pinned < 0 else None
-    rq = []
+    rq, Vs = [], []
     for prec in (P, Minv):
         X = np.random.default_rng(seed).standard_normal((n, k))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # LOBPCG warns when it stops at maxiter: expected here
             _, V = sla.lobpcg(asm.H, X, B=M, M=prec, Y=Y, largest=False, maxiter=int(maxiter), tol=1e-12)
         rq.append(np.einsum("ij,ij->j", V, asm.H @ V) / np.einsum("ij,ij->j", V, M @ V))
-    rq = np.sort(np.concatenate(rq))
-    return rq, float(rq[0])
+        Vs.append(V)
+    rq, V = np.concatenate(rq), np.hstack(Vs)
+    order = np.argsort(rq)
+    rq, V = rq[order], V[:, order]
+    return (rq, float(rq[0]), V) if return_vectors else (rq, float(rq[0]))
 
 
 def moments(asm: Assembly, e, j_max=3, Minv=None):
@@ -360,7 +369,7 @@ class _BlockPCG:
     ``B^T H^+ B`` for any ``X`` when ``H >= 0``.
     """
 
-    def __init__(self, H, M, Minv, B, full=True):
+    def __init__(self, H, M, Minv, B, full=True, deflate=None):
         # H is symmetric: its transpose is the CSR form of the same matrix, without a copy
         self.H = H.T if sp.isspmatrix_csc(H) else H.tocsr()
         self.M, self.Minv, self.full = M, Minv, full
@@ -368,25 +377,43 @@ class _BlockPCG:
         self.B = B
         self.X = np.zeros_like(B)
         self.R = B.copy()
-        self.Z = Minv @ self.R
-        self.P = self.Z.copy()
-        zz = np.einsum("ij,ij->j", self.Z, self.R)
+        z0 = Minv @ self.R
+        zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
         self.Rk = np.zeros((B.shape[1], B.shape[1]))
         self._chunks = []                                # earlier H-orthonormal blocks and H times them
+        self._deflation = []                             # soft modes: conjugated against at every step
         self.unstable = False
         self.n_floppy = 0
+        self.n_deflated = 0
         self.done = False
+        if deflate is not None and deflate.shape[1]:
+            # augmented Krylov space: span(V) first (deflated CG); kept in every later conjugation
+            got = self._take(np.asfortranarray(deflate, dtype=float), scale2=1.0)
+            if got is not None:
+                self._deflation.append(got)
+                self.n_deflated = got[0].shape[1]
+        self.Z = Minv @ self.R if self.n_deflated else z0
+        self.P = self.Z.copy()
 
     def step(self):
-        P = self.P
+        got = self._take(self.P)
+        if got is None:
+            return
+        self._append(*got)
+        self.Z = self.Minv @ self.R
+        self.P = self.Z
+
+    def _take(self, P, scale2=None):
+        """Conjugate, M- and H-orthonormalise the block ``P`` and move the iterate along it.
+        Returns (P, HP) H-orthonormal, or None (converged, floppy only, or negative curvature)."""
         P = self._conjugate(P)                           # full H-conjugation (re-orthogonalisation)
         Gm = P.T @ (self.M @ P)
         wm, Vm = np.linalg.eigh(0.5 * (Gm + Gm.T))
-        keep = wm > max(1e-24 * self.scale2, 1e-12 * wm.max(initial=0.0))
+        keep = wm > max(1e-24 * (self.scale2 if scale2 is None else scale2), 1e-12 * wm.max(initial=0.0))
         if not keep.any():
             self.done = True                              # converged: no new direction
-            return
+            return None
         P = _tall(P, Vm[:, keep] / np.sqrt(wm[keep]))   # M-orthonormal
         HP = self.H @ P
         Gh = P.T @ HP
@@ -394,22 +421,20 @@ class _BlockPCG:
         if np.any(wh < -_NEG_CURV):
             self.unstable = True
             self.done = True
-            return
+            return None
         ok = wh > _NULL_CURV
         self.n_floppy += int(np.count_nonzero(~ok))
         if not ok.any():
             self.done = True
-            return
+            return None
         T = Uh[:, ok] / np.sqrt(wh[ok])                  # P T is H-orthonormal
         P, HP = _tall(P, T), _tall(HP, T)
-        self._append(P, HP)
         alpha = P.T @ self.R
         self.X += _tall(P, alpha)
         self.R -= _tall(HP, alpha)
         R = self.B.T @ self.X + self.X.T @ self.R        # 2 B^T X - X^T H X  (H X = B - R)
         self.Rk = 0.5 * (R + R.T)
-        self.Z = self.Minv @ self.R
-        self.P = self.Z
+        return P, HP
 
     def _append(self, P, HP):
         """Store the block in fixed-size column chunks (no re-allocation, no copies); without full
@@ -427,7 +452,10 @@ class _BlockPCG:
         c[2] += s
 
     def _conjugate(self, P):
-        """``P - sum_j P_j (HP_j^T P)`` over every stored block (full H-conjugation)."""
+        """``P - sum_j P_j (HP_j^T P)`` over every stored block (full H-conjugation) and the
+        deflated soft modes."""
+        for Pc, HPc in self._deflation:
+            P = P - _tall(Pc, HPc.T @ P)
         for Pc, HPc, m in self._chunks:
             P = P - _tall(Pc[:, :m], HPc[:, :m].T @ P)
         return P
@@ -504,7 +532,7 @@ def _extrapolate(seq):
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = 1e-2,
                          max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
                          min_contacts=None, reorthogonalize="auto",
-                         preconditioner: str = "amg", check_stability: bool = False) -> HierarchyResult:
+                         preconditioner: str = "amg", soft_modes="auto") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     Parameters
@@ -539,11 +567,15 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
         section 9). The bounds are rigorous with either; the lower bound and the first-order
         estimate always use ``M``.
-    check_stability : bool
-        Also search the lowest modes of the pencil (H, M) (:func:`lowest_modes`, LOBPCG with the
-        multilevel preconditioner; about 1 s for 8000 unknowns) when the dense check does not run:
-        a negative Rayleigh quotient proves that the (pre-stressed) network is unstable, and the
-        result is flagged ``unstable`` with the eigenvalue. Finding none is not a proof of stability.
+    soft_modes : int or "auto"
+        Number of lowest modes of the pencil (H, M) to search per preconditioner (:func:`lowest_modes`,
+        LOBPCG; 0..50), or "auto" (default): 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for
+        1000-8000 unknowns), 0 above (then ``reasons`` says that the stated error is not guarded).
+        A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
+        result is flagged ``unstable`` with the eigenvalue (finding none is not a proof of
+        stability). The soft modes found are deflated: the CG space is augmented with them, so that
+        a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
+        extrapolation would take for convergence (docs/results/hierarchy.md, the sweep).
 
     Returns
     -------
@@ -568,6 +600,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         user_lam = float(spectral_bound)
         if not (np.isfinite(user_lam) and user_lam > 0):
             raise ValueError(f"spectral_bound must be a positive finite float, got {spectral_bound!r}")
+    if not (soft_modes == "auto" or (isinstance(soft_modes, (int, np.integer)) and 0 <= soft_modes <= 50)):
+        raise ValueError(f"soft_modes must be 'auto' or an integer in [0, 50], got {soft_modes!r}")
     if preconditioner not in ("amg", "block"):
         raise ValueError(f"preconditioner must be 'amg' or 'block', got {preconditioner!r}")
     if prestress and network.fn is None:
@@ -614,11 +648,17 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     t_bound = time.perf_counter() - tb
     unstable = n_neg_dense > 0
     P_amg = None
-    lam_est = None
-    if check_stability and asm.ndof and src != "dense" and not unstable:
+    V_soft = None
+    if soft_modes == "auto":
+        soft_modes = 3 if asm.ndof <= SOFT_MODES_AUTO_MAX else 0
+        if not soft_modes:
+            reasons.append(f"soft modes not searched (ndof = {asm.ndof} > {SOFT_MODES_AUTO_MAX}; pass "
+                           "soft_modes=3): a near-mechanism plateau of CG could hide from the stated error")
+    if soft_modes and asm.ndof and not unstable:
         ts = time.perf_counter()
         P_amg, _ = amg_preconditioner(asm)
-        _, lam_est = lowest_modes(asm, M, P_amg)
+        rq, lam_est, V_soft = lowest_modes(asm, M, P_amg, k=int(soft_modes), return_vectors=True)
+        V_soft = V_soft[:, rq > _NULL_CURV]                  # floppy (zero) modes carry no load
         if lam_est < -_NEG_CURV:
             unstable = True
             reasons.append(f"negative eigenvalue {lam_est:.3g} of the pencil (H, M) found (a negative "
@@ -634,6 +674,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     order = 0
     n_floppy = 0
     t_prec = 0.0
+    n_soft = 0
     if trivial:
         # nothing to relax (affine network, e.g. a perfect triangular lattice): exact at order 0
         lowers[0] = C0.copy()
@@ -646,7 +687,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         elif preconditioner == "amg":
             P, info = amg_preconditioner(asm)
             t_prec = info.setup_time
-        cg = _BlockPCG(asm.H, M, P, B, full=full)
+        cg = _BlockPCG(asm.H, M, P, B, full=full, deflate=V_soft)
         for order in range(1, int(max_order) + 1):
             cg.step()
             if cg.unstable:
@@ -662,6 +703,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
             if cg.done:
                 break
         n_floppy = cg.n_floppy
+        n_soft = cg.n_deflated
     if unstable and not any("negative eigenvalue" in r for r in reasons):
         reasons.append("negative curvature: the pre-stressed network is not stable (H indefinite); "
                        "the bounds are void")
@@ -704,7 +746,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         n_dof=int(asm.ndof), n_rattlers=int(asm.rattlers.sum()), n_particles=network.n_particles,
         n_contacts=asm.net.n_contacts, prestress=bool(prestress), assembly_time=t_asm,
         solve_time=t_solve, bound_time=t_bound,
-        preconditioner=preconditioner if not trivial else "none", preconditioner_time=t_prec)
+        preconditioner=preconditioner if not trivial else "none", preconditioner_time=t_prec,
+        n_soft_modes=int(n_soft))
 
 
 def _lower(C, cg, Minv, lam, lam_hi, area):
