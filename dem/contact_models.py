@@ -667,6 +667,28 @@ NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, Fal
 KICK_BLOCK = 64
 
 
+@njit(cache=True, inline="always")
+def _kick_dof(F, vo, m, dtk, dt, damping, tally, e, w):
+    """One degree of freedom of :func:`kick_range` (a velocity component with its mass, or a spin
+    with its inertia): the new velocity ``vo + dtk (F + F_damp) / m`` with the Cundall damping
+    ``F_damp = -damping |F| sign(vo)``, and the running sums ``e`` (kinetic energy at the integer
+    time, if ``tally``) and ``w`` (damping work, if ``damping > 0``) updated."""
+    Fd = 0.0
+    if damping > 0.0:
+        if vo > 0.0:
+            Fd = -damping * abs(F)
+        elif vo < 0.0:
+            Fd = damping * abs(F)
+    vn = vo + dtk * (F + Fd) / m
+    if tally or damping > 0.0:
+        vm = 0.5 * (vo + vn)
+        if tally:
+            e += 0.5 * m * vm * vm
+        if damping > 0.0:
+            w += Fd * vm * dt
+    return vn, e, w
+
+
 @njit(cache=True)
 def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums):
     """Kick and drift particles lo..hi-1 (flat (2N,) views of x, v, f, x_ref), then their spins if
@@ -692,22 +714,7 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
     for k in range(lo, hi):
         m = mass[k]
         for c in range(2):
-            F = ff[2 * k + c]
-            vo = vf[2 * k + c]
-            Fd = 0.0
-            if damping > 0.0:
-                if vo > 0.0:
-                    Fd = -damping * abs(F)
-                elif vo < 0.0:
-                    Fd = damping * abs(F)
-            vn = vo + dtk * (F + Fd) / m
-            if tally or damping > 0.0:
-                vm = 0.5 * (vo + vn)
-                if tally:
-                    ke += 0.5 * m * vm * vm
-                if damping > 0.0:
-                    wd += Fd * vm * dt
-            vf[2 * k + c] = vn
+            vf[2 * k + c], ke, wd = _kick_dof(ff[2 * k + c], vf[2 * k + c], m, dtk, dt, damping, tally, ke, wd)
         x0 = xf[2 * k]
         x1 = xf[2 * k + 1]
         y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
@@ -723,21 +730,7 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
             d2m = d2
     if omega.shape[0] > 0:
         for k in range(lo, hi):
-            T = torque[k]
-            wo = omega[k]
-            Td = 0.0
-            if damping > 0.0:
-                if wo > 0.0:
-                    Td = -damping * abs(T)
-                elif wo < 0.0:
-                    Td = damping * abs(T)
-            wn = wo + dtk * (T + Td) / inertia[k]
-            if tally or damping > 0.0:
-                wm = 0.5 * (wo + wn)
-                if tally:
-                    ker += 0.5 * inertia[k] * wm * wm
-                if damping > 0.0:
-                    wdr += Td * wm * dt
+            wn, ker, wdr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping, tally, ker, wdr)
             omega[k] = wn
             theta[k] += dt * wn
     return d2m, ke, wd, ker, wdr
