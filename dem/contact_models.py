@@ -42,8 +42,8 @@ Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can
 (``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
 complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
 reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
-arithmetic per particle is that of :func:`kick_range`, in the same order, so fused and separate
-integration give bit-identical trajectories.
+arithmetic per particle is that of :func:`kick_drift` and :func:`kick_spin`, in the same order,
+so fused and separate integration give bit-identical trajectories.
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ from numba.extending import overload
 
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
-           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "make_pair_constants",
+           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "compact_list", "make_pair_constants",
            "kick_range", "kick_all", "SUBMODELS"]
 
 
@@ -93,6 +93,7 @@ tangential_force = _hook("tangential_force")
 rolling_torque = _hook("rolling_torque")
 force_magnitude = _hook("force_magnitude")
 history_slots = _hook("history_slots")
+spin_flag = _hook("spin_flag")
 
 
 def _implements(hook, *classes):
@@ -325,9 +326,9 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j,
-#                    fn, kn, ct, dt, torque) -> (ftx, fty, elastic energy)
-#   adds the torques of the tangential force itself; ``hist`` is the flat (P * nh,) history, the
+#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
+#                    fn, kn, ct, dt, ti, tj) -> (ftx, fty, elastic energy, ti, tj)
+#   adds the torques of the tangential force itself to ti, tj (torques on i and j); ``hist`` is the flat (P * nh,) history, the
 #   pair's slots start at nh * p.
 # --------------------------------------------------------------------------------------------------
 class NoTangential(NamedTuple):
@@ -353,11 +354,11 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-            torque):
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
-        return 0.0, 0.0, 0.0
+def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+            ti, tj):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
+        return 0.0, 0.0, 0.0, ti, tj
     return impl
 
 
@@ -391,7 +392,6 @@ class LinearHistory(NamedTuple):
         _check("mu", self.mu, 0.0)
         _check_bool("contact_arms", self.contact_arms)
 
-
     def dt_stiffness(self, normal):
         # rotational modes of disks (I = m r^2 / 2): z contacts resisting one rotation give
         # omega^2 = 4 z kt / m, hence 2 kt
@@ -417,7 +417,6 @@ class Mindlin(NamedTuple):
         _check("mu", self.mu, 0.0)
         _check_bool("contact_arms", self.contact_arms)
 
-
     def dt_stiffness(self, normal):
         return 2.0 * self.kt_ratio * normal.dt_stiffness()
 
@@ -439,13 +438,13 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
-                       kn, ct, dt, torque):
+def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, ti, tj):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
         tx = -ny
         ty = nx
         ai = ri
@@ -454,7 +453,7 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
             s = d / (ri + rj)
             ai = s * ri
             aj = s * rj
-        vt = dvx * tx + dvy * ty - (omega[i] * ai + omega[j] * aj)
+        vt = dvx * tx + dvy * ty - (wi * ai + wj * aj)
         if mindlin:
             kt = model.kt_ratio * kn
         else:
@@ -467,9 +466,9 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         U = 0.0
         if kt > 0.0:
             U = 0.5 * fs * fs / kt
-        torque[i] -= ai * ftot
-        torque[j] -= aj * ftot
-        return ftot * tx, ftot * ty, U
+        ti -= ai * ftot
+        tj -= aj * ftot
+        return ftot * tx, ftot * ty, U, ti, tj
     return impl
 
 
@@ -503,22 +502,22 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn,
-                       kn, ct, dt, torque):
+def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, ti, tj):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
     # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
     # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
     # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
     # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, omega, i, j, fn, kn, ct, dt,
-             torque):
+    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
+             ti, tj):
         kt = model.kt
         q = nh * p
         # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
         vt1 = dvx - nx * vn
         vt2 = dvy - ny * vn
-        ws = ri * omega[i] + rj * omega[j]
+        ws = ri * wi + rj * wj
         vtr1 = vt1 + ny * ws
         vtr2 = vt2 - nx * ws
         s1 = hist[q]
@@ -551,9 +550,9 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         hist[q] = s1
         hist[q + 1] = s2
         tor = nx * fs2 - ny * fs1
-        torque[i] -= ri * tor
-        torque[j] -= rj * tor
-        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2)
+        ti -= ri * tor
+        tj -= rj * tor
+        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ti, tj
     return impl
 
 
@@ -573,7 +572,7 @@ _implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(
 
 
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque)
+# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj)
 #   h0 = the first history slot of this sub-model; returns its elastic energy.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
@@ -591,9 +590,9 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-        return 0.0
+def _noroll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+        return 0.0, ti, tj
     return impl
 
 
@@ -619,23 +618,23 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
-    def impl(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
+def _roll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
+    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
         q = nh * p + h0
         reff = ri * rj / (ri + rj)
         kr = model.kr_ratio * kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu_r * reff * fc
-        m = hist[q] - kr * (omega[j] - omega[i]) * dt
+        m = hist[q] - kr * (wj - wi) * dt
         if abs(m) > lim:
             m = lim if m > 0.0 else -lim
         hist[q] = m
-        torque[j] += m
-        torque[i] -= m
+        tj += m
+        ti -= m
         U = 0.0
         if kr > 0.0:
             U = 0.5 * m * m / kr
-        return U
+        return U, ti, tj
     return impl
 
 
@@ -760,29 +759,82 @@ class Cell(NamedTuple):
 # --------------------------------------------------------------------------------------------------
 # the pair loop
 # --------------------------------------------------------------------------------------------------
+SHIFT_BITS = 4
+
+
 @njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hist, pc, cell, normal,
+def compact_list(pi, pj, ps):
+    """The Verlet list (ordered by ``pi``, ``pj > pi``, image shifts in {-1, 0, 1}) as the pair
+    loop reads it, 8 bytes per pair instead of 32: ``pi32`` (P,) int32 and ``jc`` (P,) int32
+    ``pj << SHIFT_BITS | code`` with ``code = 3 (s_a + 1) + (s_b + 1)``. Returns
+    ``(pi32, jc, ok)``, ``ok = False`` if the list is not ordered by ``pi`` (the fused kick needs
+    that order) or has a shift outside {-1, 0, 1}."""
+    m = pi.shape[0]
+    pi32 = np.empty(m, np.int32)
+    jc = np.empty(m, np.int32)
+    ok = True
+    for p in range(m):
+        i = pi[p]
+        if p > 0 and i < pi[p - 1]:
+            ok = False
+        sa = ps[p, 0]
+        sb = ps[p, 1]
+        if sa < -1 or sa > 1 or sb < -1 or sb > 1:
+            ok = False
+        pi32[p] = np.int32(i)
+        jc[p] = np.int32((pj[p] << SHIFT_BITS) | (3 * (sa + 1) + (sb + 1)))
+    return pi32, jc, ok
+
+
+@njit(cache=True, inline="always")
+def _image_offsets(h00, h01, h10, h11):
+    """(36,) per shift code: h00 s_a, h01 s_b, h10 s_a, h11 s_b (the branch is summed in this order)."""
+    o = np.empty(36)
+    for c in range(9):
+        sa = float(c // 3 - 1)
+        sb = float(c % 3 - 1)
+        o[4 * c] = h00 * sa
+        o[4 * c + 1] = h01 * sb
+        o[4 * c + 2] = h10 * sa
+        o[4 * c + 3] = h11 * sb
+    return o
+
+
+def _spin_flag(model, rolling):
+    flag = bool(_cls(model).SPIN) or _cls(rolling) is not NoRolling
+
+    def impl(model, rolling):
+        return flag
+    return impl
+
+
+_implements(spin_flag, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_spin_flag)
+
+
+@njit(cache=True)
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
                 damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, pj (P,), ps (P, 2) the Verlet list
-    (ordered by pi, pj > pi);
+    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, jc (P,) the Verlet list
+    (:func:`compact_list`: pairs ordered by i, j > i);
     hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
-    fused kick, ``acc`` (5,) =
-    (max non-affine displacement^2, translational KE, translational damping work, rotational KE,
-    rotational damping work).
+    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`.
+
+    One flat loop over the pairs: i's force is added to in memory pair by pair (summing it in
+    registers per block of i's pairs was measured slower: the block's end is a branch that the
+    processor mispredicts about once per particle).
     """
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    h00, h01, h10, h11 = cell.h00, cell.h01, cell.h10, cell.h11
+    off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
     f[:, :] = 0.0
     torque[:] = 0.0
     xf = x.reshape(-1)
     vf = v.reshape(-1)
     ff = f.reshape(-1)
-    psf = ps.reshape(-1)
     rf = x_ref.reshape(-1)
     s00 = 0.0
     s01 = 0.0
@@ -793,26 +845,27 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     U = 0.0
     kl2 = 0.0
     fused = kick.fused
+    spin = spin_flag(tangential, rolling)
     nh = history_slots(tangential, rolling)
     sums = (0.0, 0.0, 0.0, 0.0, 0.0)
     done = np.uint64(0)
     one = np.uint64(1)
     block = np.uint64(KICK_BLOCK)
-    for p in range(pj.shape[0]):
+    mask = np.uint32((1 << SHIFT_BITS) - 1)
+    for p in range(jc.shape[0]):
         # unsigned indices: numba then skips its negative-index wraparound on every access
-        i = np.uint64(pi[p])
+        i = np.uint64(np.uint32(pi[p]))
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
             sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
             done = i
-        j = np.uint64(pj[p])
+        c = np.uint32(jc[p])
+        j = np.uint64(c >> np.uint32(SHIFT_BITS))
+        o = np.uint64(4) * np.uint64(c & mask)
         i2 = i + i
         j2 = j + j
-        pp = np.uint64(p)
-        sa = psf[pp + pp]
-        sb = psf[pp + pp + one]
-        lx = xf[j2] + h00 * sa + h01 * sb - xf[i2]
-        ly = xf[j2 + one] + h10 * sa + h11 * sb - xf[i2 + one]
+        lx = xf[j2] + off[o] + off[o + one] - xf[i2]
+        ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xf[i2 + one]
         ri = radius[i]
         rj = radius[j]
         rs = ri + rj
@@ -830,9 +883,21 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
         fn, kn, Un = normal_force(normal, delta)
         vn = dvx * nx + dvy * ny
         fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-        ftx, fty, Ut = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri,
-                                        rj, omega, i, j, fn, kn, ct, dt, torque)
-        Ur = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, omega, i, j, fn, kn, dt, torque)
+        wi = 0.0
+        wj = 0.0
+        ti = 0.0
+        tj = 0.0
+        if spin:
+            wi = omega[i]
+            wj = omega[j]
+            ti = torque[i]
+            tj = torque[j]
+        ftx, fty, Ut, ti, tj = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
+                                                ny, ri, rj, wi, wj, fn, kn, ct, dt, ti, tj)
+        Ur, ti, tj = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, wi, wj, fn, kn, dt, ti, tj)
+        if spin:
+            torque[i] = ti
+            torque[j] = tj
         fx = fn * nx + ftx
         fy = fn * ny + fty
         ff[j2] += fx

@@ -81,6 +81,17 @@ def _resultants(f):
     return s, m
 
 
+def _compact(st):
+    """(pi32, jc) of the state's Verlet list (:func:`dem.contact_models.compact_list`)."""
+    if st.n >= 2 ** (31 - cm.SHIFT_BITS):
+        raise ValueError(f"at most {2 ** (31 - cm.SHIFT_BITS) - 1} particles, got {st.n}")
+    pi32, jc, ok = cm.compact_list(st.nl_i, st.nl_j, st.nl_shift)
+    if not ok:
+        raise ValueError("the Verlet list must be ordered by nl_i with image shifts in {-1, 0, 1} "
+                         "(as dem.neighbors.rebuild makes it); rebuild it")
+    return pi32, jc
+
+
 def _new_history(npairs, law):
     """Zero contact history: (P,) for one slot per pair (the layout of older checkpoints), else
     (P, slots)."""
@@ -183,6 +194,8 @@ class Simulation:
         self._pc = None          # per-pair law constants, valid for (self._pc_list, self._pc_mass)
         self._pc_list = None
         self._pc_mass = None
+        self._list32 = None         # (pi32, jc) of the list self._list32_of (contact_models.compact_list)
+        self._list32_of = None
         self._href_inv = None if self.state.h_ref is None else np.linalg.inv(self.state.h_ref)
 
     def set_law(self, law):
@@ -216,11 +229,14 @@ class Simulation:
             self._pc = law.pair_constants(st.mass, st.nl_i, st.nl_j)
             self._pc_list = st.nl_i
             self._pc_mass = st.mass
+        if self._list32_of is not st.nl_i:
+            self._list32 = _compact(st)
+            self._list32_of = st.nl_i
         e = self._empty
         spin = law.needs_spin
         normal, damping, tangential, rolling = law.models
         cm.pair_forces(st.x, st.v, st.omega if spin else e, st.theta if spin else e, st.radius, st.mass,
-                       st.inertia if spin else e, st.x_ref, st.nl_i, st.nl_j, st.nl_shift,
+                       st.inertia if spin else e, st.x_ref, *self._list32,
                        st.nl_ft.reshape(-1) if law.needs_history else e, self._pc,
                        cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
                        normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
