@@ -37,8 +37,8 @@ def test_packing_meets_its_stop_criteria(small_packing):
     psi6, psi6_local = _psi6_delaunay(small_packing.to_network())
     assert r["psi6"] == pytest.approx(psi6, abs=1e-12)
     assert r["psi6_local"] == pytest.approx(psi6_local, abs=1e-12)
-    assert r["psi6"] < 0.5        # frictional preparation of identical disks: not a crystal
-    assert r["dt_over_dtcrit"] == pytest.approx(0.8)
+    # psi6 of frictional identical disks: over seeds in test_frictional_packings_are_not_crystals
+    assert r["dt_over_dtcrit"] == pytest.approx(1.0)   # the default time step of pack
 
 
 def _psi6_delaunay(net):
@@ -58,6 +58,61 @@ def _psi6_delaunay(net):
     loc = np.array([np.mean([np.exp(6j * np.arctan2(*(tiled[v] - tiled[centre + i])[::-1]))
                              for v in nb[i]]) for i in range(n)])
     return abs(loc.mean()), np.abs(loc).mean()
+
+
+def test_frictional_packings_are_not_crystals():
+    """Frictional preparation of identical disks: not a crystal. A single small packing can order
+    under any protocol (N = 120, these parameters: 6 of 80 seeds had psi6 > 0.5 with the protocol
+    before issue 12.3, 11 of 80 with today's), so the claim is checked on the median of ten
+    seeds (a triangular crystal has psi6 = 1)."""
+    psi6 = [pack(120, **dict(PACK_KW, seed=s)).report["psi6"] for s in range(10)]
+    assert np.median(psi6) < 0.3
+
+
+def test_random_gas_without_overlaps():
+    a = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    b = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
+    assert a.solid_fraction == pytest.approx(0.44)
+    L = a.h[0, 0]
+    assert np.all((a.x >= 0) & (a.x < L)) and np.all(a.v == 0)
+    d = a.x[:, None, :] - a.x[None, :, :]
+    d -= L * np.round(d / L)                                  # nearest image, square cell
+    gap = np.hypot(d[..., 0], d[..., 1]) - (a.radius[:, None] + a.radius[None, :])
+    np.fill_diagonal(gap, np.inf)
+    assert gap.min() >= 0
+    assert not np.array_equal(a.x, random_gas(400, seed=6, dispersity=0.3, phi0=0.44, overlaps=False).x)
+    with pytest.raises(ValueError, match="phi0"):
+        random_gas(50, phi0=0.5, overlaps=False)
+
+
+def test_old_protocol_options_reproduce_the_earlier_packing():
+    """The options of the protocol before issue 12.3 give the packing that code gave, bit for
+    bit (values recorded with the code of commit 890360b, before FIRE and the cold gas)."""
+    kw = dict(PACK_KW, mu_prep=0.1, gas_overlaps=True, phi0=0.2, damping_compaction=0.1,
+              dt_over_dtcrit=0.8, fire=False)
+    r = pack(60, **kw)
+    assert r.report["phase_steps"] == [{"phase": "compact", "step": 5400},
+                                       {"phase": "prep", "step": 5500},
+                                       {"phase": "test", "step": 5600}]
+    assert float(r.state.x.sum()).hex() == "0x1.c9b1bad295a1dp+8"
+    assert float(r.state.v.sum()).hex() == "0x1.dcc8cb6b9e608p-15"
+    assert r.report["pressure"].hex() == "0x1.0624db7539d42p-10"
+
+
+def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
+    kw = dict(PACK_KW, mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14, checkpoint_every=100)
+    straight = pack(60, **kw)
+    assert [h["phase"] for h in straight.report["phase_steps"]] == ["compact", "prep", "test"]
+    stop = straight.report["phase_steps"][0]["step"] + 100          # inside prep (FIRE on)
+    ck = tmp_path / "pack.npz"
+    pack(60, **dict(kw, max_steps=stop, checkpoint=ck))
+    pk = State.load(ck).meta["packing"]
+    assert pk["phase"] == "prep" and pk["fire"]["n_pos"] + pk["fire"]["n_quench"] > 0
+    resumed = pack(60, **dict(kw, checkpoint=ck))
+    assert resumed.report["resumed"] and resumed.report["steps"] == straight.report["steps"]
+    for name in ("x", "v", "omega", "h", "L", "nl_ft"):
+        assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
 
 
 def test_psi6_of_a_crystal_is_one():
