@@ -78,8 +78,12 @@ def fire_mix(v, f, mass, omega, torque, inertia, radius, alpha):
 
 @dataclass
 class Fire:
-    """FIRE mixing state and parameters (module docstring). ``alpha`` [-] and ``n_pos`` (steps
-    since the last quench) change as it runs; ``n_quench`` counts the quenches (informative)."""
+    """FIRE mixing state and parameters (module docstring).
+
+    Parameters: ``alpha_start`` [-] (mixing fraction after a quench, in (0, 1)), ``f_alpha`` [-]
+    (factor on ``alpha`` per step with ``P > 0`` once ``n_min`` such steps followed each other),
+    ``n_min`` (steps). State, changed as it runs: ``alpha`` [-], ``n_pos`` (steps with ``P > 0``
+    since the last quench) and ``n_quench`` (number of quenches, informative)."""
     alpha_start: float = 0.1
     f_alpha: float = 0.99
     n_min: int = 5

@@ -553,7 +553,7 @@ class _Run:
 
 
 def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None, radius=0.5,
-         dispersity=0.0, rho=None, seed=0, phi0=0.4, gas_overlaps=False, damping=0.7,
+         dispersity=0.0, rho=None, seed=0, phi0=0.2, gas_overlaps=True, damping=0.7,
          damping_compaction=0.05, jam_unbalanced=1e-3, restitution=None, max_strain_per_step=2e-4,
          alpha=0.5, dt_over_dtcrit=1.0, fire=True, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
          max_steps=2_000_000, check_every=100, checkpoint=None, checkpoint_every=20000,
@@ -583,11 +583,13 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         mu == mu_prep == 0.
     radius, dispersity, rho, seed, phi0 :
         Radius [m], relative radius spread [-], areal density [kg/m^2], random seed, initial
-        solid fraction [-] (default 0.4): see :func:`random_gas`.
+        solid fraction [-] (default 0.2): see :func:`random_gas`.
     gas_overlaps : bool
-        False (default): the gas is a random sequential addition, without overlaps and at rest
-        (``phi0`` < 0.45); True: independent uniform centres (the earlier protocol, with
-        ``phi0=0.2``): the overlaps push the disks apart and heat the gas.
+        True (default): independent uniform centres; the overlaps push the disks apart and
+        heat the gas, which works against crystallisation. False: a cold gas by random
+        sequential addition, without overlaps and at rest (``phi0`` < 0.45; with ``phi0=0.4``
+        it saves the first few thousand steps, but small packings of identical disks order
+        more often, see ``docs/dem.md``).
     damping : float
         Cundall local damping of the equilibrium phases, in [0, 1) (default 0.7).
     damping_compaction : float or None

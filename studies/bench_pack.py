@@ -17,7 +17,7 @@ of a complete preparation of a jammed, relaxed 1e4-disk packing on each side.
 The two sides alternate (ours, LAMMPS, ours, LAMMPS ...) so that load from other processes hits
 both alike; the spread over the repeats (wall time, CPU time, steps) and the load average are
 printed. ``--old`` adds a third side in the same rotation: ours with the protocol before issue
-12.3 (gas with overlaps at phi0 = 0.2, compaction damping 0.1, dt = 0.8 dt_crit, no FIRE). Says so and runs ours
+12.3 (compaction damping 0.1, dt = 0.8 dt_crit, no FIRE). Says so and runs ours
 alone when ``lmp`` is not on PATH (Debian: ``apt-get install -y lammps``).
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench
 CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispersity=0.0,
                     tol_unbalanced=1e-5)
 #: the protocol options before issue 12.3 (same stop criteria)
-OLD_PROTOCOL = dict(gas_overlaps=True, phi0=0.2, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
+OLD_PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
 
 def run_ours(n, seed, old=False):
