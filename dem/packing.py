@@ -11,12 +11,13 @@ Protocol (default, :func:`pack`):
 1. *Random gas*: N disk centres uniform in a square periodic cell at solid fraction ``phi0``
    (overlaps allowed; they are pushed apart by the contact law and the local damping in the first
    steps), drawn from ``numpy.random.default_rng(seed)``; radii identical, or uniform in
-   ``r (1 +- dispersity)``.
+   ``r (1 +- dispersity)``. ``gas_overlaps=False`` starts instead from a cold gas without
+   overlaps (random sequential addition).
 2. *Compaction* (phase ``compact``) with :class:`dem.cell.PressureServo`: the cell shrinks at
    ``max_strain_per_step`` (default 2e-4 per step) while there is no load, then the
    stiffness-adaptive servo holds the pressure at the target while the assembly, still below
    jamming, flows into a jammed state. This phase runs with a *light* local damping
-   ``damping_compaction`` (default 0.1) and ends when the packing has jammed: ``|p - p_target| <
+   ``damping_compaction`` (default 0.05) and ends when the packing has jammed: ``|p - p_target| <
    1e-2 p_target`` and unbalanced force ratio < ``jam_unbalanced`` (default 1e-3). The damping then
    returns to ``damping`` (default 0.7) for the equilibrium phases.
 
@@ -24,9 +25,11 @@ Protocol (default, :func:`pack`):
    rate scales as ``sqrt(p / rho) / d`` times a factor set by the dissipation; with ``damping =
    0.7`` all the way, 90 % of the steps of a 1e4-disk packing at p/kn = 1e-4 were spent creeping
    from phi ~ 0.76 to jamming at phi ~ 0.79 with the pressure already on target (350 900 steps);
-   with the light compaction damping the same packing (same seed) jams in about 32 000 steps and
-   meets the unchanged stop criteria at about 44 000 (numbers in ``docs/dem.md``).
-   ``damping_compaction=None`` restores the old single-damping protocol.
+   with a light compaction damping the same packing jams in a few 1e4 steps (numbers in
+   ``docs/dem.md``). ``damping_compaction=None`` restores the single-damping protocol.
+
+   The time step is ``dt_over_dtcrit`` (default 1) times :func:`dem.integrate.critical_dt`,
+   which is itself at least sqrt(2) below the leapfrog limit of the stiffest possible contacts.
 
    The fast start from a gas is the choice made against crystallisation of identical disks (2D
    monodisperse disks order easily when compressed slowly; an optional ``growth_dispersity``
@@ -37,8 +40,12 @@ Protocol (default, :func:`pack`):
    mu_prep = 0.02-0.1); frictionless identical disks order (psi6 up to ~0.97): use
    ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
-3. *Equilibrium* at ``mu_prep`` (phase ``prep``): stop when all three criteria hold (checked every
-   ``check_every`` steps, at absolute step numbers that are multiples of ``check_every``):
+3. *Equilibrium* at ``mu_prep`` (phase ``prep``), with the local damping ``damping`` and, with
+   ``fire=True`` (default), the FIRE velocity mixing of :mod:`dem.fire` after every step (it
+   quenches the velocities whenever the power ``F . v`` turns negative: the ringing of the
+   lightly damped compaction is stopped in a few hundred steps instead of several thousand).
+   Stop when all three criteria hold (checked every ``check_every`` steps, at absolute step
+   numbers that are multiples of ``check_every``):
 
    - ``|p - p_target| / p_target < tol_p`` (default 1e-3);
    - unbalanced force ratio < ``tol_unbalanced`` (default 1e-5), Yade's definition: the mean over
@@ -50,7 +57,9 @@ Protocol (default, :func:`pack`):
      tenth check for the progress report).
 4. If ``mu != mu_prep``, switch to the test friction ``mu`` (phase ``test``) and repeat 3.
 
-Same seed, same parameters -> bit-identical packing (serial kernels, fixed summation order).
+The protocol before issue 12.3 is ``damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False``
+(bit-identical to it). Same seed, same parameters -> bit-identical packing (serial kernels,
+fixed summation order).
 :class:`PackingResult` carries the final :class:`dem.state.State` (a checkpoint: ``save``/``load``),
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (``PackingResult.load``)

@@ -32,6 +32,7 @@ import subprocess
 import tempfile
 import time
 
+from dem.measure import coordination
 from dem.packing import pack
 
 PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
@@ -47,8 +48,10 @@ def run_ours(n, seed, old=False):
     r = pack(n, seed=seed, **CLI_DEFAULTS, **(OLD_PROTOCOL if old else {}))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rep = r.report
+    c = coordination(r.to_network())      # after the timing: Z without rattlers
     return dict(wall=wall, cpu=cpu, steps=rep["steps"], converged=rep["converged"],
-                phases=rep["phase_steps"], phi=rep["phi"], Z=rep["Z"], ps=rep["particle_steps_per_s"])
+                phases=rep["phase_steps"], phi=rep["phi"], Z=rep["Z"], Zc=c.z,
+                rattlers=c.rattler_fraction, psi6=rep["psi6"], ps=rep["particle_steps_per_s"])
 
 
 def run_lammps(n, seed, work):
@@ -102,7 +105,9 @@ def main(argv=None):
                 print(f"{name:10s} seed {a.seed + k}: {o['wall']:7.2f} s wall, {o['cpu']:7.2f} s CPU, "
                       f"{o['steps']} steps, converged {o['converged']}, phases "
                       f"{[(p['phase'], p['step']) for p in o['phases']]}, phi {o['phi']:.4f}, "
-                      f"Z {o['Z']:.3f}, {o['ps']:.3g} particle-steps/s; load {os.getloadavg()[0]:.2f}",
+                      f"Z {o['Z']:.3f}, Z without rattlers {o['Zc']:.3f}, rattlers "
+                      f"{100 * o['rattlers']:.1f} %, psi6 {o['psi6']:.3f}, {o['ps']:.3g} particle-steps/s; "
+                      f"load {os.getloadavg()[0]:.2f}",
                       flush=True)
             if have_lmp:
                 t = run_lammps(a.n, a.seed + k, work)
