@@ -11,8 +11,10 @@ The engine behind ``python -m dem analyse FILE`` (see ``docs/scale_out.md``):
 * :func:`analyse` measures coordination (with and without rattlers), the structural-sum statistics
   (vbar, ebar of the mean A4 beside the isotropic values (37)), rho, the stress when forces are
   known, the theory's predictions (mean field; corrected with the measured rho; corrected with the
-  alignment model at ``alpha``), and the exact stiffness tensor of :func:`dem.stiffness.stiffness`
-  (with the pre-stress terms when asked).
+  alignment model at ``alpha``), the statistics-only closure of :mod:`microhom.closure` with its
+  stated error, the relaxation hierarchy of :mod:`microhom.hierarchy` (moduli with a rigorous upper
+  bound and a stated error, without a factorisation), and the exact stiffness tensor of
+  :func:`dem.stiffness.stiffness` (with the pre-stress terms when asked).
 * :class:`AnalysisResult` holds the result (frozen; ``as_dict()`` is the JSON of the command
   line, NaN as ``null``); :func:`format_table`, :func:`flatten` render it as text or as one flat
   record (the CSV row).
@@ -33,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from microhom.closure import predict_closure
+from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_from_network
 from microhom.results import Result
 from microhom.structural_sums import network_statistics
@@ -83,12 +87,22 @@ class AnalysisResult(Result):
         Moduli of :mod:`microhom.moduli` [N/m]: mean field ``K_mf``, ``G_mf``; corrected with the
         measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment model
         ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
+    closure : dict
+        :func:`microhom.closure.predict_closure` from the measured Z, r, phi, mean kt/kn and
+        radius spread: ``K``, ``G`` [N/m], their stated errors ``error_K``, ``error_G`` [N/m]
+        (the measured validation rms), ``valid`` and ``reason``.
+    hierarchy : dict
+        :func:`microhom.hierarchy.relaxation_hierarchy` (same pre-stress choice as the exact
+        stiffness; tolerance 1e-3, at most 16 CG steps): ``K``, ``G`` (best values), ``K_upper``,
+        ``G_upper`` (rigorous upper bounds), ``K_lower``, ``G_lower`` (rigorous lower bounds or
+        None), ``K_error``, ``G_error`` (stated errors) [N/m], ``order`` (CG steps),
+        ``converged``, ``unstable``, ``reasons``, ``time_s`` [s].
     stiffness : dict
         :func:`dem.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
         ``C_mandel`` (3, 3) [N/m], ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
         ``n_dof``, ``residual``, ``time_s`` [s].
     comparison : dict
-        ``{K,G}_{mf,rho,alpha}_over_exact`` ratios (dimensionless).
+        ``{K,G}_{mf,rho,alpha,closure,hierarchy}_over_exact`` ratios (dimensionless).
     notes : list of str
         The assumptions made (kn, kt, frame) and what the reader warned.
     """
@@ -99,6 +113,8 @@ class AnalysisResult(Result):
     structural: dict = field(default_factory=dict)
     stress: dict = field(default_factory=dict)
     theory: dict = field(default_factory=dict)
+    closure: dict = field(default_factory=dict)
+    hierarchy: dict = field(default_factory=dict)
     stiffness: dict = field(default_factory=dict)
     comparison: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
@@ -288,6 +304,24 @@ def _theory(net, alpha, min_contacts):
     return out
 
 
+def _closure(net, structural):
+    kt = float(np.mean(net.effective_kt) / np.mean(net.kn))
+    disp = float(np.std(net.radii) / np.mean(net.radii) * np.sqrt(3.0))   # uniform r(1 +- d): std = d/sqrt3
+    p = predict_closure(nc=structural["nc"], r=structural["r"], phi=structural["phi"],
+                        kt_over_kn=kt, dispersity=disp, kn=float(np.mean(net.kn)))
+    return {"K": float(p.K), "G": float(p.G), "error_K": float(p.error_K), "error_G": float(p.error_G),
+            "valid": bool(p.valid), "reason": str(p.reason), "kt_over_kn": kt, "dispersity": disp}
+
+
+def _hierarchy(net, prestress, min_contacts):
+    t0 = time.perf_counter()
+    h = relaxation_hierarchy(net, prestress=prestress, tol=1e-3, max_order=16, min_contacts=min_contacts)
+    return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
+            "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
+            "order": h.order, "converged": h.converged, "unstable": h.unstable,
+            "reasons": list(h.reasons), "time_s": time.perf_counter() - t0}
+
+
 def _stiffness(net, prestress, min_contacts):
     r = stiffness(net, prestress=prestress, min_contacts=min_contacts)
     return {"K": r.K, "G": r.G, "K_affine": r.K_affine, "G_affine": r.G_affine,
@@ -296,7 +330,8 @@ def _stiffness(net, prestress, min_contacts):
             "n_dof": r.n_dof, "residual": r.residual, "time_s": r.assembly_time + r.solve_time}
 
 
-def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) -> AnalysisResult:
+def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
+            hierarchy=True) -> AnalysisResult:
     """All measurements and predictions of one network (see the module docstring).
 
     Parameters
@@ -313,6 +348,8 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) 
         Rattler threshold (None: 2 with friction, 3 without).
     exact : bool
         Compute the exact stiffness (one sparse factorisation).
+    hierarchy : bool
+        Compute the relaxation hierarchy (periodic networks only).
 
     Returns
     -------
@@ -335,15 +372,25 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) 
     stress_ = (_section(_stress, net) if net.fn is not None and net.n_contacts
                else {"error": "no contact forces in the file" if net.fn is None else "no contacts"})
     theory = _section(_theory, net, alpha, min_contacts) if jammed else {"error": NOT_JAMMED}
+    closure = (_section(_closure, net, structural) if jammed and "error" not in structural
+               else {"error": structural.get("error", NOT_JAMMED)})
+    snet = net
+    if prestress and net.fn is None and (exact or hierarchy):
+        snet = replace(net, fn=_elastic_normal_forces(net))
+        notes.append("--prestress: the file has no contact forces; fn = kn * overlap (linear law)")
+    if not hierarchy:
+        hier = {"error": "not computed"}
+    elif not jammed:
+        hier = {"error": NOT_JAMMED}
+    elif net.cell is None:
+        hier = {"error": "open packing: the hierarchy estimates the stiffness of a periodic cell"}
+    else:
+        hier = _section(_hierarchy, snet, prestress, min_contacts)
     if not exact:
         stiff = {"error": "not computed"}
     elif not jammed:
         stiff = {"error": NOT_JAMMED}
     else:
-        snet = net
-        if prestress and net.fn is None:
-            snet = replace(net, fn=_elastic_normal_forces(net))
-            notes.append("--prestress: the file has no contact forces; fn = kn * overlap (linear law)")
         stiff = _section(_stiffness, snet, prestress, min_contacts)
     if not jammed:
         notes.append(NOT_JAMMED)
@@ -352,19 +399,25 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True) 
                      f"relative spread {np.std(net.radii) / np.mean(net.radii):.3g}): the theory "
                      "is for identical disks, its moduli are a reference for this packing")
     cmp = {}
-    if "error" not in theory and "error" not in stiff:
+    if "error" not in stiff:
         for k in ("K", "G"):
-            for lab in ("mf", "rho", "alpha"):
-                if stiff[k] != 0:
+            if stiff[k] == 0:
+                continue
+            if "error" not in theory:
+                for lab in ("mf", "rho", "alpha"):
                     cmp[f"{k}_{lab}_over_exact"] = theory[f"{k}_{lab}"] / stiff[k]
+            if "error" not in closure:
+                cmp[f"{k}_closure_over_exact"] = closure[k] / stiff[k]
+            if "error" not in hier:
+                cmp[f"{k}_hierarchy_over_exact"] = hier[k] / stiff[k]
     return AnalysisResult(network=network, coordination=coord, structural=structural,
-                          stress=stress_, theory=theory, stiffness=stiff, comparison=cmp,
-                          notes=notes)
+                          stress=stress_, theory=theory, closure=closure, hierarchy=hier,
+                          stiffness=stiff, comparison=cmp, notes=notes)
 
 
 def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
                  branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
-                 radius=None, exact=True) -> AnalysisResult:
+                 radius=None, exact=True, hierarchy=True) -> AnalysisResult:
     """:func:`load_network` then :func:`analyse`; the result's ``file`` section says what was read
     and how long it took, its notes start with the assumptions made while reading."""
     t0 = time.perf_counter()
@@ -372,7 +425,8 @@ def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
                              kn_convention=kn_convention, branch_length=branch_length,
                              frame=frame, radius=radius)
     t1 = time.perf_counter()
-    res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact)
+    res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact,
+                  hierarchy=hierarchy)
     notes = info.pop("notes") + res.notes
     return replace(res, file={**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1},
                    notes=notes)
@@ -467,6 +521,24 @@ def format_table(res) -> str:
         for name, lab, flag in rows:
             L.append(f"  {name:44}{_g(th['K_' + lab]):>14}{_g(th['G_' + lab]):>14}"
                      f"{_g(cmp.get(f'K_{lab}_over_exact'), '.4f'):>10}{_g(cmp.get(f'G_{lab}_over_exact'), '.4f'):>10}{flag}")
+    cl, hi = res.get("closure", {}), res.get("hierarchy", {})
+    if cl and "error" not in cl:
+        flag = "" if cl["valid"] else "  FLAGGED: " + cl["reason"]
+        L.append(f"  {'closure (statistics only)':44}{_g(cl['K']):>14}{_g(cl['G']):>14}"
+                 f"{_g(cmp.get('K_closure_over_exact'), '.4f'):>10}{_g(cmp.get('G_closure_over_exact'), '.4f'):>10}{flag}")
+        L.append(f"  {'  stated error (validation rms)':44}{_g(cl['error_K'], '.3g'):>14}{_g(cl['error_G'], '.3g'):>14}")
+    elif cl:
+        L.append(f"  closure: n/a ({cl['error']})")
+    if hi and "error" not in hi:
+        L.append(f"  {'hierarchy (%d CG steps), value' % hi['order']:44}{_g(hi['K']):>14}{_g(hi['G']):>14}"
+                 f"{_g(cmp.get('K_hierarchy_over_exact'), '.4f'):>10}{_g(cmp.get('G_hierarchy_over_exact'), '.4f'):>10}")
+        L.append(f"  {'  rigorous upper bound':44}{_g(hi['K_upper']):>14}{_g(hi['G_upper']):>14}")
+        L.append(f"  {'  rigorous lower bound':44}{_g(hi['K_lower']):>14}{_g(hi['G_lower']):>14}")
+        L.append(f"  {'  stated error':44}{_g(hi['K_error'], '.3g'):>14}{_g(hi['G_error'], '.3g'):>14}"
+                 f"  ({'converged' if hi['converged'] else 'tolerance not met'}"
+                 f"{', UNSTABLE' if hi['unstable'] else ''}, {hi['time_s']:.3f} s)")
+    elif hi:
+        L.append(f"  hierarchy: n/a ({hi['error']})")
     if "error" in ex:
         L.append(f"  exact: n/a ({ex['error']})")
     else:
@@ -480,8 +552,9 @@ def format_table(res) -> str:
         L.append(f"  rattlers removed {ex['n_rattlers']}, floppy modes {ex['n_floppy']}, dof {ex['n_dof']}, "
                  f"residual {ex['residual']:.1e}, solve {ex['time_s']:.3f} s")
     notes = list(res.get("notes", []))
-    for sec in ("coordination", "structural", "stress", "theory", "stiffness"):
+    for sec in ("coordination", "structural", "stress", "theory", "closure", "hierarchy", "stiffness"):
         notes += [f"{sec}: {w}" for w in res.get(sec, {}).get("warnings", [])]
+    notes += [f"hierarchy: {r}" for r in hi.get("reasons", [])] if hi and "error" not in hi else []
     if notes:
         L.append("")
         L.append("notes:")

@@ -71,6 +71,9 @@ def add_parser(sub):
                         "column")
     a.add_argument("--no-exact", action="store_true",
                    help="skip the exact stiffness (one sparse factorisation)")
+    a.add_argument("--no-hierarchy", action="store_true",
+                   help="skip the relaxation hierarchy (moduli with a rigorous upper bound and a "
+                        "stated error, microhom.hierarchy)")
     out = a.add_mutually_exclusive_group()
     out.add_argument("--json", action="store_true", help="print JSON instead of a table")
     out.add_argument("--csv", action="store_true",
@@ -105,7 +108,7 @@ def run(args, stdout) -> int:
                            kn_convention=args.kn_convention, branch_length=args.branch_length,
                            alpha=args.alpha, prestress=args.prestress,
                            min_contacts=args.min_contacts, frame=frame, radius=args.radius,
-                           exact=not args.no_exact)
+                           exact=not args.no_exact, hierarchy=not args.no_hierarchy)
     if args.json:
         stdout.write(json.dumps(res.as_dict(), indent=1, allow_nan=False) + "\n")
     elif args.csv:

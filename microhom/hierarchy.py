@@ -32,22 +32,27 @@ This module imports numpy and scipy only (and never ``dem``).
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, affine_tensor, assemble, stress0
+from .multilevel import amg_preconditioner, dof_layout
 from .network import ContactNetwork
 from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
 
 __all__ = ["Estimate", "HierarchyResult", "relaxation_hierarchy", "block_preconditioner",
-           "spectral_lower_bound", "isotropic_weights", "moments"]
+           "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments"]
 
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
 _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy direction, dropped
 _CHUNK = 48          # columns per storage chunk of the re-orthogonalisation basis
+SOFT_MODES_AUTO_MAX = 20_000   # soft_modes="auto": search 3 soft modes up to this many unknowns
+_FAST_RATIO = 0.3     # increment ratios below this: geometric convergence, geometric tail (k >= 4)
 _ZERO_EIG = 1e-9      # pencil eigenvalues below this fraction of the largest are floppy modes
 
 
@@ -141,6 +146,13 @@ class HierarchyResult(Result):
         Pre-stress terms included (geometric stiffness and the Cauchy-increment correction).
     assembly_time, solve_time, bound_time : float
         Wall times [s].
+    preconditioner : str
+        ``"amg"`` (smoothed-aggregation multilevel, ``microhom.multilevel``) or ``"block"``
+        (particle-block Jacobi ``M``: order k = the relaxation k contact shells carry).
+    preconditioner_time : float
+        Wall time of the preconditioner's setup [s] (included in ``solve_time``).
+    n_soft_modes : int
+        Soft modes deflated (``soft_modes`` > 0): their span augments every order's space.
     """
 
     K: Estimate
@@ -175,6 +187,9 @@ class HierarchyResult(Result):
     assembly_time: float
     solve_time: float
     bound_time: float
+    preconditioner: str = "block"
+    preconditioner_time: float = 0.0
+    n_soft_modes: int = 0
 
     @property
     def valid(self) -> bool:
@@ -184,7 +199,7 @@ class HierarchyResult(Result):
     def summary(self) -> str:
         """One line of text: order, tolerance met or not, K and G with their intervals [N/m]."""
         lo = lambda e: "n/a" if e.lower is None else f"{e.lower:.6g}"  # noqa: E731
-        return (f"hierarchy (order {self.order}, {self.n_moments} moments, tol {self.tol:g}, "
+        return (f"hierarchy ({self.preconditioner}, order {self.order}, {self.n_moments} moments, tol {self.tol:g}, "
                 f"{'met' if self.converged else 'NOT met'}): K = {self.K.value:.6g} "
                 f"[{lo(self.K)}, {self.K.upper:.6g}] +- {self.K.error:.2g}, G = {self.G.value:.6g} "
                 f"[{lo(self.G)}, {self.G.upper:.6g}] +- {self.G.error:.2g}"
@@ -205,17 +220,6 @@ def isotropic_weights():
     return eK, np.array([1.0]), eG, np.array([0.5, 0.25])
 
 
-def _particle_of_dof(asm: Assembly) -> np.ndarray:
-    """(ndof,) particle index of each reduced unknown."""
-    N = asm.net.n_particles
-    full = np.flatnonzero(asm.dof_map >= 0)
-    red = asm.dof_map[full]
-    part = np.where(full < 2 * N, full // 2, full - 2 * N)
-    out = np.empty(asm.ndof, dtype=np.int64)
-    out[red] = part
-    return out
-
-
 def block_preconditioner(asm: Assembly):
     """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3) and its inverse.
 
@@ -224,7 +228,7 @@ def block_preconditioner(asm: Assembly):
     only; 0 for a well-posed network).
     """
     H = asm.H.tocoo()
-    owner = _particle_of_dof(asm)
+    owner = dof_layout(asm)[0]
     keep = owner[H.row] == owner[H.col]
     M = sp.csr_matrix((H.data[keep], (H.row[keep], H.col[keep])), shape=H.shape)
     # group unknowns by particle, pad to 3 x 3 with identity, invert in one batch
@@ -283,6 +287,47 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     return (out[0], hi, out[1], out[2]) if return_max else out
 
 
+def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40, seed: int = 0,
+                 return_vectors: bool = False):
+    """Lowest eigenvalues of the pencil ``(H, M)`` by LOBPCG, the two global translations deflated.
+
+    LOBPCG runs twice, preconditioned by the multilevel V-cycle ``P`` (default
+    ``amg_preconditioner``: fast on nearly stable packings) and by ``M^-1`` (positive definite
+    however indefinite ``H`` is: it finds strongly negative modes the V-cycle of an indefinite
+    ``H`` cannot), and the Ritz vectors of both are kept.
+
+    Returns (rq, lam), or (rq, lam, V) with ``return_vectors``: ``rq`` (2k,) the exact Rayleigh
+    quotients ``v^T H v / v^T M v`` of the Ritz vectors, sorted [-], ``lam`` the smallest, ``V``
+    (ndof, 2k) the Ritz vectors in the same order. A negative ``rq`` *proves* that ``H`` has a negative
+    eigenvalue (the network is not stable); a positive ``lam`` estimates the smallest non-zero
+    eigenvalue from above (not a certified lower bound: LOBPCG may miss a lower one). About 2 s for
+    8000 unknowns.
+    """
+    Mb, Minv, _, _ = block_preconditioner(asm)
+    M = Mb if M is None else M
+    if P is None:
+        P = amg_preconditioner(asm)[0]
+    n = asm.ndof
+    k = int(min(k, max(n // 5 - 1, 1)))
+    _, comp = dof_layout(asm)
+    Y = np.zeros((n, 2))
+    Y[comp == 0, 0] = 1.0
+    Y[comp == 1, 1] = 1.0
+    Y = Y[:, Y.any(axis=0)] if asm.pinned < 0 else None
+    rq, Vs = [], []
+    for prec in (P, Minv):
+        X = np.random.default_rng(seed).standard_normal((n, k))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # LOBPCG warns when it stops at maxiter: expected here
+            _, V = sla.lobpcg(asm.H, X, B=M, M=prec, Y=Y, largest=False, maxiter=int(maxiter), tol=1e-12)
+        rq.append(np.einsum("ij,ij->j", V, asm.H @ V) / np.einsum("ij,ij->j", V, M @ V))
+        Vs.append(V)
+    rq, V = np.concatenate(rq), np.hstack(Vs)
+    order = np.argsort(rq)
+    rq, V = rq[order], V[:, order]
+    return (rq, float(rq[0]), V) if return_vectors else (rq, float(rq[0]))
+
+
 def moments(asm: Assembly, e, j_max=3, Minv=None):
     """Moments ``mu_j = b^T (M^-1 H)^j M^-1 b``, j = 0..j_max, of the load ``b = -F e`` of a Mandel
     strain ``e`` (3,) [N m per unit strain, squared over N/m]; ``mu_0`` is the first-order
@@ -324,7 +369,7 @@ class _BlockPCG:
     ``B^T H^+ B`` for any ``X`` when ``H >= 0``.
     """
 
-    def __init__(self, H, M, Minv, B, full=True):
+    def __init__(self, H, M, Minv, B, full=True, deflate=None):
         # H is symmetric: its transpose is the CSR form of the same matrix, without a copy
         self.H = H.T if sp.isspmatrix_csc(H) else H.tocsr()
         self.M, self.Minv, self.full = M, Minv, full
@@ -332,25 +377,43 @@ class _BlockPCG:
         self.B = B
         self.X = np.zeros_like(B)
         self.R = B.copy()
-        self.Z = Minv @ self.R
-        self.P = self.Z.copy()
-        zz = np.einsum("ij,ij->j", self.Z, self.R)
+        z0 = Minv @ self.R
+        zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
         self.Rk = np.zeros((B.shape[1], B.shape[1]))
         self._chunks = []                                # earlier H-orthonormal blocks and H times them
+        self._deflation = []                             # soft modes: conjugated against at every step
         self.unstable = False
         self.n_floppy = 0
+        self.n_deflated = 0
         self.done = False
+        if deflate is not None and deflate.shape[1]:
+            # augmented Krylov space: span(V) first (deflated CG); kept in every later conjugation
+            got = self._take(np.asfortranarray(deflate, dtype=float), scale2=1.0)
+            if got is not None:
+                self._deflation.append(got)
+                self.n_deflated = got[0].shape[1]
+        self.Z = Minv @ self.R if self.n_deflated else z0
+        self.P = self.Z.copy()
 
     def step(self):
-        P = self.P
+        got = self._take(self.P)
+        if got is None:
+            return
+        self._append(*got)
+        self.Z = self.Minv @ self.R
+        self.P = self.Z
+
+    def _take(self, P, scale2=None):
+        """Conjugate, M- and H-orthonormalise the block ``P`` and move the iterate along it.
+        Returns (P, HP) H-orthonormal, or None (converged, floppy only, or negative curvature)."""
         P = self._conjugate(P)                           # full H-conjugation (re-orthogonalisation)
         Gm = P.T @ (self.M @ P)
         wm, Vm = np.linalg.eigh(0.5 * (Gm + Gm.T))
-        keep = wm > max(1e-24 * self.scale2, 1e-12 * wm.max(initial=0.0))
+        keep = wm > max(1e-24 * (self.scale2 if scale2 is None else scale2), 1e-12 * wm.max(initial=0.0))
         if not keep.any():
             self.done = True                              # converged: no new direction
-            return
+            return None
         P = _tall(P, Vm[:, keep] / np.sqrt(wm[keep]))   # M-orthonormal
         HP = self.H @ P
         Gh = P.T @ HP
@@ -358,22 +421,20 @@ class _BlockPCG:
         if np.any(wh < -_NEG_CURV):
             self.unstable = True
             self.done = True
-            return
+            return None
         ok = wh > _NULL_CURV
         self.n_floppy += int(np.count_nonzero(~ok))
         if not ok.any():
             self.done = True
-            return
+            return None
         T = Uh[:, ok] / np.sqrt(wh[ok])                  # P T is H-orthonormal
         P, HP = _tall(P, T), _tall(HP, T)
-        self._append(P, HP)
         alpha = P.T @ self.R
         self.X += _tall(P, alpha)
         self.R -= _tall(HP, alpha)
         R = self.B.T @ self.X + self.X.T @ self.R        # 2 B^T X - X^T H X  (H X = B - R)
         self.Rk = 0.5 * (R + R.T)
-        self.Z = self.Minv @ self.R
-        self.P = self.Z
+        return P, HP
 
     def _append(self, P, HP):
         """Store the block in fixed-size column chunks (no re-allocation, no copies); without full
@@ -391,7 +452,10 @@ class _BlockPCG:
         c[2] += s
 
     def _conjugate(self, P):
-        """``P - sum_j P_j (HP_j^T P)`` over every stored block (full H-conjugation)."""
+        """``P - sum_j P_j (HP_j^T P)`` over every stored block (full H-conjugation) and the
+        deflated soft modes."""
+        for Pc, HPc in self._deflation:
+            P = P - _tall(Pc, HPc.T @ P)
         for Pc, HPc, m in self._chunks:
             P = P - _tall(Pc[:, :m], HPc[:, :m].T @ P)
         return P
@@ -429,14 +493,25 @@ def _extrapolate(seq):
     lies in ``[u_k - 2 tail, u_k]``. On 10 packings (orders 7..64, 1134 values of K and G) the
     error was within the stated error in 99.8 % of the cases (every frictional one) and at most
     1.24 times it (frictionless near jamming). An estimate, not a bound. Needs k >= 7 (six increments) and ``s > 1.05``.
+
+    Fast convergence (the multilevel preconditioner): when the last two increment ratios are both
+    at most ``_FAST_RATIO`` (k >= 4), the tail is the geometric one with the larger ratio and the
+    stated error twice that tail. A round-off floor of 1e-12 relative is added to every stated error.
     """
     u = np.asarray(seq, dtype=float)
     k = u.size
     if k < 2:
         return float(u[-1]), float("inf")
     d = -np.diff(u)
+    roundoff = 1e-12 * max(abs(u[0]), 1e-300)
     if d[-1] <= 1e-14 * max(abs(u[0]), 1e-300):            # stagnated: converged to round-off
-        return float(u[-1]), float(max(d[-1], 0.0))
+        return float(u[-1]), float(max(d[-1], 0.0) + roundoff)
+    if k >= 4 and np.all(d[-3:] > 0):
+        r1, r2 = d[-1] / d[-2], d[-2] / d[-3]
+        if max(r1, r2) <= _FAST_RATIO:                     # fast geometric convergence (multilevel)
+            q = max(r1, r2)
+            tail = d[-1] * q / (1 - q)
+            return float(u[-1] - tail), float(2 * tail + roundoff)
     if k < 7 or np.any(d[-6:] <= 0):
         return float(u[-1]), float("inf")
     r1, r2 = d[-1] / d[-2], d[-2] / d[-3]
@@ -456,7 +531,8 @@ def _extrapolate(seq):
 # ---- main entry ------------------------------------------------------------------------------
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = 1e-2,
                          max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
-                         min_contacts=None, reorthogonalize="auto") -> HierarchyResult:
+                         min_contacts=None, reorthogonalize="auto",
+                         preconditioner: str = "amg", soft_modes="auto") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     Parameters
@@ -484,6 +560,22 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         H-conjugate each new search block against all earlier ones (True), only the
         last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000
         unknowns: exact-arithmetic behaviour when runs go to convergence on small systems).
+    preconditioner : {"amg", "block"}
+        Preconditioner of the conjugate gradients. "amg" (default): smoothed-aggregation
+        multilevel (``microhom.multilevel``), converges in a few steps even near isostaticity.
+        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block), for which
+        order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
+        section 9). The bounds are rigorous with either; the lower bound and the first-order
+        estimate always use ``M``.
+    soft_modes : int or "auto"
+        Number of lowest modes of the pencil (H, M) to search per preconditioner (:func:`lowest_modes`,
+        LOBPCG; 0..50), or "auto" (default): 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for
+        1000-8000 unknowns), 0 above (then ``reasons`` says that the stated error is not guarded).
+        A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
+        result is flagged ``unstable`` with the eigenvalue (finding none is not a proof of
+        stability). The soft modes found are deflated: the CG space is augmented with them, so that
+        a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
+        extrapolation would take for convergence (docs/results/hierarchy.md, the sweep).
 
     Returns
     -------
@@ -508,6 +600,10 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         user_lam = float(spectral_bound)
         if not (np.isfinite(user_lam) and user_lam > 0):
             raise ValueError(f"spectral_bound must be a positive finite float, got {spectral_bound!r}")
+    if not (soft_modes == "auto" or (isinstance(soft_modes, (int, np.integer)) and 0 <= soft_modes <= 50)):
+        raise ValueError(f"soft_modes must be 'auto' or an integer in [0, 50], got {soft_modes!r}")
+    if preconditioner not in ("amg", "block"):
+        raise ValueError(f"preconditioner must be 'amg' or 'block', got {preconditioner!r}")
     if prestress and network.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network (ContactNetwork.fn)")
 
@@ -551,6 +647,23 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                            "pass spectral_bound=): the lower bounds are not available")
     t_bound = time.perf_counter() - tb
     unstable = n_neg_dense > 0
+    P_amg = None
+    V_soft = None
+    if soft_modes == "auto":
+        soft_modes = 3 if asm.ndof <= SOFT_MODES_AUTO_MAX else 0
+        if not soft_modes:
+            reasons.append(f"soft modes not searched (ndof = {asm.ndof} > {SOFT_MODES_AUTO_MAX}; pass "
+                           "soft_modes=3): a near-mechanism plateau of CG could hide from the stated error")
+    if soft_modes and asm.ndof and not unstable:
+        ts = time.perf_counter()
+        P_amg, _ = amg_preconditioner(asm)
+        rq, lam_est, V_soft = lowest_modes(asm, M, P_amg, k=int(soft_modes), return_vectors=True)
+        V_soft = V_soft[:, rq > _NULL_CURV]                  # floppy (zero) modes carry no load
+        if lam_est < -_NEG_CURV:
+            unstable = True
+            reasons.append(f"negative eigenvalue {lam_est:.3g} of the pencil (H, M) found (a negative "
+                           "Rayleigh quotient: the pre-stressed network is not stable); the bounds are void")
+        t_bound += time.perf_counter() - ts
 
     eK, wK, eG, wG = isotropic_weights()
     Cs = [C0]
@@ -560,13 +673,21 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     converged = False
     order = 0
     n_floppy = 0
+    t_prec = 0.0
+    n_soft = 0
     if trivial:
         # nothing to relax (affine network, e.g. a perfect triangular lattice): exact at order 0
         lowers[0] = C0.copy()
         converged = True
     else:
         full = asm.ndof <= 50_000 if reorthogonalize == "auto" else bool(reorthogonalize)
-        cg = _BlockPCG(asm.H, M, Minv, B, full=full)
+        P = Minv
+        if preconditioner == "amg" and P_amg is not None:
+            P = P_amg
+        elif preconditioner == "amg":
+            P, info = amg_preconditioner(asm)
+            t_prec = info.setup_time
+        cg = _BlockPCG(asm.H, M, P, B, full=full, deflate=V_soft)
         for order in range(1, int(max_order) + 1):
             cg.step()
             if cg.unstable:
@@ -575,14 +696,15 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                 break
             C = _tensor(C_aff, cg.Rk, area, corr)
             Cs.append(C)
-            lowers.append(_lower(C, cg, lam, lam_hi, area) if lam is not None else None)
+            lowers.append(_lower(C, cg, Minv, lam, lam_hi, area) if lam is not None else None)
             if _met(C, lowers[-1], tol, Cs):
                 converged = True
                 break
             if cg.done:
                 break
         n_floppy = cg.n_floppy
-    if unstable:
+        n_soft = cg.n_deflated
+    if unstable and not any("negative eigenvalue" in r for r in reasons):
         reasons.append("negative curvature: the pre-stressed network is not stable (H indefinite); "
                        "the bounds are void")
     if n_floppy:
@@ -623,24 +745,28 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         reasons=tuple(reasons), unstable=bool(unstable), empty=bool(empty), n_floppy_directions=int(n_floppy),
         n_dof=int(asm.ndof), n_rattlers=int(asm.rattlers.sum()), n_particles=network.n_particles,
         n_contacts=asm.net.n_contacts, prestress=bool(prestress), assembly_time=t_asm,
-        solve_time=t_solve, bound_time=t_bound)
+        solve_time=t_solve, bound_time=t_bound,
+        preconditioner=preconditioner if not trivial else "none", preconditioner_time=t_prec,
+        n_soft_modes=int(n_soft))
 
 
-def _lower(C, cg, lam, lam_hi, area):
+def _lower(C, cg, Minv, lam, lam_hi, area):
     """Rigorous lower bound of C from the residual ``Res`` of the iterate (docs/theory.md, sec. 9).
 
-    With ``m0 = Res^T M^-1 Res``, ``m1 = Z^T H Z`` (``Z = M^-1 Res``) and the spectrum of the
+    With ``m0 = Res^T M^-1 Res``, ``m1 = Z^T H Z`` (``Z = M^-1 Res``, ``M`` the particle-block
+    diagonal whatever preconditioner produced the iterate) and the spectrum of the
     pencil (H, M) on range(H) inside ``[a, b]``: ``Res^T H^+ Res <= ((a + b) m0 - m1)/(a b)``
     (the chord of the convex 1/lambda over the residual's spectral measure); ``b = inf`` gives
     the plain residual bound ``m0 / a``.
     """
     if C is None or cg is None:
         return None
-    m0 = cg.R.T @ cg.Z
+    Z = Minv @ cg.R
+    m0 = cg.R.T @ Z
     m0 = 0.5 * (m0 + m0.T)
     if lam_hi is None or not np.isfinite(lam_hi):
         return C - m0 / (lam * area)
-    m1 = cg.Z.T @ (cg.H @ cg.Z)
+    m1 = Z.T @ (cg.H @ Z)
     m1 = 0.5 * (m1 + m1.T)
     return C - ((lam + lam_hi) * m0 - m1) / (lam * lam_hi * area)
 

@@ -4,8 +4,8 @@ A law gives, per contact, the normal force ``fn`` (compression positive) and the
 stiffness ``kn = d fn / d delta`` from the radii ``r_i, r_j`` [m] and the overlap
 ``delta = r_i + r_j - |c|`` [m] (positive when the disks overlap), so that a network built from
 positions and radii (``microhom.network.from_overlaps(..., law=...)``) carries forces consistent
-with its stiffnesses, as the pre-stressed stiffness (``prestress=True``) needs. 2D, forces and
-stiffnesses per unit thickness [N/m].
+with its stiffnesses, as the pre-stressed stiffness (``prestress=True``) needs. 2D: forces [N],
+stiffnesses [N/m] (``docs/theory.md``, "Conventions").
 
 * :class:`Linear` -- ``fn = kn delta`` (this project's DEM, LAMMPS ``gran/hooke``; Kuhn's OVAL
   ``kn`` multiplies half the overlap: see :mod:`microhom.conventions`).
@@ -19,7 +19,7 @@ stiffnesses per unit thickness [N/m].
 Every law also carries the tangential-to-normal stiffness ratio ``kt_ratio`` used when a network
 is built with it and no ``kt`` is given (0 for jax-md, which has no friction), and has two
 methods taking (C,) arrays ``ri``, ``rj``, ``overlap`` [m] (or scalars, broadcast):
-``force(ri, rj, overlap)``, the (C,) normal force ``fn`` [N/m] (0 where ``overlap <= 0``), and
+``force(ri, rj, overlap)``, the (C,) normal force ``fn`` [N] (0 where ``overlap <= 0``), and
 ``stiffness(ri, rj, overlap)``, the (C,) tangent stiffness ``kn = d fn / d overlap`` [N/m].
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ class _Law:
         _positive("kt_ratio", self.kt_ratio, allow_zero=True)
 
     def force(self, ri, rj, overlap) -> np.ndarray:
-        """(C,) normal force fn [N/m], compression positive (0 where ``overlap <= 0``)."""
+        """(C,) normal force fn [N], compression positive (0 where ``overlap <= 0``)."""
         d = np.clip(np.asarray(overlap, dtype=float), 0.0, None)
         return self._force(np.asarray(ri, float), np.asarray(rj, float), d)
 

@@ -258,8 +258,9 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     * near-isostatic packings, ``Z - Z_iso < 0.5`` with ``Z`` the mean coordination of the
       load-bearing particles and ``Z_iso`` = 3 (frictional: some contact has kt_eff > 0) or 4;
     * with ``check_bounds`` (periodic networks), a K or G above the rigorous upper bound of the
-      relaxation hierarchy after ``bound_order`` CG steps (``microhom.hierarchy``; without
-      pre-stress, as the theory): the prediction is then provably too stiff.
+      relaxation hierarchy after ``bound_order`` CG steps (``microhom.hierarchy``, the block-Jacobi
+      ladder: its cheapest rigorous bound; without pre-stress, as the theory): the prediction is
+      then provably too stiff.
     """
     st = network_statistics(network, min_contacts=min_contacts)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
@@ -287,8 +288,10 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
                        rho=rho if rho is None or np.isfinite(rho) else 0.0,
                        nbar=nbar, diameter=st.diameter, warn=False, **kwargs)
     if check_bounds and network.cell is not None and network.n_contacts:
+        # the cheap rigorous bound (block ladder, no soft-mode search): enough to prove a
+        # prediction too stiff, at a fraction of an exact solve's cost at every size
         h = relaxation_hierarchy(network, max_order=bound_order, spectral_bound="none",
-                                 min_contacts=min_contacts)
+                                 min_contacts=min_contacts, preconditioner="block", soft_modes=0)
         tol = 1e-9 * max(h.K.upper, h.G.upper, 1e-300)
         if not h.unstable and (float(p.K) > h.K.upper + tol or float(p.G) > h.G.upper + tol):
             extra |= 16

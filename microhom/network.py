@@ -6,8 +6,8 @@ tangential stiffnesses, a sliding flag and (optionally) the contact forces.
 
 Conventions (see ``docs/theory.md``):
 
-* 2D, SI units or any consistent set. Lengths in m, stiffnesses per unit thickness in N/m,
-  forces per unit thickness in N/m (2D) or N if you think of disks of unit thickness.
+* 2D, SI units or any consistent set (``docs/theory.md``, "Conventions"): lengths in m, contact
+  forces in N, contact stiffnesses in N/m, 2D stresses and moduli in N/m (force per length).
 * Contact ``k`` joins particles ``i = pairs[k, 0]`` and ``j = pairs[k, 1]``; its branch vector is
   ``c = x_j - x_i`` taken to the periodic image that touches (paper: ``c^{mu nu} = x^nu - x^mu``).
   The unit normal is ``n = c / |c|``, pointing from ``i`` to ``j``.
@@ -85,7 +85,7 @@ class ContactNetwork:
     branch : (C, 2) float, branch vectors ``x_j - x_i`` (periodic image resolved) [m].
     kn, kt : (C,) float, normal and tangential contact stiffness [N/m], kn > 0, kt >= 0.
     sliding : (C,) bool, contacts at the Coulomb limit (their tangent ``kt`` is taken as 0).
-    fn : (C,) float or None, normal force, compression positive [N/m per unit thickness].
+    fn : (C,) float or None, normal force, compression positive [N].
     ft : (C,) float or None, tangential force on j along t = (-n_y, n_x).
     origin : (2,) float, lower-left corner of the periodic cell [m].
     """
@@ -412,7 +412,7 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
         image (requires both cell heights to exceed twice the largest ``r_i + r_j``).
     kn, kt, sliding, law : as :func:`from_overlaps` (arrays of length C in the order of ``pairs``,
         or functions of ``(i, j, r_i, r_j, overlap)``).
-    fn, ft : normal (compression positive) and tangential forces [N/m], scalars, (C,) arrays or
+    fn, ft : normal (compression positive) and tangential forces [N], scalars, (C,) arrays or
         functions; ``fn`` is set by ``law`` if one is given.
     """
     positions, radii = _check_geometry(positions, radii)

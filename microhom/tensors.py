@@ -8,7 +8,7 @@ stress and the strain energy density is ``eps . C . eps / 2``. Voigt stiffness `
     K = (C1111 + C2222 + 2 C1122) / 4,
     G = ((C1111 + C2222 - 2 C1122) / 4 + C1212) / 2,
 
-the area-change (bulk) and orientation-averaged shear moduli (N/m per unit thickness for 2D disks).
+the area-change (bulk) and orientation-averaged shear moduli (2D: N/m, force per length, the unit of kn).
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The relaxation hierarchy on our own packings: validation against the exact solve, and speed.
 
     python -m studies.bench_hierarchy validate [--quick] [--out DIR]
-    python -m studies.bench_hierarchy speed [--n 100000] [--repeats 3] [--order 16]
+    python -m studies.bench_hierarchy speed [--n 100000] [--repeats 3] [--order 8] [--solver auto]
 
 ``validate``: 10 packings (N = 3000; identical and polydisperse disks; Z from near isostatic to
 5.1; kt/kn in {0, 0.1, 0.25, 0.5, 1}; pre-stress included). On each: the exact solve
@@ -74,8 +74,18 @@ def steps_to(seq, exact, rel):
     return -1
 
 
+PRECONDITIONERS = ("amg", "block")
+
+
+def up_steps_to(seq, exact, rel):
+    """First CG step k whose upper bound is within rel of the exact value (or -1)."""
+    ok = np.flatnonzero(seq[1:] / exact - 1 <= rel)
+    return int(ok[0]) + 1 if ok.size else -1
+
+
 def summary_table(df):
-    """Compact per-packing table for docs/results/hierarchy.md."""
+    """Compact per-packing table for docs/results/hierarchy.md: the multilevel hierarchy at 4 and
+    8 CG steps (8 and 16 moments), its lower bound, and block Jacobi at 8 steps for comparison."""
     def pm(v, e):
         return f"{100 * v:+.2f} ± {100 * e:.2f}"
     rows = []
@@ -83,14 +93,18 @@ def summary_table(df):
         row = {"packing": f"disp {r.dispersity:g}, mu_prep {r.mu_prep:g}, p/kn {r.p_over_kn:g}",
                "kt/kn": r.kt_over_kn, "Z": round(r.Z, 2), "G/G_aff": round(r.G_over_affine, 3)}
         for m in ("K", "G"):
-            for k in (8, 16):
-                row[f"{m} up {k} [%]"] = f"{100 * r[f'{m}_up{k}_err']:+.2f}"
-                row[f"{m} ext {k} [%]"] = pm(r[f"{m}_ext{k}_err"], r[f"{m}_ext{k}_stated"])
-            low = r[f"{m}_low16_err"]
-            row[f"{m} low 16 [%]"] = "n/a" if not np.isfinite(low) else f"{100 * low:+.1f}"
-        row["steps K 2 %"], row["steps G 5 %"] = int(r.K_steps_to), int(r.G_steps_to)
+            row[f"{m} up 4 [%]"] = f"{100 * r[f'{m}_up4_err']:+.2f}"
+            row[f"{m} up 8 [%]"] = f"{100 * r[f'{m}_up8_err']:+.2f}"
+            row[f"{m} ext 8 [%]"] = pm(r[f"{m}_ext8_err"], r[f"{m}_ext8_stated"])
+            low = r[f"{m}_low8_err"]
+            row[f"{m} low 8 [%]"] = "n/a" if not np.isfinite(low) else f"{100 * low:+.2f}"
+            row[f"{m} block up 8 [%]"] = f"{100 * r[f'blk_{m}_up8_err']:+.2f}"
+        row["steps K 2 % (block)"] = f"{int(r.K_up_steps_to)} ({int(r.blk_K_up_steps_to)})"
+        row["steps G 5 % (block)"] = f"{int(r.G_up_steps_to)} ({int(r.blk_G_up_steps_to)})"
         row["exact inside"] = bool(r.exact_inside_all_intervals)
-        row["exact s"], row["16 steps s"] = round(r.exact_s, 2), round(r.hier16_s, 2)
+        row["neg. modes (flagged)"] = f"{int(r.n_unstable)} ({'yes' if r.flagged_unstable else 'no'})"
+        row["exact s"] = round(r.exact_s, 2)
+        row["8 steps s (block)"] = f"{r.hier8_s:.2f} ({r.blk_hier8_s:.2f})"
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -110,46 +124,60 @@ def validate(args):
             ex = stiffness(net, prestress=True)
             t_ex = time.perf_counter() - t0
         lam, t_lam = certified_bound(net)
-        t0 = time.perf_counter()
-        h = relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=64,
-                                 spectral_bound=lam if lam else "none")
-        t_h = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        h16 = relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=16, spectral_bound="none")
-        t16 = time.perf_counter() - t0
         row = dict(dispersity=disp, mu_prep=mu_prep, p_over_kn=p, kt_over_kn=kt, seed=seed,
-                   Z=2 * h.n_contacts / max(h.n_particles - h.n_rattlers, 1), exact_K=ex.K, exact_G=ex.G,
-                   G_over_affine=ex.G / ex.G_affine, n_unstable=ex.n_unstable, exact_s=t_ex,
-                   hier16_s=t16, hier64_s=t_h, certify_s=t_lam, lam=lam)
+                   exact_K=ex.K, exact_G=ex.G, G_over_affine=ex.G / ex.G_affine,
+                   n_unstable=ex.n_unstable, exact_s=t_ex, certify_s=t_lam, lam=lam)
         inside = True
-        for m, seq, lows, exact in (("K", h.K_orders, h.K_lower_orders, ex.K),
-                                    ("G", h.G_orders, h.G_lower_orders, ex.G)):
-            tolm = 1e-9 * max(abs(ex.K), 1e-300)
-            inside &= bool(np.all(seq >= exact - tolm))
-            fin = np.isfinite(lows)
-            inside &= bool(np.all(lows[fin] <= exact + tolm))
-            for k in (8, 16):
-                v, e = _extrapolate(seq[1:k + 1])
-                row[f"{m}_up{k}_err"] = seq[k] / exact - 1
-                row[f"{m}_ext{k}_err"] = v / exact - 1
-                row[f"{m}_ext{k}_stated"] = e / abs(exact)
-                row[f"{m}_ext{k}_holds"] = bool(abs(v - exact) <= e)
-                row[f"{m}_low{k}_err"] = lows[k] / exact - 1 if np.isfinite(lows[k]) else np.nan
-            row[f"{m}_steps_to"] = steps_to(seq, exact, 0.02 if m == "K" else 0.05)
+        for prec in PRECONDITIONERS:
+            pre = "" if prec == "amg" else "blk_"
+            t0 = time.perf_counter()
+            h = relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=64,
+                                     spectral_bound=lam if lam else "none", preconditioner=prec,
+                                     soft_modes="auto" if prec == "amg" else 0)
+            row[pre + "hier64_s"] = time.perf_counter() - t0
+            row[pre + "flagged_unstable"] = h.unstable
+            t0 = time.perf_counter()
+            relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=8, spectral_bound="none",
+                                 preconditioner=prec, soft_modes="auto" if prec == "amg" else 0)
+            row[pre + "hier8_s"] = time.perf_counter() - t0
+            row["Z"] = 2 * h.n_contacts / max(h.n_particles - h.n_rattlers, 1)
+            for m, seq, lows, exact in (("K", h.K_orders, h.K_lower_orders, ex.K),
+                                        ("G", h.G_orders, h.G_lower_orders, ex.G)):
+                tolm = 1e-9 * max(abs(ex.K), 1e-300)
+                if prec == "amg":
+                    inside &= bool(np.all(seq >= exact - tolm))
+                    fin = np.isfinite(lows)
+                    inside &= bool(np.all(lows[fin] <= exact + tolm))
+                    row[f"{m}_min_up_err"] = float(seq.min() / exact - 1)
+                for k in (4, 8, 16):
+                    kk = min(k, seq.size - 1)          # converged earlier: the last order holds
+                    v, e = _extrapolate(seq[1:kk + 1])
+                    row[f"{pre}{m}_up{k}_err"] = seq[kk] / exact - 1
+                    row[f"{pre}{m}_ext{k}_err"] = v / exact - 1
+                    row[f"{pre}{m}_ext{k}_stated"] = e / abs(exact)
+                    row[f"{pre}{m}_ext{k}_holds"] = bool(abs(v - exact) <= e)
+                    row[f"{pre}{m}_low{k}_err"] = lows[kk] / exact - 1 if np.isfinite(lows[kk]) else np.nan
+                row[f"{pre}{m}_steps_to"] = steps_to(seq, exact, 0.02 if m == "K" else 0.05)
+                row[f"{pre}{m}_up_steps_to"] = up_steps_to(seq, exact, 0.02 if m == "K" else 0.05)
         row["exact_inside_all_intervals"] = inside
         rows.append(row)
         print(f"disp {disp} mu_prep {mu_prep} p {p:g} kt {kt}: Z {row['Z']:.2f}, G/Gaff {row['G_over_affine']:.3f}; "
-              f"16 steps: K up {row['K_up16_err']:+.3f} ext {row['K_ext16_err']:+.4f} (stated {row['K_ext16_stated']:.4f}), "
-              f"G up {row['G_up16_err']:+.3f} ext {row['G_ext16_err']:+.4f} (stated {row['G_ext16_stated']:.4f}); "
-              f"steps K2% {row['K_steps_to']} G5% {row['G_steps_to']}; inside {inside}; "
-              f"times exact {t_ex:.2f} s, 16 steps {t16:.2f} s, certify {t_lam:.2f} s", flush=True)
+              f"8 steps: K up {row['K_up8_err']:+.4f} ext {row['K_ext8_err']:+.4f} (stated {row['K_ext8_stated']:.4f}), "
+              f"G up {row['G_up8_err']:+.4f} ext {row['G_ext8_err']:+.4f} (stated {row['G_ext8_stated']:.4f}); "
+              f"block 8: K up {row['blk_K_up8_err']:+.3f} G up {row['blk_G_up8_err']:+.3f}; inside {inside} "
+              f"(min up err K {row['K_min_up_err']:.1e} G {row['G_min_up_err']:.1e}, negative modes {ex.n_unstable}); "
+              f"times exact {t_ex:.2f} s, 8 steps {row['hier8_s']:.2f} s (block {row['blk_hier8_s']:.2f}), "
+              f"certify {t_lam:.2f} s", flush=True)
     df = pd.DataFrame(rows)
     write_table(df, out, "validation", "Relaxation hierarchy against the exact solve",
                 f"N = {n}, pre-stress included; load average {os.getloadavg()[0]:.1f}.")
     write_table(summary_table(df), out, "summary", "Relaxation hierarchy: errors against the exact solve",
-                "Errors relative to the exact value; 'ext +- stated' is the extrapolated value's error and "
-                "its stated error; steps = CG steps (each uses 2 moments) after which the extrapolated value "
-                "stays within 2 % (K) / 5 % (G), -1 = not within 64 steps.")
+                "Errors relative to the exact value; 'up k' the upper bound after k CG steps (2k moments), "
+                "'ext +- stated' the extrapolated value's error and its stated error, 'low' the rigorous lower "
+                "bound (n/a: no certified spectral bound); steps = first CG step whose upper bound is within "
+                "2 % (K) / 5 % (G), -1 = not within 64 steps; neg. modes: negative eigenvalues of H found by "
+                "the exact solver (then the bound theorem, which needs H >= 0, does not apply); flagged: the "
+                "hierarchy (default soft_modes='auto': 3 soft modes searched) flags the network unstable.")
     print(f"written {out / 'validation.md'}")
     return df
 
@@ -159,22 +187,34 @@ def speed(args):
     res, t_pack, _ = get_packing(case)
     net = res.to_network()
     print(f"packing N = {args.n}: {net.n_contacts} contacts (built in {t_pack:.0f} s)")
-    t_h, t_e = [], []
+    times = {p: [] for p in PRECONDITIONERS}
+    t_e = []
+    hs = {}
     for rep in range(args.repeats):
-        t0 = time.perf_counter()
-        h = relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=args.order, spectral_bound="none")
-        t_h.append(time.perf_counter() - t0)
+        for prec in PRECONDITIONERS:
+            t0 = time.perf_counter()
+            hs[prec] = relaxation_hierarchy(net, prestress=True, tol=1e-9, max_order=args.order,
+                                            spectral_bound="none", preconditioner=prec)
+            times[prec].append(time.perf_counter() - t0)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             t0 = time.perf_counter()
-            ex = stiffness(net, prestress=True)
+            ex = stiffness(net, prestress=True, solver=args.solver)
             t_e.append(time.perf_counter() - t0)
-        print(f"repeat {rep}: hierarchy ({args.order} steps) {t_h[-1]:.2f} s (assembly {h.assembly_time:.2f}), "
-              f"exact {t_e[-1]:.2f} s; load {os.getloadavg()[0]:.1f}", flush=True)
-    print(f"hierarchy {np.median(t_h):.2f} s [{min(t_h):.2f}, {max(t_h):.2f}], exact {np.median(t_e):.2f} s "
-          f"[{min(t_e):.2f}, {max(t_e):.2f}]; ratio {np.median(t_h) / np.median(t_e):.3f}")
-    print(f"  K: exact {ex.K:.5f}, upper {h.K.upper:.5f}, extrapolated {h.K.value:.5f} +- {h.K.error:.5f}")
-    print(f"  G: exact {ex.G:.5f}, upper {h.G.upper:.5f}, extrapolated {h.G.value:.5f} +- {h.G.error:.5f}")
+        print(f"repeat {rep}: " + ", ".join(
+            f"{p} ({args.order} steps) {times[p][-1]:.2f} s (assembly {hs[p].assembly_time:.2f}, "
+            f"setup {hs[p].preconditioner_time:.2f})" for p in PRECONDITIONERS)
+            + f", exact ({ex.solver}) {t_e[-1]:.2f} s; load {os.getloadavg()[0]:.1f}", flush=True)
+    print(f"exact ({ex.solver}) {np.median(t_e):.2f} s [{min(t_e):.2f}, {max(t_e):.2f}]")
+    for prec in PRECONDITIONERS:
+        t, h = times[prec], hs[prec]
+        print(f"{prec}: {np.median(t):.2f} s [{min(t):.2f}, {max(t):.2f}]; ratio to exact "
+              f"{np.median(t) / np.median(t_e):.3f} (per repeat "
+              f"{min(a / b for a, b in zip(t, t_e)):.3f}-{max(a / b for a, b in zip(t, t_e)):.3f})")
+        print(f"  K: exact {ex.K:.5f}, upper {h.K.upper:.5f} ({h.K.upper / ex.K - 1:+.2e}), extrapolated "
+              f"{h.K.value:.5f} +- {h.K.error:.5f}")
+        print(f"  G: exact {ex.G:.5f}, upper {h.G.upper:.5f} ({h.G.upper / ex.G - 1:+.2e}), extrapolated "
+              f"{h.G.value:.5f} +- {h.G.error:.5f}")
     stats_speed()
 
 
@@ -208,7 +248,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--order", type=int, default=16)
+    ap.add_argument("--order", type=int, default=8, help="CG steps (2 moments each)")
+    ap.add_argument("--solver", default="auto", choices=["auto", "cholmod", "splu"],
+                    help="back end of the exact solve (dem.stiffness)")
     ap.add_argument("--out", default="out/hierarchy")
     args = ap.parse_args(argv)
     print(f"load average {os.getloadavg()}")

@@ -104,7 +104,7 @@ def closure_estimate(stats: dict, kt_over_kn: float, dispersity: float) -> dict:
             "closure_time_s": time.perf_counter() - t0}
 
 
-def hierarchy_estimates(net, prestress: bool, order: int = 16) -> dict:
+def hierarchy_estimates(net, prestress: bool, order: int = 8) -> dict:
     """Relaxation hierarchy after ``order`` CG steps: upper bounds, extrapolated values with their
     stated errors, and the first-order (single-particle) estimate; wall time."""
     t0 = time.perf_counter()

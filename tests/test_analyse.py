@@ -91,6 +91,38 @@ def test_packing_npz_matches_library(packing_npz):
     assert r["comparison"]["G_mf_over_exact"] > 1.0     # mean field overestimates G
 
 
+def test_hierarchy_and_closure_sections(packing_npz):
+    """The analysis carries the hierarchy (bounds around the exact value, the library's numbers)
+    and the statistics-only closure with its stated error."""
+    from dem.stiffness import stiffness
+    from microhom.closure import predict_closure
+    from microhom.hierarchy import relaxation_hierarchy
+    from microhom.structural_sums import network_statistics
+
+    path, res = packing_npz
+    net = res.to_network()
+    p = run(path, "--prestress", "--json")
+    assert p.returncode == 0, p.stderr
+    r = json.loads(p.stdout)
+    h, c, ex = r["hierarchy"], r["closure"], stiffness(net, prestress=True)
+    for m in ("K", "G"):
+        exact = getattr(ex, m)
+        assert h[f"{m}_upper"] >= exact * (1 - 1e-10)
+        assert h[f"{m}_lower"] is None or h[f"{m}_lower"] <= exact * (1 + 1e-10)
+        assert abs(h[m] - exact) <= max(h[f"{m}_error"], 1e-9 * exact)
+        assert r["comparison"][f"{m}_hierarchy_over_exact"] == pytest.approx(h[m] / exact, rel=1e-12)
+    lib = relaxation_hierarchy(net, prestress=True, tol=1e-3, max_order=16)
+    assert h["G_upper"] == pytest.approx(lib.G.upper, rel=1e-10) and h["order"] == lib.order
+    st = network_statistics(net)
+    cl = predict_closure(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=c["kt_over_kn"],
+                         dispersity=c["dispersity"], kn=float(np.mean(net.kn)))
+    assert c["K"] == pytest.approx(float(cl.K), rel=1e-12) and c["error_G"] == pytest.approx(float(cl.error_G))
+    q = run(path, "--no-hierarchy", "--json")
+    assert json.loads(q.stdout)["hierarchy"] == {"error": "not computed"}
+    t = run(path)
+    assert "rigorous upper bound" in t.stdout and "closure (statistics only)" in t.stdout
+
+
 def test_table_and_csv_outputs(packing_npz):
     path, _ = packing_npz
     p = run(path)
@@ -156,6 +188,9 @@ OLD_JSON_KEYS = {
     "stiffness": ["K", "G", "K_affine", "G_affine", "C_mandel", "prestress", "n_rattlers",
                   "n_floppy", "n_unstable", "n_dof", "residual", "time_s"],
     "comparison": [], "notes": "list"}
+NEW_SECTIONS = ("closure", "hierarchy")
+
+
 def run_in(capsys, *args):
     """``python -m dem analyse ARGS`` in this process (no interpreter start-up): a
     CompletedProcess-like object with returncode, stdout, stderr."""
@@ -179,10 +214,16 @@ def test_json_and_csv_layout_unchanged_and_typed_result(capsys):
     p = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--json")
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
-    assert list(r) == list(OLD_JSON_KEYS)
-    assert {k: (list(v) if isinstance(v, dict) else "list") for k, v in r.items()} == OLD_JSON_KEYS
+    # issue 11 added two sections (closure, hierarchy) between theory and stiffness; every older
+    # section keeps its keys and its order
+    assert [k for k in r if k not in NEW_SECTIONS] == list(OLD_JSON_KEYS)
+    assert list(r).index("closure") == list(r).index("theory") + 1
+    old = lambda key: not any(f"_{n}_" in key for n in NEW_SECTIONS)   # noqa: E731 (new comparison keys)
+    assert {k: ([x for x in v if old(x)] if isinstance(v, dict) else "list") for k, v in r.items()
+            if k not in NEW_SECTIONS} == OLD_JSON_KEYS
     c = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--csv")
-    assert c.stdout.splitlines()[0] == OLD_CSV_HEADER
+    head = c.stdout.splitlines()[0].split(",")
+    assert ",".join(h for h in head if h.split(".")[0] not in NEW_SECTIONS and old(h)) == OLD_CSV_HEADER
     res = analyse_file(DATA / "radius.dump", kn=2.0)
     assert isinstance(res, AnalysisResult) and isinstance(res, Result)
     with pytest.raises(dataclasses.FrozenInstanceError):

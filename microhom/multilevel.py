@@ -1,0 +1,146 @@
+"""Multilevel preconditioner for the Hessian of a contact network (smoothed-aggregation AMG).
+
+The relaxation hierarchy (``microhom.hierarchy``) runs block conjugate gradients on
+``H X = -F`` (``microhom.kinematics``). Its upper bounds hold for *any* iterate ``X`` and grow
+monotonically for *any* fixed preconditioner (``docs/theory.md``, section 9.6), so the
+preconditioner decides only how fast they converge. The particle-block Jacobi ``M`` makes order k
+the relaxation that k contact shells carry, and converges slowly where the relaxation is carried
+by soft, extended modes (near isostaticity, small kt/kn). This module builds the multilevel
+alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
+
+* the near-null space of a disk network, four vectors per particle: the two translations, the
+  rigid rotation of a neighbourhood (``u = omega x x``, spin ``omega``: ``(-y, x, 1)``) and a spin
+  alone (the rolling mode of a particle between its neighbours). An aggregate's coarse unknowns are
+  these four motions of its particles (rotation about the aggregate's own centre after pyamg's
+  local QR);
+* energy-minimising prolongation smoothing (deterministic: no random spectral-radius estimate);
+* symmetric block Gauss-Seidel smoothing (two sweeps each way) on the particles' 3 x 3 (or 2 x 2)
+  blocks, so that one V-cycle is a symmetric operator.
+
+Measured (docs/results/hierarchy.md): on N = 3000 DEM packings the upper bound after 8 steps is
+within 2.3 % of the exact shear modulus on every frictional packing (block Jacobi: up to 68 %).
+
+Shapes: ``asm.ndof`` unknowns; the operator applies to (ndof,) or (ndof, s) arrays.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from .kinematics import Assembly
+from .results import Result
+
+__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout"]
+
+_SHIFT = 1e-10        # H + shift * mean(diag H) * I: removes the two global translations (pin=False)
+
+
+def dof_layout(asm: Assembly):
+    """(particle, component), two (ndof,) int arrays: the particle of every reduced unknown and its
+    component (0, 1 = translation x, y; 2 = spin)."""
+    N = asm.net.n_particles
+    full = np.flatnonzero(asm.dof_map >= 0)
+    red = asm.dof_map[full]
+    part = np.empty(asm.ndof, dtype=np.int64)
+    comp = np.empty(asm.ndof, dtype=np.int64)
+    isx = full < 2 * N
+    part[red] = np.where(isx, full // 2, full - 2 * N)
+    comp[red] = np.where(isx, full % 2, 2)
+    return part, comp
+
+
+def near_null_space(asm: Assembly) -> np.ndarray:
+    """(ndof, m) candidate low-energy motions, m = 4 with spins, 3 without: translation x,
+    translation y, rigid rotation ``(-y, x)`` with unit spin, unit spin alone [m for the rotation's
+    translation entries, 1 otherwise]. Positions are those of the network (inside the cell); zero
+    columns (no spins) are dropped."""
+    part, comp = dof_layout(asm)
+    x = np.asarray(asm.net.positions, dtype=float)[part]
+    B = np.zeros((asm.ndof, 4))
+    B[comp == 0, 0] = 1.0
+    B[comp == 1, 1] = 1.0
+    B[comp == 0, 2] = -x[comp == 0, 1]
+    B[comp == 1, 2] = x[comp == 1, 0]
+    B[comp == 2, 2] = 1.0
+    B[comp == 2, 3] = 1.0
+    return B[:, np.abs(B).sum(axis=0) > 0]
+
+
+@dataclass(frozen=True)
+class AMGInfo(Result):
+    """What was built.
+
+    Attributes
+    ----------
+    levels : int
+        Levels of the hierarchy (1 = the coarse solve only, for tiny systems).
+    operator_complexity : float
+        Non-zeros of all level matrices over those of ``H`` [-].
+    blocksize : int
+        Unknowns per particle block (3 with spins, 2 without, 1 when mixed).
+    setup_time : float
+        Wall time of the setup [s].
+    """
+
+    levels: int
+    operator_complexity: float
+    blocksize: int
+    setup_time: float
+
+
+def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
+    """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
+
+    Parameters
+    ----------
+    asm : Assembly
+        From ``microhom.kinematics.assemble`` (``pin=False`` or True).
+    sweeps : int
+        Symmetric Gauss-Seidel sweeps before and after each coarse correction, 1..10.
+
+    Returns
+    -------
+    (LinearOperator (ndof, ndof), AMGInfo)
+    """
+    try:
+        import pyamg
+    except ImportError as exc:  # pragma: no cover - pyamg is a core dependency
+        raise ImportError("preconditioner='amg' needs pyamg (pip install pyamg); "
+                          "preconditioner='block' works without it") from exc
+    if int(sweeps) != sweeps or not 1 <= sweeps <= 10:
+        raise ValueError(f"sweeps must be an integer in [1, 10], got {sweeps!r}")
+    t0 = time.perf_counter()
+    n = asm.ndof
+    part, comp = dof_layout(asm)
+    order = np.lexsort((comp, part))                     # particle-major: (x, y, spin) per particle
+    inv = np.empty_like(order)
+    inv[order] = np.arange(n)
+    counts = np.bincount(part)[np.unique(part)]
+    bs = int(counts[0]) if counts.size and np.all(counts == counts[0]) else 1
+    H = asm.H.tocsr()[order][:, order]
+    H = (H + _SHIFT * float(H.diagonal().mean()) * sp.identity(n, format="csr")).tocsr()
+    smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
+                {"sweep": "symmetric", "iterations": int(sweeps)})
+    ml = pyamg.smoothed_aggregation_solver(H.tobsr(blocksize=(bs, bs)) if bs > 1 else H,
+                                           B=near_null_space(asm)[order],
+                                           presmoother=smoother, postsmoother=smoother,
+                                           smooth=("energy", {}))
+    vcycle = ml.aspreconditioner(cycle="V")
+
+    def apply(r):
+        r = np.asarray(r, dtype=float)
+        if r.ndim == 1:
+            return (vcycle @ r[order])[inv]
+        out = np.empty_like(r)
+        for j in range(r.shape[1]):
+            out[:, j] = (vcycle @ r[order, j])[inv]
+        return out
+
+    op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)
+    info = AMGInfo(levels=len(ml.levels), operator_complexity=float(ml.operator_complexity()),
+                   blocksize=bs, setup_time=time.perf_counter() - t0)
+    return op, info
