@@ -36,8 +36,8 @@ Protocol (default, :func:`pack`):
    spreads the radii during this first compression only and restores them once the target
    pressure is reached); the hexatic order ``psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)|``
    (Delaunay neighbours) is reported for every packing. Frictional preparation comes out
-   amorphous or weakly ordered (psi6 ~ 0.02 for N = 1e4, mu_prep = 0.5; 0.05-0.3 for N = 1000,
-   mu_prep = 0.02-0.1); frictionless identical disks order (psi6 up to ~0.97): use
+   amorphous or weakly ordered (psi6 ~ 0.02-0.1 for N = 1e4; 0.02-0.53 for N = 1000,
+   mu_prep = 0.02-0.1, over seeds); frictionless identical disks order (psi6 up to ~0.97): use
    ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
 3. *Equilibrium* at ``mu_prep`` (phase ``prep``), with the local damping ``damping`` and, with

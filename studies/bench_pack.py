@@ -1,12 +1,14 @@
 """A full `dem.packing.pack` of 1e4 disks against LAMMPS' preparation of 1e4 disks, in the same run.
 
-    python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0] [--old]
+    python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0] [--old] [--case cli|mu05]
 
-Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (p/kn = 1e-4,
-mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic energy
-of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at mu_prep
--> equilibrium at mu, each phase with its own stop criterion (the step at which each ended is
-printed).
+Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (``--case cli``: p/kn =
+1e-4, mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic
+energy of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at
+mu_prep -> equilibrium at mu, each phase with its own stop criterion (the step at which each ended
+is printed). ``--case mu05``: ``pack(n, p_over_kn=1e-4, seed=seed)``, mu = mu_prep = 0.5 (the
+friction of ``in.prep``, and the case of issue 12 and ``studies.bench_throughput``), same
+criteria.
 
 LAMMPS: ``studies/lammps_bench/in.prep`` (carried in the repository, shared with bench_throughput): random insertion,
 soft push-off, isotropic compression at a constant rate to phi = 0.84 with GRANULAR
@@ -43,9 +45,13 @@ CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispe
 OLD_PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
 
-def run_ours(n, seed, old=False):
+#: ``--case``: the physics parameters of ours
+CASES = {"cli": CLI_DEFAULTS, "mu05": dict(p_over_kn=1e-4)}
+
+
+def run_ours(n, seed, old=False, case="cli"):
     t0, c0 = time.perf_counter(), time.process_time()
-    r = pack(n, seed=seed, **CLI_DEFAULTS, **(OLD_PROTOCOL if old else {}))
+    r = pack(n, seed=seed, **CASES[case], **(OLD_PROTOCOL if old else {}))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rep = r.report
     c = coordination(r.to_network())      # after the timing: Z without rattlers
@@ -90,16 +96,19 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--old", action="store_true", help="also run the protocol before issue 12.3")
+    ap.add_argument("--case", choices=sorted(CASES), default="cli",
+                    help="cli: the defaults of python -m dem pack; mu05: mu = mu_prep = 0.5")
     a = ap.parse_args(argv)
     have_lmp = shutil.which("lmp") is not None
     if not have_lmp:
         print("lmp not on PATH: the LAMMPS side is skipped (Debian: apt-get install -y lammps)")
-    print(f"N = {a.n}, load average {os.getloadavg()} on {os.cpu_count()} cores")
+    print(f"N = {a.n}, case {a.case} {CASES[a.case]}, load average {os.getloadavg()} on "
+          f"{os.cpu_count()} cores")
     sides = {"ours": [], "ours (old)": [], "LAMMPS": []}
     with tempfile.TemporaryDirectory(prefix="bench_pack_") as work:
         for k in range(a.repeats):
             for old in ([False, True] if a.old else [False]):
-                o = run_ours(a.n, a.seed + k, old=old)
+                o = run_ours(a.n, a.seed + k, old=old, case=a.case)
                 name = "ours (old)" if old else "ours"
                 sides[name].append(o)
                 print(f"{name:10s} seed {a.seed + k}: {o['wall']:7.2f} s wall, {o['cpu']:7.2f} s CPU, "
