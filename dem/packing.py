@@ -40,6 +40,9 @@ Protocol (default, :func:`pack`):
    mu_prep = 0.02-0.1, over seeds); frictionless identical disks order (psi6 up to ~0.97): use
    ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
+   With ``fire=True`` (default), once the solid fraction has stopped changing (relative change
+   below 3e-7 at five checks in a row) the FIRE velocity mixing of :mod:`dem.fire` runs too,
+   until the phase ends or the packing moves again.
 3. *Equilibrium* at ``mu_prep`` (phase ``prep``), with the local damping ``damping`` and, with
    ``fire=True`` (default), the FIRE velocity mixing of :mod:`dem.fire` after every step (it
    quenches the velocities whenever the power ``F . v`` turns negative: the ringing of the
@@ -477,16 +480,34 @@ class Grow:
 class Compact:
     """Phase ``compact``: the servo drives the pressure to the target under the light damping
     ``damping`` (set when the simulation is built); ends when the packing has jammed:
-    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``."""
+    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``.
+
+    Once the packing has stopped compacting (the solid fraction changed by less than
+    ``still_tol`` (relative) between consecutive checks, ``still_checks`` times in a row), the
+    FIRE mixing (:mod:`dem.fire`) runs on top of the damping until the phase ends or the packing
+    moves again (``still_tol = 0``: never). It stops the ringing of the jammed, lightly damped
+    packing; during the flow it would stop the flow, hence the gate.
+    """
     damping: float
     jam_unbalanced: float = 1e-3
     tol_p: float = 1e-2
+    still_tol: float = 3e-7
+    still_checks: int = 5
     name = "compact"
 
     def enter(self, run):
         pass
 
     def done(self, run, m):
+        if self.still_tol > 0:
+            phi = run.state.solid_fraction
+            prev, run.last_phi = run.last_phi, phi
+            run.n_still = run.n_still + 1 if prev is not None and abs(phi - prev) < \
+                self.still_tol * phi else 0
+            if run.n_still < self.still_checks:
+                run.fire = None
+            elif run.fire is None:
+                run.fire = Fire()
         return abs(m["pressure"] - run.p_target) < self.tol_p * run.p_target and \
             m["unbalanced"] < self.jam_unbalanced
 
@@ -536,6 +557,8 @@ class _Run:
         self.history = history
         self.last = {}
         self.fire = None     # the FIRE mixing of the current phase (dem.fire.Fire) or None
+        self.last_phi = None  # solid fraction at the last check (Compact's stillness gate)
+        self.n_still = 0      # consecutive checks without compaction
 
     def advance(self, k):
         """``k`` time steps, with the FIRE mixing after each one if the phase has it."""
@@ -619,8 +642,9 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         (default 1; ``dt_crit`` is itself at least sqrt(2) below the leapfrog limit of the
         stiffest possible contact set, see :mod:`dem.integrate`).
     fire : bool
-        FIRE velocity mixing (:mod:`dem.fire`) in the equilibrium phases, on top of
-        ``damping`` (default True; False: damping alone, the earlier protocol).
+        FIRE velocity mixing (:mod:`dem.fire`) in the equilibrium phases and, once the packing
+        has stopped compacting, in the compaction phase (:class:`Compact`), on top of the
+        damping (default True; False: damping alone, the earlier protocol).
     tol_p, tol_unbalanced, tol_ke : float
         Stop criteria [-] (module docstring).
     max_steps : int
@@ -693,7 +717,8 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     if growth_dispersity > 0:
         phases.append(Grow(growth_dispersity, increments=restore_increments))
     if damping_compaction is not None:
-        phases.append(Compact(damping_compaction, jam_unbalanced))
+        phases.append(Compact(damping_compaction, jam_unbalanced,
+                              still_tol=3e-7 if fire else 0.0))
     eq = dict(damping=damping, tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke,
               fire=bool(fire))
     phases.append(Equilibrate("prep", law_prep, **eq))
@@ -736,6 +761,7 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     run = _Run(sim, p_target, history)
     if resumed:
         run.fire = Fire.from_meta(pk["fire"]) if pk.get("fire") else None
+        run.last_phi, run.n_still = pk.get("last_phi"), pk.get("n_still", 0)
     else:
         by_name[phase].enter(run)
     ck_state = {"step": state.step if resumed else None, "t": time.perf_counter()}
@@ -750,7 +776,8 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
 
     def save_checkpoint(report=None):
         state.meta["packing"] = {"phase": phase, "history": history, "params": params,
-                                 "fire": None if run.fire is None else run.fire.to_meta()}
+                                 "fire": None if run.fire is None else run.fire.to_meta(),
+                                 "last_phi": run.last_phi, "n_still": run.n_still}
         if report is not None:
             state.meta["packing"]["report"] = {k: v for k, v in report.scalars().items()
                                                if k not in ("resumed", "already_converged")}
