@@ -105,6 +105,42 @@ def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
         assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
 
 
+def test_compaction_fire_gate_follows_the_solid_fraction():
+    """Compact's gate: FIRE on after ``still_checks`` checks without compaction, off as soon as
+    the solid fraction moves again; the stop criterion is untouched."""
+    from dem.packing import Compact, _Run
+
+    class St:
+        solid_fraction = 0.8
+
+    run = _Run.__new__(_Run)
+    run.state, run.p_target, run.fire, run.last_phi, run.n_still = St(), 1.0, None, None, 0
+    ph = Compact(0.05, still_tol=1e-6, still_checks=3)
+    m = {"pressure": 2.0, "unbalanced": 1.0}              # far from done
+    seen = []
+    for phi in (0.8, 0.8, 0.8, 0.8, 0.8, 0.81, 0.81):
+        St.solid_fraction = phi
+        assert not ph.done(run, m)
+        seen.append((run.n_still, run.fire is not None))
+    assert seen == [(0, False), (1, False), (2, False), (3, True), (4, True), (0, False), (1, False)]
+    assert Compact(0.05, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
+
+
+def test_resume_with_the_compaction_gate_counting_is_bit_exact(tmp_path):
+    # N = 400, seed 0: the gate opens at step 11 800 (fifth still check), the checkpoint at
+    # 11 500 is inside the count
+    kw = dict(p_over_kn=1e-4, mu=0.5, seed=0, checkpoint_every=100)
+    straight = pack(400, **kw)
+    ck = tmp_path / "pack.npz"
+    pack(400, **dict(kw, max_steps=11500, checkpoint=ck))
+    pk = State.load(ck).meta["packing"]
+    assert pk["phase"] == "compact" and pk["n_still"] > 0 and pk["last_phi"] is not None
+    resumed = pack(400, **dict(kw, checkpoint=ck))
+    assert resumed.report["steps"] == straight.report["steps"]
+    for name in ("x", "v", "omega", "h", "L", "nl_ft"):
+        assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
+
+
 def test_psi6_of_a_crystal_is_one():
     net = lattices.triangular(6, 6, angle=0.3)
     hx = hexatic_psi6(net)
