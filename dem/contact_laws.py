@@ -5,9 +5,12 @@ Conventions (2D, per unit thickness; any consistent units, e.g. SI: forces [N/m]
 
 * branch ``l = x_j + h s - x_i``, normal ``n = l/|l|`` from i to j, tangent ``t = (-n_y, n_x)``;
 * overlap ``delta = r_i + r_j - |l|`` (> 0 in contact);
-* force on j ``F = fn n + ft t`` (fn > 0 repulsive), on i ``-F``; torques on i and j ``-r_i ft`` and
-  ``-r_j ft`` (lever arms = radii);
-* relative velocity of j's contact point w.r.t. i's: ``dv = v_j - v_i + L l - (w_i r_i + w_j r_j) t``
+* force on j ``F = fn n + ft t`` (fn > 0 repulsive), on i ``-F``; torques on i and j ``-a_i ft`` and
+  ``-a_j ft`` with the spin arms ``a``: the distances to the contact point
+  ``a_i = |l| r_i / (r_i + r_j)`` (``contact_arms=True``, as :mod:`microhom.kinematics`) or the
+  radii ``a = r`` (``contact_arms=False``, the default, as LAMMPS ``gran/*`` and
+  :class:`LammpsHookeHistory`);
+* relative velocity of j's contact point w.r.t. i's: ``dv = v_j - v_i + L l - (w_i a_i + w_j a_j) t``
   (fluctuation velocities plus the affine field of the cell);
 * tangential history (this project's rule, :class:`~dem.contact_models.LinearHistory`): a scalar
   ``ft`` along ``t`` (the spring turns rigidly with the contact), incremented by
@@ -161,21 +164,27 @@ class LinearFriction(_Composed):
     tangential_damping : bool
         If True the same dashpot also acts on the tangential relative velocity (the Coulomb cap
         applies to the total tangential force).
+    contact_arms : bool
+        Spin arms: False (default) the radii, as LAMMPS ``gran/*``; True the distances to the
+        contact point ``|l| r_i / (r_i + r_j)``, as the exact stiffness (:mod:`microhom.kinematics`)
+        takes them, so that a rigid rotation slides no contact (see ``docs/dem.md``).
     """
     kn: float
     kt: float
     mu: float
     restitution: float | None = None
     tangential_damping: bool = False
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hooke(self.kn), _viscous(self.restitution, self.tangential_damping),
-                      cm.LinearHistory(self.kt, self.mu))
+                      cm.LinearHistory(self.kt, self.mu, self.contact_arms))
 
     def to_meta(self):
         """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "LinearFriction", "kn": self.kn, "kt": self.kt, "mu": self.mu,
-                "restitution": self.restitution, "tangential_damping": self.tangential_damping}
+                "restitution": self.restitution, "tangential_damping": self.tangential_damping,
+                "contact_arms": self.contact_arms}
 
 
 @dataclass(frozen=True)
@@ -195,21 +204,24 @@ class HertzMindlin(_Composed):
         Ratio of the tangential to the normal tangent stiffness (default 2/3).
     restitution : float or None
         Coefficient of restitution ``e`` in (0, 1] of a viscous normal dashpot; None: no damping.
+    contact_arms : bool
+        Spin arms, as in :class:`LinearFriction` (default False: the radii).
     """
     kh: float
     mu: float
     delta_ref: float
     kt_ratio: float = 2.0 / 3.0
     restitution: float | None = None
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hertz(self.kh, self.delta_ref), _viscous(self.restitution),
-                      cm.Mindlin(self.kt_ratio, self.mu))
+                      cm.Mindlin(self.kt_ratio, self.mu, self.contact_arms))
 
     def to_meta(self):
         """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzMindlin", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
-                "kt_ratio": self.kt_ratio, "restitution": self.restitution}
+                "kt_ratio": self.kt_ratio, "restitution": self.restitution, "contact_arms": self.contact_arms}
 
 
 @dataclass(frozen=True)
@@ -226,6 +238,8 @@ class HertzRolling(_Composed):
         Rolling friction coefficient (dimensionless), >= 0.
     kr_ratio : float
         Rolling stiffness in units of ``k_n(delta) R_eff^2`` (default 0.25).
+    contact_arms : bool
+        Spin arms, as in :class:`LinearFriction` (default False: the radii).
     """
     kh: float
     mu: float
@@ -234,16 +248,18 @@ class HertzRolling(_Composed):
     kr_ratio: float = 0.25
     kt_ratio: float = 2.0 / 3.0
     restitution: float | None = None
+    contact_arms: bool = False
 
     def __post_init__(self):
         self._compose(cm.Hertz(self.kh, self.delta_ref), _viscous(self.restitution),
-                      cm.Mindlin(self.kt_ratio, self.mu), cm.RollingResistance(self.kr_ratio, self.mu_r))
+                      cm.Mindlin(self.kt_ratio, self.mu, self.contact_arms),
+                      cm.RollingResistance(self.kr_ratio, self.mu_r))
 
     def to_meta(self):
         """JSON-ready dict of the law's parameters (:func:`law_from_meta` rebuilds the law)."""
         return {"law": "HertzRolling", "kh": self.kh, "mu": self.mu, "delta_ref": self.delta_ref,
                 "mu_r": self.mu_r, "kr_ratio": self.kr_ratio, "kt_ratio": self.kt_ratio,
-                "restitution": self.restitution}
+                "restitution": self.restitution, "contact_arms": self.contact_arms}
 
 
 @dataclass(frozen=True)
@@ -339,7 +355,8 @@ class ContactLaw(_Composed):
         """JSON-ready dict of the sub-models and their coefficients (:func:`law_from_meta` rebuilds
         the law)."""
         def d(m):
-            return {"model": type(m).__name__, **{k: float(v) for k, v in m._asdict().items()}}
+            return {"model": type(m).__name__,
+                    **{k: v if isinstance(v, bool) else float(v) for k, v in m._asdict().items()}}
         return {"law": "ContactLaw", "normal": d(self.normal), "damping": d(self.damping),
                 "tangential": d(self.tangential), "rolling": d(self.rolling)}
 

@@ -42,8 +42,8 @@ Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can
 (``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
 complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
 reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
-arithmetic per particle is that of :func:`kick_drift` and :func:`kick_spin`, in the same order,
-so fused and separate integration give bit-identical trajectories.
+arithmetic per particle is that of :func:`kick_range`, in the same order, so fused and separate
+integration give bit-identical trajectories.
 """
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ from numba.extending import overload
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
            "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "make_pair_constants",
-           "kick_drift", "kick_spin", "SUBMODELS"]
+           "kick_range", "kick_all", "SUBMODELS"]
 
 
 def _check(name, value, low, *, low_open=False, high=math.inf):
@@ -67,6 +67,11 @@ def _check(name, value, low, *, low_open=False, high=math.inf):
         lo = "(" if low_open else "["
         hi = "inf)" if high == math.inf else f"{high:g}]"
         raise ValueError(f"{name} must be in {lo}{low:g}, {hi}, got {value}")
+
+
+def _check_bool(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -366,9 +371,16 @@ def _notang_mag(model, fn, fx, fy):
 class LinearHistory(NamedTuple):
     """Tangential spring ``kt`` [N/m] with history, Coulomb ``mu``: a scalar force ``ft`` along the
     current tangent ``t`` (the spring turns rigidly with the contact), incremented by
-    ``-kt vt dt`` and capped at ``mu max(fn, 0)``; reset when the contact opens."""
+    ``-kt vt dt`` and capped at ``mu max(fn, 0)``; reset when the contact opens.
+
+    ``contact_arms``: the spin arms (in the contact point's velocity ``w_i a_i + w_j a_j`` and in
+    the torques ``-a ft``). False: the radii ``a = r`` (LAMMPS ``gran/*``); True: the distances
+    to the contact point ``a_i = |l| r_i / (r_i + r_j)`` (as :mod:`microhom.kinematics` and the
+    exact stiffness), with ``a_i + a_j = |l|``, so that a rigid rotation of overlapping disks
+    slides no contact."""
     kt: float
     mu: float
+    contact_arms: bool = False
 
     HISTORY = 1
     PARITY = (1,)
@@ -377,6 +389,8 @@ class LinearHistory(NamedTuple):
     def check(self):
         _check("kt", self.kt, 0.0)
         _check("mu", self.mu, 0.0)
+        _check_bool("contact_arms", self.contact_arms)
+
 
     def dt_stiffness(self, normal):
         # rotational modes of disks (I = m r^2 / 2): z contacts resisting one rotation give
@@ -388,9 +402,11 @@ class LinearHistory(NamedTuple):
 
 
 class Mindlin(NamedTuple):
-    """As :class:`LinearHistory` with the incremental Mindlin stiffness ``kt = kt_ratio k_n(delta)``."""
+    """As :class:`LinearHistory` (``contact_arms`` included) with the incremental Mindlin stiffness
+    ``kt = kt_ratio k_n(delta)``."""
     kt_ratio: float
     mu: float
+    contact_arms: bool = False
 
     HISTORY = 1
     PARITY = (1,)
@@ -399,6 +415,8 @@ class Mindlin(NamedTuple):
     def check(self):
         _check("kt_ratio", self.kt_ratio, 0.0)
         _check("mu", self.mu, 0.0)
+        _check_bool("contact_arms", self.contact_arms)
+
 
     def dt_stiffness(self, normal):
         return 2.0 * self.kt_ratio * normal.dt_stiffness()
@@ -430,7 +448,13 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
              torque):
         tx = -ny
         ty = nx
-        vt = dvx * tx + dvy * ty - (omega[i] * ri + omega[j] * rj)
+        ai = ri
+        aj = rj
+        if model.contact_arms:
+            s = d / (ri + rj)
+            ai = s * ri
+            aj = s * rj
+        vt = dvx * tx + dvy * ty - (omega[i] * ai + omega[j] * aj)
         if mindlin:
             kt = model.kt_ratio * kn
         else:
@@ -443,8 +467,8 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         U = 0.0
         if kt > 0.0:
             U = 0.5 * fs * fs / kt
-        torque[i] -= ri * ftot
-        torque[j] -= rj * ftot
+        torque[i] -= ai * ftot
+        torque[j] -= aj * ftot
         return ftot * tx, ftot * ty, U
     return impl
 
@@ -618,64 +642,10 @@ def _roll(model, hist, nh, p, h0, ri, rj, omega, i, j, fn, kn, dt, torque):
 # --------------------------------------------------------------------------------------------------
 # integration hooks (fused kick)
 # --------------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
-def kick_drift(k, xf, vf, ff, rf, mass, dtk, dt, damping, L00, L01, L10, L11, F00, F01, F10, F11, acc):
-    """Kick-drift of particle k (flat (2N,) views): v += dtk (F + F_damp)/m, x += dt (v + L x).
-    acc[0] = max non-affine displacement^2, acc[1] += kinetic energy at the integer time,
-    acc[2] += work of the local damping (same arithmetic as :mod:`dem.integrate`)."""
-    m = mass[k]
-    for c in range(2):
-        F = ff[2 * k + c]
-        vo = vf[2 * k + c]
-        Fd = 0.0
-        if damping > 0.0:
-            if vo > 0.0:
-                Fd = -damping * abs(F)
-            elif vo < 0.0:
-                Fd = damping * abs(F)
-        vn = vo + dtk * (F + Fd) / m
-        vm = 0.5 * (vo + vn)
-        acc[1] += 0.5 * m * vm * vm
-        acc[2] += Fd * vm * dt
-        vf[2 * k + c] = vn
-    x0 = xf[2 * k]
-    x1 = xf[2 * k + 1]
-    y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
-    y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
-    xf[2 * k] = y0
-    xf[2 * k + 1] = y1
-    r0 = rf[2 * k]
-    r1 = rf[2 * k + 1]
-    dx = y0 - (F00 * r0 + F01 * r1)
-    dy = y1 - (F10 * r0 + F11 * r1)
-    d2 = dx * dx + dy * dy
-    if d2 > acc[0]:
-        acc[0] = d2
-
-
-@njit(cache=True, inline="always")
-def kick_spin(k, omega, theta, torque, inertia, dtk, dt, damping, acc):
-    """Spin kick and rotation of particle k; acc[3] += rotational kinetic energy, acc[4] += work."""
-    T = torque[k]
-    wo = omega[k]
-    Td = 0.0
-    if damping > 0.0:
-        if wo > 0.0:
-            Td = -damping * abs(T)
-        elif wo < 0.0:
-            Td = damping * abs(T)
-    wn = wo + dtk * (T + Td) / inertia[k]
-    wm = 0.5 * (wo + wn)
-    acc[3] += 0.5 * inertia[k] * wm * wm
-    acc[4] += Td * wm * dt
-    omega[k] = wn
-    theta[k] += dt * wn
-
-
 class Kick(NamedTuple):
     """Integration inside the force loop (``fused``): kick step ``dtk``, drift step ``dt``, Cundall
     ``damping``, the cell's ``L`` and the deformation ``F = h_{n+1} h_ref^{-1}`` of the rebuild
-    test. ``fused = False``: the loop computes forces only."""
+    test; ``tally``: sum the kinetic energy. ``fused = False``: the loop computes forces only."""
     fused: bool
     dtk: float
     dt: float
@@ -688,23 +658,91 @@ class Kick(NamedTuple):
     F01: float
     F10: float
     F11: float
+    tally: bool = True
 
 
-NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, False)
 
 
 KICK_BLOCK = 64
 
 
+@njit(cache=True, inline="always")
+def _kick_dof(F, vo, m, dtk, dt, damping, tally, e, w):
+    """One degree of freedom of :func:`kick_range` (a velocity component with its mass, or a spin
+    with its inertia): the new velocity ``vo + dtk (F + F_damp) / m`` with the Cundall damping
+    ``F_damp = -damping |F| sign(vo)``, and the running sums ``e`` (kinetic energy at the integer
+    time, if ``tally``) and ``w`` (damping work, if ``damping > 0``) updated."""
+    Fd = 0.0
+    if damping > 0.0:
+        if vo > 0.0:
+            Fd = -damping * abs(F)
+        elif vo < 0.0:
+            Fd = damping * abs(F)
+    vn = vo + dtk * (F + Fd) / m
+    if tally or damping > 0.0:
+        vm = 0.5 * (vo + vn)
+        if tally:
+            e += 0.5 * m * vm * vm
+        if damping > 0.0:
+            w += Fd * vm * dt
+    return vn, e, w
+
+
 @njit(cache=True)
-def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc):
-    """Kick and drift particles lo..hi-1 (translation, then spin if the state has spins)."""
+def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums):
+    """Kick and drift particles lo..hi-1 (flat (2N,) views of x, v, f, x_ref), then their spins if
+    ``omega`` is not empty:
+
+    * ``v += dtk (F + F_damp) / m``, ``x += dt (v + L x)`` with the Cundall damping
+      ``F_damp,c = -damping |F_c| sign(v_c)`` per component;
+    * ``omega += dtk (T + T_damp) / I``, ``theta += dt omega``.
+
+    ``sums`` = (max non-affine displacement^2 ``|x - F x_ref|^2``, translational KE at the integer
+    time, its damping work, rotational KE, its damping work) is returned updated; the kinetic
+    energies only if ``kick.tally``, the damping work only if ``kick.damping > 0`` (it is 0
+    otherwise). The sums are added to particle by particle, in order, so that blocks of particles
+    give the same bits as one pass.
+    """
+    d2m, ke, wd, ker, wdr = sums
+    dtk = kick.dtk
+    dt = kick.dt
+    damping = kick.damping
+    tally = kick.tally
+    L00, L01, L10, L11 = kick.L00, kick.L01, kick.L10, kick.L11
+    F00, F01, F10, F11 = kick.F00, kick.F01, kick.F10, kick.F11
     for k in range(lo, hi):
-        kick_drift(k, xf, vf, ff, rf, mass, kick.dtk, kick.dt, kick.damping, kick.L00, kick.L01,
-                   kick.L10, kick.L11, kick.F00, kick.F01, kick.F10, kick.F11, acc)
+        m = mass[k]
+        for c in range(2):
+            vf[2 * k + c], ke, wd = _kick_dof(ff[2 * k + c], vf[2 * k + c], m, dtk, dt, damping, tally, ke, wd)
+        x0 = xf[2 * k]
+        x1 = xf[2 * k + 1]
+        y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
+        y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
+        xf[2 * k] = y0
+        xf[2 * k + 1] = y1
+        r0 = rf[2 * k]
+        r1 = rf[2 * k + 1]
+        dx = y0 - (F00 * r0 + F01 * r1)
+        dy = y1 - (F10 * r0 + F11 * r1)
+        d2 = dx * dx + dy * dy
+        if d2 > d2m:
+            d2m = d2
     if omega.shape[0] > 0:
         for k in range(lo, hi):
-            kick_spin(k, omega, theta, torque, inertia, kick.dtk, kick.dt, kick.damping, acc)
+            wn, ker, wdr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping, tally, ker, wdr)
+            omega[k] = wn
+            theta[k] += dt * wn
+    return d2m, ke, wd, ker, wdr
+
+
+@njit(cache=True)
+def kick_all(x, v, f, x_ref, mass, omega, theta, torque, inertia, kick):
+    """:func:`kick_range` over every particle: x, v, f, x_ref (N, 2), omega, theta, torque,
+    inertia (N,) or empty. Returns its five sums. (In this module, next to :func:`kick_range`:
+    numba's disk cache of a function is invalidated by changes to its own file only.)"""
+    return kick_range(0, x.shape[0], x.reshape(-1), v.reshape(-1), f.reshape(-1), x_ref.reshape(-1), mass, omega,
+                      theta, torque, inertia, kick, (0.0, 0.0, 0.0, 0.0, 0.0))
 
 
 class Cell(NamedTuple):
@@ -732,7 +770,8 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
     hroll: first history slot of the rolling model; dt: the history increment step (0: history
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
-    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a fused kick, ``acc`` (5,) =
+    if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
+    fused kick, ``acc`` (5,) =
     (max non-affine displacement^2, translational KE, translational damping work, rotational KE,
     rotational damping work).
     """
@@ -740,8 +779,6 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     h00, h01, h10, h11 = cell.h00, cell.h01, cell.h10, cell.h11
     f[:, :] = 0.0
     torque[:] = 0.0
-    for k in range(acc.shape[0]):
-        acc[k] = 0.0
     xf = x.reshape(-1)
     vf = v.reshape(-1)
     ff = f.reshape(-1)
@@ -757,6 +794,7 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
     kl2 = 0.0
     fused = kick.fused
     nh = history_slots(tangential, rolling)
+    sums = (0.0, 0.0, 0.0, 0.0, 0.0)
     done = np.uint64(0)
     one = np.uint64(1)
     block = np.uint64(KICK_BLOCK)
@@ -765,7 +803,7 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
         i = np.uint64(pi[p])
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
-            kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
             done = i
         j = np.uint64(pj[p])
         i2 = i + i
@@ -813,7 +851,10 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, pj, ps, hi
             fsum += force_magnitude(tangential, fn, fx, fy)
             kl2 += kn * d2
     if fused:
-        kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, acc)
+        sums = kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick,
+                          sums)
+        for k in range(5):
+            acc[k] = sums[k]
     if not tally:
         return
     out[0] = s00

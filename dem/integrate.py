@@ -49,7 +49,6 @@ from numba import njit
 from . import contact_models as cm
 from . import neighbors
 from .contact_laws import law_from_meta
-from .contact_models import kick_drift, kick_spin
 from .state import State
 from .runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
 
@@ -70,24 +69,6 @@ def critical_dt(state, law) -> float:
 
 
 # --------------------------------------------------------------------------------------------------
-@njit(cache=True)
-def _step_translation(x, v, f, mass, dtk, dt, damping, L00, L01, L10, L11, x_ref, F00, F01, F10, F11, acc):
-    """Kick-drift of translations (kick step dtk, drift step dt) of every particle, in order; acc
-    (5,) as in :func:`dem.contact_models.pair_forces`."""
-    xf = x.reshape(-1)
-    vf = v.reshape(-1)
-    ff = f.reshape(-1)
-    rf = x_ref.reshape(-1)
-    for i in range(x.shape[0]):
-        kick_drift(i, xf, vf, ff, rf, mass, dtk, dt, damping, L00, L01, L10, L11, F00, F01, F10, F11, acc)
-
-
-@njit(cache=True)
-def _step_rotation(omega, theta, torque, inertia, dtk, dt, damping, acc):
-    for i in range(omega.shape[0]):
-        kick_spin(i, omega, theta, torque, inertia, dtk, dt, damping, acc)
-
-
 @njit(cache=True)
 def _resultants(f):
     s = 0.0
@@ -188,7 +169,7 @@ class Simulation:
         self.last_good = None
         self.timers = {"neighbours": 0.0, "forces": 0.0, "integration": 0.0, "other": 0.0}
         self.steps_timed = 0
-        self.ke_n = float("nan")          # kinetic energy at the last integer time
+        self.ke_n = float("nan")          # kinetic energy at the integer time of the last tallied step
         self.energy_n = float("nan")      # elastic + kinetic energy at the last integer time
 
     # ---- buffers --------------------------------------------------------------------------------
@@ -265,9 +246,10 @@ class Simulation:
         return (h00, h01, h10, h11), (F00, F01, F10, F11)
 
     def step(self, tally=True):
-        """One time step. ``tally=False`` skips the stress, energy and contact sums of ``out`` (as
-        LAMMPS skips energy and virial on steps without output); a cell control always tallies,
-        and :meth:`measure`, ``energy_n`` refer to the last tallied step."""
+        """One time step. ``tally=False`` skips the stress, energy and contact sums of ``out`` and
+        the kinetic energy (as LAMMPS skips energy and virial on steps without output; ``ke_n`` and
+        ``energy_n`` are NaN then); a cell control always tallies, and :meth:`measure` refers to the
+        last tallied step."""
         st = self.state
         tally = tally or self.control is not None
         dt = self.dt
@@ -282,8 +264,8 @@ class Simulation:
         if self.fuse and self.control is None:
             L = st.L
             hn, Fd = self._deformation(L, dt)
-            self._pair_loop(cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd), dth,
-                            tally)
+            self._pair_loop(cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally),
+                            dth, tally)
             t2 = t3 = t4 = _time.perf_counter()
         else:
             self._pair_loop(cm.NO_KICK, dth, tally)
@@ -295,11 +277,11 @@ class Simulation:
             L = st.L
             hn, Fd = self._deformation(L, dt)
             t3 = _time.perf_counter()
-            acc[:] = 0.0
-            _step_translation(st.x, st.v, self.f, st.mass, dtk, dt, self.damping,
-                              L[0, 0], L[0, 1], L[1, 0], L[1, 1], st.x_ref, *Fd, acc)
-            if self.law.needs_spin:
-                _step_rotation(st.omega, st.theta, self.torque, st.inertia, dtk, dt, self.damping, acc)
+            e = self._empty
+            spin = self.law.needs_spin
+            acc[:] = cm.kick_all(st.x, st.v, self.f, st.x_ref, st.mass, st.omega if spin else e,
+                               st.theta if spin else e, self.torque, st.inertia if spin else e,
+                               cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally))
             t4 = _time.perf_counter()
         d2, ke, wd = acc[0], acc[1], acc[2]
         if self.law.needs_spin:
@@ -308,7 +290,7 @@ class Simulation:
         st.h = np.array([[hn[0], hn[1]], [hn[2], hn[3]]])
         self.startup_pending = False
         self.damping_work += wd
-        self.ke_n = ke
+        self.ke_n = ke if tally else float("nan")
         self.energy_n = ke + self.out[6] if tally else float("nan")
         dF = _norm2_2x2(Fd[0] - 1.0, Fd[1], Fd[2], Fd[3] - 1.0)
         if 2.0 * math.sqrt(d2) + dF * self.rc > self.skin:

@@ -111,6 +111,15 @@ def _remap_old_pairs(oi, oj, osh, inv, oft, parity):
 
 @njit(cache=True)
 def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
+    """Pairs (i < j, image shift) closer than ``r_i + r_j + skin``, grouped by i and sorted by
+    (j, shift) within each i (so that the order of the force sums does not depend on the bin
+    layout), and their count ``m`` (only the first ``cap`` are stored: call again with
+    ``cap = m`` if ``m > cap``).
+
+    The particles are counting-sorted by bin and their positions and radii gathered in that order,
+    so the candidates of a bin are read contiguously. Within a bin the particles are in increasing
+    order, so a bin is scanned from its end and left at the first ``j <= i``: only the candidates
+    ``j > i`` are read."""
     n = x.shape[0]
     nbins = nba * nbb
     start = np.zeros(nbins + 1, np.int64)
@@ -120,13 +129,19 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     members = np.empty(n, np.int64)
+    xs = np.empty((n, 2))
+    rs = np.empty(n)
     for i in range(n):
         c = binof[i]
-        members[fill[c]] = i
-        fill[c] += 1
-    pi = np.empty(cap, np.int64)
-    pj = np.empty(cap, np.int64)
-    ps = np.empty((cap, 2), np.int64)
+        q = fill[c]
+        members[q] = i
+        xs[q, 0] = x[i, 0]
+        xs[q, 1] = x[i, 1]
+        rs[q] = radius[i]
+        fill[c] = q + 1
+    pi = np.empty(cap + 1, np.int64)
+    pj = np.empty(cap + 1, np.int64)
+    ps = np.empty((cap + 1, 2), np.int64)
     m = 0
     for i in range(n):
         ca = binof[i] % nba
@@ -134,6 +149,7 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         ri = radius[i]
+        m0 = m
         for db in range(-1, 2):
             ub = cb + db
             sb = 0
@@ -155,47 +171,42 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
                 c = ub * nba + ua
                 ox = h00 * sa + h01 * sb
                 oy = h10 * sa + h11 * sb
-                for q in range(start[c], start[c + 1]):
+                for q in range(start[c + 1] - 1, start[c] - 1, -1):
                     j = members[q]
                     if j <= i:
-                        continue
-                    dx = x[j, 0] + ox - xi0
-                    dy = x[j, 1] + oy - xi1
-                    rc = ri + radius[j] + skin
-                    if dx * dx + dy * dy < rc * rc:
-                        if m < cap:
-                            pi[m] = i
-                            pj[m] = j
-                            ps[m, 0] = sa
-                            ps[m, 1] = sb
-                        m += 1
+                        break
+                    dx = xs[q, 0] + ox - xi0
+                    dy = xs[q, 1] + oy - xi1
+                    rc = ri + rs[q] + skin
+                    # branch-free append: written at slot min(m, cap) (slot cap is scratch), kept
+                    # by advancing m (an unpredictable test costs more than the stores)
+                    w = m if m < cap else cap
+                    pi[w] = i
+                    pj[w] = j
+                    ps[w, 0] = sa
+                    ps[w, 1] = sb
+                    m += dx * dx + dy * dy < rc * rc
+        if m <= cap:
+            _sort_group(pj, ps, m0, m)
     return pi, pj, ps, m
 
 
-@njit(cache=True)
-def _sort_pairs(pi, pj, ps, m):
-    """Order the list by (i, j, shift) so that the force summation order does not depend on the
-    bin layout; insertion sort within each i (lists are short per particle)."""
-    # pairs are already grouped by increasing i; sort each group by (j, sa, sb)
-    p = 0
-    while p < m:
-        q = p
-        while q < m and pi[q] == pi[p]:
-            q += 1
-        for a in range(p + 1, q):
-            kj = pj[a]
-            k0 = ps[a, 0]
-            k1 = ps[a, 1]
-            b = a - 1
-            while b >= p and (pj[b] > kj or (pj[b] == kj and (ps[b, 0] > k0 or (ps[b, 0] == k0 and ps[b, 1] > k1)))):
-                pj[b + 1] = pj[b]
-                ps[b + 1, 0] = ps[b, 0]
-                ps[b + 1, 1] = ps[b, 1]
-                b -= 1
-            pj[b + 1] = kj
-            ps[b + 1, 0] = k0
-            ps[b + 1, 1] = k1
-        p = q
+@njit(cache=True, inline="always")
+def _sort_group(pj, ps, p, q):
+    """Insertion sort of pairs p..q-1 (one particle's) by (j, shift)."""
+    for a in range(p + 1, q):
+        kj = pj[a]
+        k0 = ps[a, 0]
+        k1 = ps[a, 1]
+        b = a - 1
+        while b >= p and (pj[b] > kj or (pj[b] == kj and (ps[b, 0] > k0 or (ps[b, 0] == k0 and ps[b, 1] > k1)))):
+            pj[b + 1] = pj[b]
+            ps[b + 1, 0] = ps[b, 0]
+            ps[b + 1, 1] = ps[b, 1]
+            b -= 1
+        pj[b + 1] = kj
+        ps[b + 1, 0] = k0
+        ps[b + 1, 1] = k1
 
 
 @njit(cache=True)
@@ -224,28 +235,28 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
 
 @njit(cache=True)
 def _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
-    """As :func:`_carry_history` for an old list still ordered by i (no re-ordering since it was
-    built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
-    written) if the old list is not ordered by i."""
+    """As :func:`_carry_history` for an old list still ordered by (i, j) (no re-ordering since it
+    was built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
+    written) if the old list is not ordered by (i, j)."""
     for q in range(1, oi.shape[0]):
-        if oi[q] < oi[q - 1]:
+        if oi[q] < oi[q - 1] or (oi[q] == oi[q - 1] and oj[q] < oj[q - 1]):
             return False
     nk = ft.shape[1]
-    q0 = 0
+    q = 0
     nold = oi.shape[0]
     for p in range(pi.shape[0]):
+        # both lists are ordered by (i, j): advance the old one to the first pair >= (i, j)
         i = pi[p]
-        while q0 < nold and oi[q0] < i:
-            q0 += 1
-        q = q0
-        while q < nold and oi[q] == i:
-            j = oj[q]
-            if j == pj[p] and osh[q, 0] + k[j, 0] - k[i, 0] == ps[p, 0] \
-                    and osh[q, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
-                for c in range(nk):
-                    ft[p, c] = oft[q, c]
-                break
+        j = pj[p]
+        while q < nold and (oi[q] < i or (oi[q] == i and oj[q] < j)):
             q += 1
+        r = q
+        while r < nold and oi[r] == i and oj[r] == j:
+            if osh[r, 0] + k[j, 0] - k[i, 0] == ps[p, 0] and osh[r, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
+                for c in range(nk):
+                    ft[p, c] = oft[r, c]
+                break
+            r += 1
     return True
 
 
@@ -303,7 +314,6 @@ def rebuild(state, skin, *, sort=False, history=None):
             break
         cap = m
     pi, pj, ps = pi[:m], pj[:m], ps[:m]  # views: the capacity is at most ~25 % above m
-    _sort_pairs(pi, pj, ps, m)
     ft = None
     if nk > 0:
         ft = np.zeros((m, nk))

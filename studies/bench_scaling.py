@@ -8,7 +8,7 @@ particle-steps per second, and the bytes per particle held by the state and the 
 buffers (every numpy array they own, Verlet list and contact history included). Prints a table and
 a least-squares slope of log(time per step) against log(N) (1 = linear). The peak resident memory
 of the process (``getrusage``) is printed beside the bytes the arrays own: the second method for
-the 211 B per particle that ``dem.packing.check_memory`` uses.
+the bytes per particle that ``dem.packing.check_memory`` uses.
 """
 from __future__ import annotations
 
@@ -24,12 +24,15 @@ from studies.bench_throughput import DT, bench_law, dense_base, tile
 
 
 def owned_bytes(*objs) -> int:
+    """Bytes of the numpy arrays held by the objects' attributes (directly or in a tuple, such as
+    the simulation's compact copy of the Verlet list), each array counted once."""
     seen, total = set(), 0
     for o in objs:
         for v in vars(o).values():
-            if isinstance(v, np.ndarray) and id(v) not in seen:
-                seen.add(id(v))
-                total += v.nbytes
+            for a in (v if isinstance(v, tuple) else (v,)):
+                if isinstance(a, np.ndarray) and id(a) not in seen:
+                    seen.add(id(a))
+                    total += a.nbytes
     return total
 
 

@@ -11,6 +11,7 @@ from dem.contact_laws import (ContactLaw, Frictionless, HertzMindlin, HertzRolli
                               LinearFriction, law_from_meta)
 from dem.integrate import Simulation, critical_dt
 from dem.state import State
+import engine_reference_cases as eref
 import law_reference_cases as ref
 
 REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "law_reference.npz")
@@ -18,16 +19,7 @@ REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "law_refere
 
 @pytest.mark.parametrize("name", list(ref.CASES))
 def test_composed_laws_reproduce_the_old_kernels_bit_for_bit(name):
-    st, out, nreb = ref.run_case(name)
-    assert nreb == int(REF[f"{name}/n_rebuilds"])
-    for f in ref.FIELDS:
-        key = f"{name}/{f}"
-        a = getattr(st, f)
-        if key not in REF.files:
-            assert a is None, f
-            continue
-        assert np.array_equal(a, REF[key]), f"{name}: {f} differs from the recorded trajectory"
-    assert np.array_equal(out, REF[f"{name}/out"])
+    ref.assert_reproduces(REF, name, ref.run_case)
 
 
 @pytest.mark.parametrize("name", ["frictionless_e", "linear_e_tdamp", "hertz_e"])
@@ -135,9 +127,12 @@ def test_lammps_law_coefficients_and_null_gamma_t():
     LinearFriction(kn=1e4, kt=5e3, mu=0.3, restitution=0.8, tangential_damping=True),
     HertzMindlin(kh=1e5, mu=0.5, delta_ref=0.01),
     HertzRolling(kh=1e5, mu=0.5, delta_ref=0.01, mu_r=0.1),
+    HertzRolling(kh=1e5, mu=0.5, delta_ref=0.01, mu_r=0.1, contact_arms=True),
+    LinearFriction(kn=1e4, kt=5e3, mu=0.3, contact_arms=True),
     LammpsHookeHistory(kn=1e4, kt=1e4, gamma_n=10.0, mu=0.5),
     ContactLaw(cm.Hertz(1e5, 0.01), cm.MassGamma(5.0, 2.5), cm.LammpsHistory(1e4, 0.5),
                cm.RollingResistance(0.2, 0.05)),
+    ContactLaw(cm.Hooke(1e4), cm.NoDamping(), cm.LinearHistory(1e4, 0.5, True)),
 ])
 def test_meta_round_trip(law):
     assert law_from_meta(law.to_meta()) == law
@@ -160,6 +155,7 @@ def test_old_checkpoint_meta_still_loads():
     (lambda: ContactLaw(cm.Hooke(1.0), tangential=cm.Hooke(1.0)), "tangential"),
     (lambda: ContactLaw(cm.Hooke(1.0), cm.Viscous(1.5)), "zeta"),
     (lambda: LinearFriction(kn=1.0, kt=float("nan"), mu=0.1), "kt"),
+    (lambda: LinearFriction(kn=1.0, kt=1.0, mu=0.1, contact_arms=0.5), "contact_arms"),
 ])
 def test_bad_coefficients_named(make, name):
     with pytest.raises(ValueError, match=name):
@@ -172,3 +168,32 @@ def test_rolling_law_time_step_covers_rotation():
     assert law.dt_stiffness() == pytest.approx(max(kn, 2 * 0.5 * kn + 2 * 0.5 * kn))
     st = ref.initial_state(True)
     assert critical_dt(st, law) < critical_dt(st, HertzMindlin(kh=1e5, mu=0.5, delta_ref=0.01, kt_ratio=0.5))
+
+
+ENGINE_REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "engine_reference.npz")
+
+
+@pytest.mark.parametrize("name", list(eref.CASES))
+def test_engine_refactors_reproduce_the_recorded_runs_bit_for_bit(name):
+    """The LAMMPS law, rolling resistance, a sheared cell and the fused kick against runs recorded
+    with the engine before the throughput refactors (tests/engine_reference_cases.py)."""
+    ref.assert_reproduces(ENGINE_REF, name, eref.run_case, eref.FIELDS)
+
+
+def test_contact_arms_torque_and_slip_closed_form():
+    """Two unequal overlapping disks, j spinning at w, i still: with contact arms the tangential
+    history after one step is -kt (a_j w) dt with a_j = |l| r_j/(r_i + r_j), and the torques are
+    -a ft (they differ from the radius-arm values by the overlap share)."""
+    ri, rj, d = 0.4, 0.6, 0.99
+    w, kt = 0.3, 2e3
+    for arms in (True, False):
+        st = State.from_disks([[2.0, 2.0], [2.0 + d, 2.0]], [ri, rj], np.diag([6.0, 6.0]), rho=ref.RHO,
+                              spins=True)
+        st.omega[1] = w
+        sim = Simulation(st, LinearFriction(kn=1e4, kt=kt, mu=10.0, contact_arms=arms), damping=0.0,
+                         check_every=0)
+        sim.compute_forces()
+        ai, aj = (d * ri / (ri + rj), d * rj / (ri + rj)) if arms else (ri, rj)
+        ft = -kt * (-(aj * w)) * sim.dt      # slip velocity vt = -(w_i a_i + w_j a_j)
+        assert st.nl_ft[0] == pytest.approx(ft, rel=1e-12)
+        assert sim.torque == pytest.approx([-ai * ft, -aj * ft], rel=1e-12)

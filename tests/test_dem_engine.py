@@ -101,28 +101,30 @@ def test_tangential_spring_then_coulomb_sliding():
     assert slid
 
 
+@pytest.mark.parametrize("arms", [True, False])
 @pytest.mark.parametrize("roll", [True, False])
-def test_rolling_disk_on_disk_no_slip(roll):
-    """Disk j orbits disk i (fixed) at rate W with spin 2W (radii equal): its contact point does
-    not move relative to i's, so the tangential spring never loads; without the spin it does."""
+def test_rolling_disk_on_disk_no_slip(roll, arms):
+    """Disk j orbits disk i (fixed) at rate W with the spin that makes its contact point still
+    relative to i's (radii equal): W rr / a_j with the arm a_j = rr / 2 (contact_arms, spin exactly
+    2 W) or a_j = R (radius arms); the tangential spring never loads. Without the spin it does."""
     kn, kt, mu = 1e4, 1e4, 1e3  # mu large: no Coulomb cap
     overlap = 1e-3
     c = np.array([5.0, 5.0])
     rr = 2 * R - overlap
     st = State.from_disks([c, c + [rr, 0.0]], R, np.diag([20.0, 20.0]), rho=RHO, spins=True)
-    sim = Simulation(st, LinearFriction(kn=kn, kt=kt, mu=mu), damping=0.0)
+    sim = Simulation(st, LinearFriction(kn=kn, kt=kt, mu=mu, contact_arms=arms), damping=0.0)
+    arm = rr / 2 if arms else R
     W = 0.05
     dt = sim.dt
     phi = 0.0
     for _ in range(300):
         st.x[1] = c + rr * np.array([math.cos(phi), math.sin(phi)])
         st.v[1] = rr * W * np.array([-math.sin(phi), math.cos(phi)])
-        # no-slip for radius of j measured to the contact point: w_j * r_j = W * rr
-        st.omega[1] = W * rr / R if roll else 0.0
+        st.omega[1] = W * rr / arm if roll else 0.0
         sim.compute_forces()
         n = (st.x[1] - st.x[0]) / rr
         t = np.array([-n[1], n[0]])
-        vt = (st.v[1] - st.v[0]) @ t - (st.omega[0] * R + st.omega[1] * R)
+        vt = (st.v[1] - st.v[0]) @ t - (st.omega[0] * arm + st.omega[1] * arm)
         if roll:
             assert abs(vt) < 1e-14
             assert abs(st.nl_ft[0]) < 1e-12

@@ -1,4 +1,6 @@
 """Strain probes (DEM) against the exact linear response: two independent routes to one tensor."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import sympy
@@ -96,19 +98,24 @@ def test_rigid_rotation_of_a_frictionless_packing():
     assert np.abs(r.stress - r.F @ r.stress0 @ r.F.T).max() < 1e-7 * p   # ... exactly as a tensor
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "dem.contact_laws.LinearFriction takes the spin arms as the radii r_i, r_j, not the distances "
-    "to the contact point |c| r_i/(r_i+r_j): under a rigid rotation w of a frictional packing whose "
-    "contacts overlap by different amounts the spins cannot cancel every tangential slip, leaving forces "
-    "O(kt w overlap) - the stress error is 0.08 w p here (0.16 w p at N = 300) instead of "
-    "O(w^2) (LAMMPS gran/* uses the same arms; microhom.kinematics uses the contact point)"))
 def test_rigid_rotation_of_a_frictional_packing():
+    """With the spin arms at the contact point (contact_arms=True, as microhom.kinematics) a rigid
+    rotation w of an overlapping frictional packing only rotates the stress (error O(w^2)). With
+    the radii as arms (the default, as LAMMPS gran/*) the spins cannot cancel every tangential
+    slip and the stress error is O(w * overlap / r) (0.08 w p here)."""
     res = pack(200, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.5, mu_prep=0.02, seed=5)
+    assert not res.law.contact_arms
     w = 1e-5
-    r = strain_response(res.state, res.law.with_friction(10.0), np.array([[0.0, -w], [w, 0.0]]))
-    p = -np.trace(r.stress0) / 2
-    assert r.converged and r.contact_events == 0
-    assert np.abs(r.stress - r.F @ r.stress0 @ r.F.T).max() < 1e-7 * p
+    rot = np.array([[0.0, -w], [w, 0.0]])
+    errors = {}
+    for arms in (True, False):
+        law = replace(res.law, contact_arms=arms).with_friction(10.0)
+        r = strain_response(res.state, law, rot)
+        p = -np.trace(r.stress0) / 2
+        assert r.converged and r.contact_events == 0
+        errors[arms] = np.abs(r.stress - r.F @ r.stress0 @ r.F.T).max() / p
+    assert errors[True] < 1e-7
+    assert errors[False] > 1e-2 * w
 
 
 def test_results_are_typed():
