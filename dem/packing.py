@@ -11,12 +11,13 @@ Protocol (default, :func:`pack`):
 1. *Random gas*: N disk centres uniform in a square periodic cell at solid fraction ``phi0``
    (overlaps allowed; they are pushed apart by the contact law and the local damping in the first
    steps), drawn from ``numpy.random.default_rng(seed)``; radii identical, or uniform in
-   ``r (1 +- dispersity)``.
+   ``r (1 +- dispersity)``. ``gas_overlaps=False`` starts instead from a cold gas without
+   overlaps (random sequential addition).
 2. *Compaction* (phase ``compact``) with :class:`dem.cell.PressureServo`: the cell shrinks at
    ``max_strain_per_step`` (default 2e-4 per step) while there is no load, then the
    stiffness-adaptive servo holds the pressure at the target while the assembly, still below
    jamming, flows into a jammed state. This phase runs with a *light* local damping
-   ``damping_compaction`` (default 0.1) and ends when the packing has jammed: ``|p - p_target| <
+   ``damping_compaction`` (default 0.05) and ends when the packing has jammed: ``|p - p_target| <
    1e-2 p_target`` and unbalanced force ratio < ``jam_unbalanced`` (default 1e-3). The damping then
    returns to ``damping`` (default 0.7) for the equilibrium phases.
 
@@ -24,21 +25,30 @@ Protocol (default, :func:`pack`):
    rate scales as ``sqrt(p / rho) / d`` times a factor set by the dissipation; with ``damping =
    0.7`` all the way, 90 % of the steps of a 1e4-disk packing at p/kn = 1e-4 were spent creeping
    from phi ~ 0.76 to jamming at phi ~ 0.79 with the pressure already on target (350 900 steps);
-   with the light compaction damping the same packing (same seed) jams in about 32 000 steps and
-   meets the unchanged stop criteria at about 44 000 (numbers in ``docs/dem.md``).
-   ``damping_compaction=None`` restores the old single-damping protocol.
+   with a light compaction damping the same packing jams in a few 1e4 steps (numbers in
+   ``docs/dem.md``). ``damping_compaction=None`` restores the single-damping protocol.
+
+   The time step is ``dt_over_dtcrit`` (default 1) times :func:`dem.integrate.critical_dt`,
+   which is itself at least sqrt(2) below the leapfrog limit of the stiffest possible contacts.
 
    The fast start from a gas is the choice made against crystallisation of identical disks (2D
    monodisperse disks order easily when compressed slowly; an optional ``growth_dispersity``
    spreads the radii during this first compression only and restores them once the target
    pressure is reached); the hexatic order ``psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)|``
    (Delaunay neighbours) is reported for every packing. Frictional preparation comes out
-   amorphous or weakly ordered (psi6 ~ 0.02 for N = 1e4, mu_prep = 0.5; 0.05-0.3 for N = 1000,
-   mu_prep = 0.02-0.1); frictionless identical disks order (psi6 up to ~0.97): use
+   amorphous or weakly ordered (psi6 ~ 0.02-0.1 for N = 1e4; 0.02-0.53 for N = 1000,
+   mu_prep = 0.02-0.1, over seeds); frictionless identical disks order (psi6 up to ~0.97): use
    ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
-3. *Equilibrium* at ``mu_prep`` (phase ``prep``): stop when all three criteria hold (checked every
-   ``check_every`` steps, at absolute step numbers that are multiples of ``check_every``):
+   With ``fire=True`` (default), once the solid fraction has stopped changing (relative change
+   below 3e-7 at five checks in a row) the FIRE velocity mixing of :mod:`dem.fire` runs too,
+   until the phase ends or the packing moves again.
+3. *Equilibrium* at ``mu_prep`` (phase ``prep``), with the local damping ``damping`` and, with
+   ``fire=True`` (default), the FIRE velocity mixing of :mod:`dem.fire` after every step (it
+   quenches the velocities whenever the power ``F . v`` turns negative: the ringing of the
+   lightly damped compaction is stopped in a few hundred steps instead of several thousand).
+   Stop when all three criteria hold (checked every ``check_every`` steps, at absolute step
+   numbers that are multiples of ``check_every``):
 
    - ``|p - p_target| / p_target < tol_p`` (default 1e-3);
    - unbalanced force ratio < ``tol_unbalanced`` (default 1e-5), Yade's definition: the mean over
@@ -50,7 +60,9 @@ Protocol (default, :func:`pack`):
      tenth check for the progress report).
 4. If ``mu != mu_prep``, switch to the test friction ``mu`` (phase ``test``) and repeat 3.
 
-Same seed, same parameters -> bit-identical packing (serial kernels, fixed summation order).
+The protocol before issue 12.3 is ``damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False``
+(bit-identical to it). Same seed, same parameters -> bit-identical packing (serial kernels,
+fixed summation order).
 :class:`PackingResult` carries the final :class:`dem.state.State` (a checkpoint: ``save``/``load``),
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (``PackingResult.load``)
@@ -72,13 +84,15 @@ import time
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+from numba import njit
 
 from microhom.network import ContactNetwork
 from microhom.results import Result
 
 from .cell import PressureServo, wrap
 from .contact_laws import Frictionless, LinearFriction, law_from_meta
-from .integrate import InstabilityError, Simulation
+from .fire import Fire
+from .integrate import InstabilityError, Simulation, critical_dt
 from .measure import hexatic_order
 from .runtime import atomic_write, remove_stale_temporaries
 from .state import State
@@ -87,11 +101,16 @@ __all__ = ["pack", "random_gas", "PackingResult", "PackReport", "network_from_st
            "Grow", "Compact", "Equilibrate", "BYTES_PER_PARTICLE", "check_memory"]
 
 
-def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spins=True) -> State:
-    """N disks at random (seeded) positions in a square periodic cell at solid fraction phi0.
+def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spins=True,
+               overlaps=True) -> State:
+    """N disks at random (seeded) positions in a square periodic cell at solid fraction phi0, at
+    rest.
 
     radius [m]: mean radius; dispersity: radii uniform in radius*(1 +- dispersity), in [0, 0.5);
     rho [kg/m^2]: areal density (default: a disk of the mean radius has unit mass).
+    overlaps: True: centres uniform and independent (disks may overlap); False: random sequential
+    addition (uniform candidate centres, each kept if its disk overlaps none placed before;
+    ``phi0`` must then be below 0.45, under the RSA jamming fraction 0.547 of disks).
     """
     if int(n) != n or n < 2:
         raise ValueError(f"n must be an integer >= 2, got {n}")
@@ -107,9 +126,60 @@ def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spi
     if dispersity > 0:
         r = radius * (1.0 + dispersity * rng.uniform(-1.0, 1.0, n))
     Lbox = math.sqrt(np.pi * np.sum(r ** 2) / phi0)
-    x = rng.uniform(0.0, Lbox, (n, 2))
+    if overlaps:
+        x = rng.uniform(0.0, Lbox, (n, 2))
+    else:
+        if not phi0 < 0.45:
+            raise ValueError(f"phi0 must be in (0, 0.45) for a gas without overlaps, got {phi0}")
+        nc = max(1, int(Lbox / (2.0 * r.max())))
+        head = np.full(nc * nc, -1, dtype=np.int64)
+        nxt = np.full(n, -1, dtype=np.int64)
+        x = np.zeros((n, 2))
+        count = 0
+        while count < n:   # candidates in seeded batches until every disk is placed
+            count = _rsa_place(rng.uniform(0.0, Lbox, (2 * (n - count) + 16, 2)), r, Lbox, x,
+                               Lbox / nc, head, nxt, count)
     rho = 1.0 / (np.pi * radius ** 2) if rho is None else rho
     return State.from_disks(x, r, np.diag([Lbox, Lbox]), rho=rho, spins=spins)
+
+
+@njit(cache=True)
+def _rsa_place(cand, r, Lbox, out, cell, head, nxt, count):
+    """Random sequential addition in a square periodic box of side ``Lbox`` [m]: candidate centres
+    ``cand`` (M, 2) are tried in order for disk ``count`` (radius ``r[count]``) and kept when the
+    disk overlaps none of those already placed (``out[:count]``), until all ``r.size`` disks are
+    placed. ``head`` (nc*nc) and ``nxt`` (N) are the linked cells (side ``cell`` >= the largest
+    diameter) of the placed disks, updated in place. Returns the new count."""
+    nc = int(round(math.sqrt(head.shape[0])))
+    n = r.shape[0]
+    for k in range(cand.shape[0]):
+        if count >= n:
+            break
+        x0 = cand[k, 0]
+        y0 = cand[k, 1]
+        r0 = r[count]
+        cx = min(int(x0 / cell), nc - 1)
+        cy = min(int(y0 / cell), nc - 1)
+        ok = True
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                j = head[((cx + dx) % nc) * nc + (cy + dy) % nc]
+                while j >= 0 and ok:
+                    ex = out[j, 0] - x0
+                    ey = out[j, 1] - y0
+                    ex -= Lbox * round(ex / Lbox)
+                    ey -= Lbox * round(ey / Lbox)
+                    rr = r0 + r[j]
+                    ok = ex * ex + ey * ey >= rr * rr
+                    j = nxt[j]
+        if ok:
+            out[count, 0] = x0
+            out[count, 1] = y0
+            c = cx * nc + cy
+            nxt[count] = head[c]
+            head[c] = count
+            count += 1
+    return count
 
 
 def _contacts(state, law):
@@ -410,16 +480,34 @@ class Grow:
 class Compact:
     """Phase ``compact``: the servo drives the pressure to the target under the light damping
     ``damping`` (set when the simulation is built); ends when the packing has jammed:
-    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``."""
+    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``.
+
+    Once the packing has stopped compacting (the solid fraction changed by less than
+    ``still_tol`` (relative) between consecutive checks, ``still_checks`` times in a row), the
+    FIRE mixing (:mod:`dem.fire`) runs on top of the damping until the phase ends or the packing
+    moves again (``still_tol = 0``: never). It stops the ringing of the jammed, lightly damped
+    packing; during the flow it would stop the flow, hence the gate.
+    """
     damping: float
     jam_unbalanced: float = 1e-3
     tol_p: float = 1e-2
+    still_tol: float = 3e-7
+    still_checks: int = 5
     name = "compact"
 
     def enter(self, run):
         pass
 
     def done(self, run, m):
+        if self.still_tol > 0:
+            phi = run.state.solid_fraction
+            prev, run.last_phi = run.last_phi, phi
+            run.n_still = run.n_still + 1 if prev is not None and abs(phi - prev) < \
+                self.still_tol * phi else 0
+            if run.n_still < self.still_checks:
+                run.fire = None
+            elif run.fire is None:
+                run.fire = Fire()
         return abs(m["pressure"] - run.p_target) < self.tol_p * run.p_target and \
             m["unbalanced"] < self.jam_unbalanced
 
@@ -437,6 +525,8 @@ class Equilibrate:
     law : the contact law of the phase (its friction is the phase's friction).
     damping : Cundall local damping of the phase, in [0, 1).
     tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
+    fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`Fire` at the
+        start of the phase), on top of the damping.
     """
     name: str
     law: object
@@ -444,11 +534,13 @@ class Equilibrate:
     tol_p: float = 1e-3
     tol_unbalanced: float = 1e-5
     tol_ke: float = 1e-8
+    fire: bool = False
 
     def enter(self, run):
         if run.sim.law is not self.law and run.sim.law.to_meta() != self.law.to_meta():
             run.sim.set_law(self.law)
         run.sim.damping = float(self.damping)
+        run.fire = Fire() if self.fire else None
 
     def done(self, run, m):
         return run.criteria(m, self)
@@ -464,6 +556,16 @@ class _Run:
         self.p_target = p_target
         self.history = history
         self.last = {}
+        self.fire = None     # the FIRE mixing of the current phase (dem.fire.Fire) or None
+        self.last_phi = None  # solid fraction at the last check (Compact's stillness gate)
+        self.n_still = 0      # consecutive checks without compaction
+
+    def advance(self, k):
+        """``k`` time steps, with the FIRE mixing after each one if the phase has it."""
+        if self.fire is None:
+            self.sim.run(k)
+        else:
+            self.sim.run(k, callback=self.fire.update, every=1)
 
     def ke_rel(self, m):
         ke = _contact_kinetic_energy(self.state, self.sim.law)
@@ -483,11 +585,12 @@ class _Run:
 
 
 def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None, radius=0.5,
-         dispersity=0.0, rho=None, seed=0, phi0=0.2, damping=0.7, damping_compaction=0.1,
-         jam_unbalanced=1e-3, restitution=None, max_strain_per_step=2e-4, alpha=0.5, tol_p=1e-3,
-         tol_unbalanced=1e-5, tol_ke=1e-8, max_steps=2_000_000, check_every=100, checkpoint=None,
-         checkpoint_every=20000, checkpoint_seconds=None, progress=None, verbose=False,
-         frictionless=None, growth_dispersity=0.0, restore_increments=50, meta=None) -> PackingResult:
+         dispersity=0.0, rho=None, seed=0, phi0=0.2, gas_overlaps=True, damping=0.7,
+         damping_compaction=0.05, jam_unbalanced=1e-3, restitution=None, max_strain_per_step=2e-4,
+         alpha=0.5, dt_over_dtcrit=1.0, fire=True, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
+         max_steps=2_000_000, check_every=100, checkpoint=None, checkpoint_every=20000,
+         checkpoint_seconds=None, progress=None, verbose=False, frictionless=None,
+         growth_dispersity=0.0, restore_increments=50, meta=None) -> PackingResult:
     """Dense random packing of ``n`` disks at a target pressure (protocol in the module docstring).
 
     Units are any consistent set, 2D per unit thickness. The run is a sequence of named phases
@@ -512,12 +615,18 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         mu == mu_prep == 0.
     radius, dispersity, rho, seed, phi0 :
         Radius [m], relative radius spread [-], areal density [kg/m^2], random seed, initial
-        solid fraction [-]: see :func:`random_gas`.
+        solid fraction [-] (default 0.2): see :func:`random_gas`.
+    gas_overlaps : bool
+        True (default): independent uniform centres; the overlaps push the disks apart and
+        heat the gas, which works against crystallisation. False: a cold gas by random
+        sequential addition, without overlaps and at rest (``phi0`` < 0.45; with ``phi0=0.4``
+        it saves the first few thousand steps, but small packings of identical disks order
+        more often, see ``docs/dem.md``).
     damping : float
         Cundall local damping of the equilibrium phases, in [0, 1) (default 0.7).
     damping_compaction : float or None
-        Local damping of the compaction phase, in [0, 1) (default 0.1); None: no separate
-        compaction phase (``damping`` throughout: the earlier protocol).
+        Local damping of the compaction phase, in [0, 1) (default 0.05); None: no separate
+        compaction phase (``damping`` throughout: the protocol before the compaction phase).
     jam_unbalanced : float
         Unbalanced force ratio (with ``|p - p_target| < 1e-2 p_target``) that ends the
         compaction phase [-].
@@ -528,6 +637,14 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     alpha : float
         Servo gain: fraction of the pressure error corrected per step, with the affine
         stiffness [-].
+    dt_over_dtcrit : float
+        Time step over the engine's stable step ``dem.integrate.critical_dt``, in (0, 1]
+        (default 1; ``dt_crit`` is itself at least sqrt(2) below the leapfrog limit of the
+        stiffest possible contact set, see :mod:`dem.integrate`).
+    fire : bool
+        FIRE velocity mixing (:mod:`dem.fire`) in the equilibrium phases and, once the packing
+        has stopped compacting, in the compaction phase (:class:`Compact`), on top of the
+        damping (default True; False: damping alone, the earlier protocol).
     tol_p, tol_unbalanced, tol_ke : float
         Stop criteria [-] (module docstring).
     max_steps : int
@@ -570,6 +687,8 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
             raise ValueError(f"{name} must be >= 0, got {val}")
     if damping_compaction is not None and not (0 <= damping_compaction < 1):
         raise ValueError(f"damping_compaction must be in [0, 1) or None, got {damping_compaction}")
+    if not (0 < dt_over_dtcrit <= 1):
+        raise ValueError(f"dt_over_dtcrit must be in (0, 1], got {dt_over_dtcrit}")
     if not (0 < jam_unbalanced < 1):
         raise ValueError(f"jam_unbalanced must be in (0, 1), got {jam_unbalanced}")
     if int(check_every) != check_every or check_every < 1:
@@ -590,15 +709,18 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     params = {"n": int(n), "p_target": p_target, "kn": kn, "kt": kt, "mu": mu, "mu_prep": mu_prep,
               "seed": seed, "dispersity": dispersity, "phi0": phi0, "damping": damping,
               "damping_compaction": damping_compaction, "tol_p": tol_p,
-              "tol_unbalanced": tol_unbalanced, "tol_ke": tol_ke, "check_every": check_every}
+              "tol_unbalanced": tol_unbalanced, "tol_ke": tol_ke, "check_every": check_every,
+              "gas_overlaps": bool(gas_overlaps), "dt_over_dtcrit": dt_over_dtcrit, "fire": bool(fire)}
 
     # the named phases, in order (each with its own parameters and stop criterion)
     phases = []
     if growth_dispersity > 0:
         phases.append(Grow(growth_dispersity, increments=restore_increments))
     if damping_compaction is not None:
-        phases.append(Compact(damping_compaction, jam_unbalanced))
-    eq = dict(damping=damping, tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke)
+        phases.append(Compact(damping_compaction, jam_unbalanced,
+                              still_tol=3e-7 if fire else 0.0))
+    eq = dict(damping=damping, tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke,
+              fire=bool(fire))
     phases.append(Equilibrate("prep", law_prep, **eq))
     if law_test is not law_prep and mu != mu_prep:
         phases.append(Equilibrate("test", law_test, **eq))
@@ -620,15 +742,16 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         history = pk.get("history", [])
     else:
         st = random_gas(n, radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
-                        spins=not frictionless)
+                        spins=not frictionless, overlaps=gas_overlaps)
         if growth_dispersity > 0:
             u = np.random.default_rng([seed, 1]).uniform(-1.0, 1.0, st.n)
             st.meta["growth"] = {"r0": st.radius.tolist(), "u": u.tolist(), "g": growth_dispersity, "s": 1.0}
             st.radius = st.radius * (1.0 + growth_dispersity * u)
         if meta:
             st.meta.update(meta)
-        sim = Simulation(st, law_prep, damping=damping if damping_compaction is None else
-                         damping_compaction, check_every=0)
+        sim = Simulation(st, law_prep, dt=dt_over_dtcrit * critical_dt(st, law_prep),
+                         damping=damping if damping_compaction is None else damping_compaction,
+                         check_every=0)
         ctl = PressureServo(p_target=p_target, max_rate=max_strain_per_step / sim.dt, alpha=alpha)
         sim.control = ctl
         phase = phases[0].name
@@ -636,6 +759,11 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     sim.check_every = 0  # guard is done in the callback below (every check_every steps)
     state = sim.state
     run = _Run(sim, p_target, history)
+    if resumed:
+        run.fire = Fire.from_meta(pk["fire"]) if pk.get("fire") else None
+        run.last_phi, run.n_still = pk.get("last_phi"), pk.get("n_still", 0)
+    else:
+        by_name[phase].enter(run)
     ck_state = {"step": state.step if resumed else None, "t": time.perf_counter()}
     n_checks = [0]
     order = [ph.name for ph in phases]
@@ -647,7 +775,9 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         return order[nxt] if nxt < len(order) else "done"
 
     def save_checkpoint(report=None):
-        state.meta["packing"] = {"phase": phase, "history": history, "params": params}
+        state.meta["packing"] = {"phase": phase, "history": history, "params": params,
+                                 "fire": None if run.fire is None else run.fire.to_meta(),
+                                 "last_phi": run.last_phi, "n_still": run.n_still}
         if report is not None:
             state.meta["packing"]["report"] = {k: v for k, v in report.scalars().items()
                                                if k not in ("resumed", "already_converged")}
@@ -696,7 +826,7 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
         # the trajectory) do not depend on where a run was interrupted and resumed
         while phase != "done" and state.step < max_steps:
             k = min(check_every - state.step % check_every, max_steps - state.step)
-            sim.run(k)
+            run.advance(k)
             if state.step % check_every == 0 and callback(sim):
                 break
     except InstabilityError as exc:

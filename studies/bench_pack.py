@@ -1,12 +1,14 @@
 """A full `dem.packing.pack` of 1e4 disks against LAMMPS' preparation of 1e4 disks, in the same run.
 
-    python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0]
+    python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0] [--old] [--case cli|mu05]
 
-Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (p/kn = 1e-4,
-mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic energy
-of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at mu_prep
--> equilibrium at mu, each phase with its own stop criterion (the step at which each ended is
-printed).
+Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (``--case cli``: p/kn =
+1e-4, mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic
+energy of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at
+mu_prep -> equilibrium at mu, each phase with its own stop criterion (the step at which each ended
+is printed). ``--case mu05``: ``pack(n, p_over_kn=1e-4, seed=seed)``, mu = mu_prep = 0.5 (the
+friction of ``in.prep``, and the case of issue 12 and ``studies.bench_throughput``), same
+criteria.
 
 LAMMPS: ``studies/lammps_bench/in.prep`` (carried in the repository, shared with bench_throughput): random insertion,
 soft push-off, isotropic compression at a constant rate to phi = 0.84 with GRANULAR
@@ -15,7 +17,9 @@ gran/hooke/history, relaxation until the translational kinetic energy per partic
 of a complete preparation of a jammed, relaxed 1e4-disk packing on each side.
 
 The two sides alternate (ours, LAMMPS, ours, LAMMPS ...) so that load from other processes hits
-both alike; the spread over the repeats and the load average are printed. Says so and runs ours
+both alike; the spread over the repeats (wall time, CPU time, steps) and the load average are
+printed. ``--old`` adds a third side in the same rotation: ours with the protocol before issue
+12.3 (compaction damping 0.1, dt = 0.8 dt_crit, no FIRE). Says so and runs ours
 alone when ``lmp`` is not on PATH (Debian: ``apt-get install -y lammps``).
 """
 from __future__ import annotations
@@ -23,35 +27,46 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import shutil
+import statistics
 import subprocess
 import tempfile
 import time
 
+from dem.measure import coordination
 from dem.packing import pack
 
 PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
 #: the defaults of ``python -m dem pack``
 CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispersity=0.0,
                     tol_unbalanced=1e-5)
+#: the protocol options before issue 12.3 (same stop criteria)
+OLD_PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
 
-def run_ours(n, seed):
-    t0 = time.perf_counter()
-    r = pack(n, seed=seed, **CLI_DEFAULTS)
-    wall = time.perf_counter() - t0
+#: ``--case``: the physics parameters of ours
+CASES = {"cli": CLI_DEFAULTS, "mu05": dict(p_over_kn=1e-4)}
+
+
+def run_ours(n, seed, old=False, case="cli"):
+    t0, c0 = time.perf_counter(), time.process_time()
+    r = pack(n, seed=seed, **CASES[case], **(OLD_PROTOCOL if old else {}))
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rep = r.report
-    return dict(wall=wall, steps=rep["steps"], converged=rep["converged"], phases=rep["phase_steps"],
-                phi=rep["phi"], Z=rep["Z"], ps=rep["particle_steps_per_s"])
+    c = coordination(r.to_network())      # after the timing: Z without rattlers
+    return dict(wall=wall, cpu=cpu, steps=rep["steps"], converged=rep["converged"],
+                phases=rep["phase_steps"], phi=rep["phi"], Z=rep["Z"], Zc=c.z,
+                rattlers=c.rattler_fraction, psi6=rep["psi6"], ps=rep["particle_steps_per_s"])
 
 
 def run_lammps(n, seed, work):
     log = os.path.join(work, "prep.log")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _children_cpu()
     subprocess.run(["lmp", "-in", PREP_IN, "-var", "N", str(n), "-var", "seed", str(4242 + seed),
                     "-var", "out", os.path.join(work, "dense.data"), "-log", log, "-screen", "none"],
                    check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
     steps, res = 0, ""
     for line in open(log, errors="replace"):
         m = re.match(r"Loop time of \S+ on \d+ procs for (\d+) steps", line)
@@ -59,7 +74,20 @@ def run_lammps(n, seed, work):
             steps += int(m.group(1))
         if line.startswith("PREP_RESULT"):
             res = line.strip()
-    return dict(wall=wall, steps=steps, result=res)
+    return dict(wall=wall, cpu=cpu, steps=steps, result=res)
+
+
+def _children_cpu():
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _spread(name, runs):
+    """One line: median [min, max] of wall, CPU and steps over the repeats."""
+    def f(key, fmt):
+        v = [r[key] for r in runs]
+        return f"{key} {format(statistics.median(v), fmt)} [{format(min(v), fmt)}, {format(max(v), fmt)}]"
+    return f"{name:14s} " + ", ".join([f("wall", ".2f"), f("cpu", ".2f"), f("steps", ".0f")])
 
 
 def main(argv=None):
@@ -67,28 +95,43 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=10000)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--old", action="store_true", help="also run the protocol before issue 12.3")
+    ap.add_argument("--case", choices=sorted(CASES), default="cli",
+                    help="cli: the defaults of python -m dem pack; mu05: mu = mu_prep = 0.5")
     a = ap.parse_args(argv)
     have_lmp = shutil.which("lmp") is not None
     if not have_lmp:
         print("lmp not on PATH: the LAMMPS side is skipped (Debian: apt-get install -y lammps)")
-    print(f"N = {a.n}, load average {os.getloadavg()} on {os.cpu_count()} cores")
-    ours, theirs = [], []
+    print(f"N = {a.n}, case {a.case} {CASES[a.case]}, load average {os.getloadavg()} on "
+          f"{os.cpu_count()} cores")
+    sides = {"ours": [], "ours (old)": [], "LAMMPS": []}
     with tempfile.TemporaryDirectory(prefix="bench_pack_") as work:
         for k in range(a.repeats):
-            o = run_ours(a.n, a.seed + k)
-            ours.append(o["wall"])
-            print(f"ours   seed {a.seed + k}: {o['wall']:7.2f} s, {o['steps']} steps, converged "
-                  f"{o['converged']}, phases {[(p['phase'], p['step']) for p in o['phases']]}, "
-                  f"phi {o['phi']:.4f}, Z {o['Z']:.3f}, {o['ps']:.3g} particle-steps/s; "
-                  f"load {os.getloadavg()[0]:.2f}", flush=True)
+            for old in ([False, True] if a.old else [False]):
+                o = run_ours(a.n, a.seed + k, old=old, case=a.case)
+                name = "ours (old)" if old else "ours"
+                sides[name].append(o)
+                print(f"{name:10s} seed {a.seed + k}: {o['wall']:7.2f} s wall, {o['cpu']:7.2f} s CPU, "
+                      f"{o['steps']} steps, converged {o['converged']}, phases "
+                      f"{[(p['phase'], p['step']) for p in o['phases']]}, phi {o['phi']:.4f}, "
+                      f"Z {o['Z']:.3f}, Z without rattlers {o['Zc']:.3f}, rattlers "
+                      f"{100 * o['rattlers']:.1f} %, psi6 {o['psi6']:.3f}, {o['ps']:.3g} particle-steps/s; "
+                      f"load {os.getloadavg()[0]:.2f}",
+                      flush=True)
             if have_lmp:
                 t = run_lammps(a.n, a.seed + k, work)
-                theirs.append(t["wall"])
-                print(f"LAMMPS seed {4242 + a.seed + k}: {t['wall']:7.2f} s, {t['steps']} steps; "
-                      f"{t['result']}; load {os.getloadavg()[0]:.2f}", flush=True)
-    print(f"ours {min(ours):.2f}-{max(ours):.2f} s" + (
-        f", LAMMPS in.prep {min(theirs):.2f}-{max(theirs):.2f} s, ratio of means "
-        f"{(sum(ours) / len(ours)) / (sum(theirs) / len(theirs)):.2f} (ours / LAMMPS)" if theirs else ""))
+                sides["LAMMPS"].append(t)
+                print(f"LAMMPS     seed {4242 + a.seed + k}: {t['wall']:7.2f} s wall, {t['cpu']:7.2f} s "
+                      f"CPU, {t['steps']} steps; {t['result']}; load {os.getloadavg()[0]:.2f}", flush=True)
+    for name, runs in sides.items():
+        if runs:
+            print(_spread(name, runs))
+    ours, theirs = sides["ours"], sides["LAMMPS"]
+    if theirs:
+        mean = statistics.mean
+        print(f"ratio of means ours / LAMMPS: wall {mean(r['wall'] for r in ours) / mean(r['wall'] for r in theirs):.2f}, "
+              f"CPU {mean(r['cpu'] for r in ours) / mean(r['cpu'] for r in theirs):.2f}; per pair (wall): "
+              + ", ".join(f"{o['wall'] / t['wall']:.2f}" for o, t in zip(ours, theirs)))
 
 
 if __name__ == "__main__":

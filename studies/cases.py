@@ -31,6 +31,11 @@ DEFAULTS = {"n": 1000, "p_over_kn": 1e-4, "kt_over_kn": 1.0, "mu": round(MU_26DE
             "dispersity": 0.0, "seed": 1}
 
 
+#: the packing protocol of the studies: the one before issue 12.3 (``dem.packing.pack`` options,
+#: bit-identical to it), under which the documented results were computed
+PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
+
+
 def cache_dir() -> Path:
     return Path(os.environ.get("MICROHOM_CACHE", "out/cache/packings"))
 
@@ -62,7 +67,7 @@ def get_packing(case: dict):
     res = pack(int(p["n"]), p_over_kn=p["p_over_kn"], kn=1.0, kt=p["kt_over_kn"], mu=p["mu"],
                mu_prep=p["mu_prep"], dispersity=p["dispersity"], seed=int(p["seed"]),
                frictionless=(p["kt_over_kn"] == 0 or (p["mu"] == 0 and p["mu_prep"] == 0)),
-               checkpoint=folder / f"{packing_key(case)}.partial.npz")
+               checkpoint=folder / f"{packing_key(case)}.partial.npz", **PROTOCOL)
     wall = time.perf_counter() - t0
     res.report["wall_time"] = wall
     res.save(final)

@@ -426,7 +426,10 @@ def test_soft_mode_deflation_removes_the_plateau():
     that the load barely excites: plain CG sits on a plateau 0.6 % above the exact G that the
     extrapolation takes for convergence (stated error 2.5e-5: the failure this option exists for).
     Deflating the soft modes found by LOBPCG reaches the exact value, bounds intact."""
-    net = pack(300, p_over_kn=1e-5, kt=1.0, mu=0.4877, mu_prep=0.05, seed=2).to_network()
+    # the packing of the protocol before issue 12.3 (its options pin it, bit for bit): this seed
+    # has the near-mechanism the test needs
+    net = pack(300, p_over_kn=1e-5, kt=1.0, mu=0.4877, mu_prep=0.05, seed=2, damping_compaction=0.1,
+               dt_over_dtcrit=0.8, fire=False).to_network()
     ex = stiffness(net)
     base = relaxation_hierarchy(net, tol=1e-9, max_order=8, spectral_bound="none", soft_modes=0)
     soft = relaxation_hierarchy(net, tol=1e-9, max_order=8, spectral_bound="none")   # "auto": 3

@@ -38,7 +38,7 @@ def test_packing_meets_its_stop_criteria(small_packing):
     assert r["psi6"] == pytest.approx(psi6, abs=1e-12)
     assert r["psi6_local"] == pytest.approx(psi6_local, abs=1e-12)
     assert r["psi6"] < 0.5        # frictional preparation of identical disks: not a crystal
-    assert r["dt_over_dtcrit"] == pytest.approx(0.8)
+    assert r["dt_over_dtcrit"] == pytest.approx(1.0)   # the default time step of pack
 
 
 def _psi6_delaunay(net):
@@ -58,6 +58,87 @@ def _psi6_delaunay(net):
     loc = np.array([np.mean([np.exp(6j * np.arctan2(*(tiled[v] - tiled[centre + i])[::-1]))
                              for v in nb[i]]) for i in range(n)])
     return abs(loc.mean()), np.abs(loc).mean()
+
+
+def test_random_gas_without_overlaps():
+    a = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    b = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
+    assert a.solid_fraction == pytest.approx(0.44)
+    L = a.h[0, 0]
+    assert np.all((a.x >= 0) & (a.x < L)) and np.all(a.v == 0)
+    d = a.x[:, None, :] - a.x[None, :, :]
+    d -= L * np.round(d / L)                                  # nearest image, square cell
+    gap = np.hypot(d[..., 0], d[..., 1]) - (a.radius[:, None] + a.radius[None, :])
+    np.fill_diagonal(gap, np.inf)
+    assert gap.min() >= 0
+    assert not np.array_equal(a.x, random_gas(400, seed=6, dispersity=0.3, phi0=0.44, overlaps=False).x)
+    with pytest.raises(ValueError, match="phi0"):
+        random_gas(50, phi0=0.5, overlaps=False)
+
+
+def test_old_protocol_options_reproduce_the_earlier_packing():
+    """The options of the protocol before issue 12.3 give the packing that code gave, bit for
+    bit (values recorded with the code of commit 890360b, before FIRE and dt = dt_crit)."""
+    kw = dict(PACK_KW, mu_prep=0.1, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
+    r = pack(60, **kw)
+    assert r.report["phase_steps"] == [{"phase": "compact", "step": 5400},
+                                       {"phase": "prep", "step": 5500},
+                                       {"phase": "test", "step": 5600}]
+    assert float(r.state.x.sum()).hex() == "0x1.c9b1bad295a1dp+8"
+    assert float(r.state.v.sum()).hex() == "0x1.dcc8cb6b9e608p-15"
+    assert r.report["pressure"].hex() == "0x1.0624db7539d42p-10"
+
+
+def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
+    kw = dict(PACK_KW, mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14, checkpoint_every=100)
+    straight = pack(60, **kw)
+    assert [h["phase"] for h in straight.report["phase_steps"]] == ["compact", "prep", "test"]
+    stop = straight.report["phase_steps"][0]["step"] + 100          # inside prep (FIRE on)
+    ck = tmp_path / "pack.npz"
+    pack(60, **dict(kw, max_steps=stop, checkpoint=ck))
+    pk = State.load(ck).meta["packing"]
+    assert pk["phase"] == "prep" and pk["fire"]["n_pos"] + pk["fire"]["n_quench"] > 0
+    resumed = pack(60, **dict(kw, checkpoint=ck))
+    assert resumed.report["resumed"] and resumed.report["steps"] == straight.report["steps"]
+    for name in ("x", "v", "omega", "h", "L", "nl_ft"):
+        assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
+
+
+def test_compaction_fire_gate_follows_the_solid_fraction():
+    """Compact's gate: FIRE on after ``still_checks`` checks without compaction, off as soon as
+    the solid fraction moves again; the stop criterion is untouched."""
+    from dem.packing import Compact, _Run
+
+    class St:
+        solid_fraction = 0.8
+
+    run = _Run.__new__(_Run)
+    run.state, run.p_target, run.fire, run.last_phi, run.n_still = St(), 1.0, None, None, 0
+    ph = Compact(0.05, still_tol=1e-6, still_checks=3)
+    m = {"pressure": 2.0, "unbalanced": 1.0}              # far from done
+    seen = []
+    for phi in (0.8, 0.8, 0.8, 0.8, 0.8, 0.81, 0.81):
+        St.solid_fraction = phi
+        assert not ph.done(run, m)
+        seen.append((run.n_still, run.fire is not None))
+    assert seen == [(0, False), (1, False), (2, False), (3, True), (4, True), (0, False), (1, False)]
+    assert Compact(0.05, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
+
+
+def test_resume_with_the_compaction_gate_counting_is_bit_exact(tmp_path):
+    # N = 400, seed 0: the gate opens at step 11 800 (fifth still check), the checkpoint at
+    # 11 500 is inside the count
+    kw = dict(p_over_kn=1e-4, mu=0.5, seed=0, checkpoint_every=100)
+    straight = pack(400, **kw)
+    ck = tmp_path / "pack.npz"
+    pack(400, **dict(kw, max_steps=11500, checkpoint=ck))
+    pk = State.load(ck).meta["packing"]
+    assert pk["phase"] == "compact" and pk["n_still"] > 0 and pk["last_phi"] is not None
+    resumed = pack(400, **dict(kw, checkpoint=ck))
+    assert resumed.report["steps"] == straight.report["steps"]
+    for name in ("x", "v", "omega", "h", "L", "nl_ft"):
+        assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
 
 
 def test_psi6_of_a_crystal_is_one():
