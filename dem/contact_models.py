@@ -42,7 +42,7 @@ Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can
 (``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
 complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
 reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
-arithmetic per particle is that of :func:`kick_drift` and :func:`kick_spin`, in the same order,
+arithmetic per particle is that of :func:`kick_range`, in the same order,
 so fused and separate integration give bit-identical trajectories.
 """
 from __future__ import annotations

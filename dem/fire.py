@@ -116,7 +116,7 @@ class Fire:
             self.n_quench += 1
 
     def to_meta(self) -> dict:
-        """JSON-ready dict (stored in checkpoints; :meth:`from_meta` restores it bit-exactly)."""
+        """JSON-ready dict (stored in checkpoints; ``Fire.from_meta`` restores it bit-exactly)."""
         return {"alpha_start": self.alpha_start, "f_alpha": self.f_alpha, "n_min": self.n_min,
                 "alpha": self.alpha, "n_pos": self.n_pos, "n_quench": self.n_quench}
 

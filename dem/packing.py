@@ -525,7 +525,7 @@ class Equilibrate:
     law : the contact law of the phase (its friction is the phase's friction).
     damping : Cundall local damping of the phase, in [0, 1).
     tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
-    fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`Fire` at the
+    fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`~dem.fire.Fire` at the
         start of the phase), on top of the damping.
     """
     name: str
