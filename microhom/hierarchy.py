@@ -40,7 +40,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, affine_tensor, assemble, stress0
-from .multilevel import amg_preconditioner, dof_layout
+from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
 from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
@@ -287,8 +287,8 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     return (out[0], hi, out[1], out[2]) if return_max else out
 
 
-def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40, seed: int = 0,
-                 return_vectors: bool = False):
+def lowest_modes(asm: Assembly, M=None, P=None, *, Minv=None, k: int = 6, maxiter: int = 40,
+                 seed: int = 0, return_vectors: bool = False):
     """Lowest eigenvalues of the pencil ``(H, M)`` by LOBPCG, the two global translations deflated.
 
     LOBPCG runs twice, preconditioned by the multilevel V-cycle ``P`` (default
@@ -303,17 +303,13 @@ def lowest_modes(asm: Assembly, M=None, P=None, *, k: int = 6, maxiter: int = 40
     eigenvalue from above (not a certified lower bound: LOBPCG may miss a lower one). About 2 s for
     8000 unknowns.
     """
-    Mb, Minv, _, _ = block_preconditioner(asm)
-    M = Mb if M is None else M
+    if M is None or Minv is None:                 # the caller's blocks, or build them once here
+        M, Minv = block_preconditioner(asm)[:2]
     if P is None:
         P = amg_preconditioner(asm)[0]
     n = asm.ndof
     k = int(min(k, max(n // 5 - 1, 1)))
-    _, comp = dof_layout(asm)
-    Y = np.zeros((n, 2))
-    Y[comp == 0, 0] = 1.0
-    Y[comp == 1, 1] = 1.0
-    Y = Y[:, Y.any(axis=0)] if asm.pinned < 0 else None
+    Y = near_null_space(asm)[:, :2] if asm.pinned < 0 else None     # the two global translations
     rq, Vs = [], []
     for prec in (P, Minv):
         X = np.random.default_rng(seed).standard_normal((n, k))
@@ -657,7 +653,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     if soft_modes and asm.ndof and not unstable:
         ts = time.perf_counter()
         P_amg, _ = amg_preconditioner(asm)
-        rq, lam_est, V_soft = lowest_modes(asm, M, P_amg, k=int(soft_modes), return_vectors=True)
+        rq, lam_est, V_soft = lowest_modes(asm, M, P_amg, Minv=Minv, k=int(soft_modes),
+                                            return_vectors=True)
         V_soft = V_soft[:, rq > _NULL_CURV]                  # floppy (zero) modes carry no load
         if lam_est < -_NEG_CURV:
             unstable = True
