@@ -244,3 +244,16 @@ def test_contact_arms_torque_and_slip_closed_form():
         ft = -kt * (-(aj * w)) * sim.dt      # slip velocity vt = -(w_i a_i + w_j a_j)
         assert st.nl_ft[0] == pytest.approx(ft, rel=1e-12)
         assert sim.torque == pytest.approx([-ai * ft, -aj * ft], rel=1e-12)
+
+
+@pytest.mark.parametrize("make", [lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5),
+                                  lambda: LammpsHookeHistory(kn=1e4, kt=1e4, gamma_n=10.0, mu=0.5)])
+def test_coincident_disks_stop_with_the_reason(make):
+    """Both pair loops use numba's numpy error model: two disks at the same point give a NaN
+    force (no ZeroDivisionError), which the instability guard reports."""
+    from dem.runtime import InstabilityError
+    x = np.array([[1.0, 1.0], [1.0, 1.0], [3.0, 3.0]])
+    st = State.from_disks(x, np.full(3, 0.5), np.diag([5.0, 5.0]), rho=1.0, spins=True)
+    sim = Simulation(st, make(), check_every=10)
+    with pytest.raises(InstabilityError, match="NaN"):
+        sim.run(20)
