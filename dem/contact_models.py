@@ -345,13 +345,16 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
-#                    fn, kn, ct, dt) -> (ftx, fty, elastic energy, mi, mj)
+#   tangential_force(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
+#                    fn, kn, ct, dt, fast) -> (ftx, fty, elastic energy, mi, mj, ok)
 #   the torques of the tangential force on i and j are -mi and -mj (the loop subtracts them, in
-#   this order); the pair's history slots are ``hist[q]``, ``hist[q + 1]``, ... (the tangential
+#   this order); the pair's history slots are ``hist[q]``, ``hist[q + hs]``, ... (the tangential
 #   model's first). The
 #   loop calls it for every pair of the list, in contact or not (it keeps the results of the
 #   pairs in contact only and zeroes the others' history), so it must not branch on the contact.
+#   ``fast`` (a compile-time constant): the vectorised loop's call, where a model may skip a rare
+#   and costly branch and return ``ok = False`` instead; the loop then recomputes that pair with
+#   ``fast = False`` from its saved history. Otherwise ``ok`` is True.
 # --------------------------------------------------------------------------------------------------
 class NoTangential(NamedTuple):
     """No tangential force (no spins needed)."""
@@ -377,9 +380,9 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt):
-    def impl(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt):
-        return 0.0, 0.0, 0.0, 0.0, 0.0
+def _notang(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
+        return 0.0, 0.0, 0.0, 0.0, 0.0, True
     return impl
 
 
@@ -461,12 +464,12 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt):
+def _scalar_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, fast):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
         tx = -ny
         ty = nx
         ai = ri
@@ -485,7 +488,7 @@ def _scalar_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny,
         fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, ct, vt, tdamp)
         hist[q] = fs
         U = 0.5 * fs * fs / kt if kt > 0.0 else 0.0
-        return ftot * tx, ftot * ty, U, ai * ftot, aj * ftot
+        return ftot * tx, ftot * ty, U, ai * ftot, aj * ftot, True
     return impl
 
 
@@ -507,7 +510,7 @@ class LammpsHistory(NamedTuple):
     mu: float
 
     HISTORY = 2
-    VECTOR = False  # its slip branch (a sqrt and three divisions) would run on every pair
+    VECTOR = True  # its slip branch (a sqrt, three divisions) is left to the exact path (``fast``)
     PARITY = (-1, -1)
     SPIN = True
 
@@ -520,15 +523,15 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt):
+def _lammps_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, fast):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
     # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
     # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
     # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
     # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
-    def impl(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
         kt = model.kt
         # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
         vt1 = dvx - nx * vn
@@ -537,7 +540,7 @@ def _lammps_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny,
         vtr1 = vt1 + ny * ws
         vtr2 = vt2 - nx * ws
         s1 = hist[q]
-        s2 = hist[q + 1]
+        s2 = hist[q + hs]
         if dt > 0.0:
             s1 += vtr1 * dt
             s2 += vtr2 * dt
@@ -550,7 +553,11 @@ def _lammps_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny,
         fs2 = -(kt * s2 + ct * vtr2)
         fs2sum = fs1 * fs1 + fs2 * fs2
         lim = model.mu * abs(fn)
-        if fs2sum > lim * lim:
+        ok = True
+        if fast:
+            # the vectorised loop: a sliding contact is flagged and recomputed by the exact path
+            ok = not fs2sum > lim * lim
+        elif fs2sum > lim * lim:
             # (LAMMPS compares |fs| > lim and tests the shear magnitude before the projection)
             if shr2 != 0.0:
                 r = lim / math.sqrt(fs2sum)
@@ -564,9 +571,9 @@ def _lammps_tangential(model, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny,
                 fs1 = 0.0
                 fs2 = 0.0
         hist[q] = s1
-        hist[q + 1] = s2
+        hist[q + hs] = s2
         tor = nx * fs2 - ny * fs1
-        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ri * tor, rj * tor
+        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ri * tor, rj * tor, ok
     return impl
 
 
@@ -586,8 +593,8 @@ _implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(
 
 
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, q, h0, ri, rj, wi, wj, fn, kn, dt) -> (U, m)
-#   its slots are ``hist[q + h0]``, ... (h0: the number of tangential slots); returns its elastic energy and the torque m on
+# rolling resistance: rolling_torque(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt) -> (U, m)
+#   its slots are ``hist[q + h0 hs]``, ... (h0: the number of tangential slots); returns its elastic energy and the torque m on
 #   j (-m on i), which the loop applies after the tangential torques.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
@@ -606,8 +613,8 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, q, h0, ri, rj, wi, wj, fn, kn, dt):
-    def impl(model, hist, q, h0, ri, rj, wi, wj, fn, kn, dt):
+def _noroll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
         return 0.0, 0.0
     return impl
 
@@ -635,9 +642,9 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, q, h0, ri, rj, wi, wj, fn, kn, dt):
-    def impl(model, hist, q, h0, ri, rj, wi, wj, fn, kn, dt):
-        q = q + h0
+def _roll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+        q = q + h0 * hs
         reff = ri * rj / (ri + rj)
         kr = model.kr_ratio * kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
@@ -860,13 +867,21 @@ def _branch(p, pi, jc, xf, off):
 
 
 @njit(cache=True, inline="always")
-def _law(p, q, lx, ly, d2, ri, rj, dvx0, dvy0, wi, wj, hist, pc, L00, L01, L10, L11, normal, damping,
-         tangential, rolling, hroll, dt):
-    """The contact law on pair p (pair constants ``pc[p]``, history from ``hist[q]``), given its
+def _slot0(p, nh, hs):
+    """Index of the first history slot of pair p of a chunk: ``p`` in the slot-by-slot layout
+    (``hs = CHUNK``, more than one slot), ``nh p`` in the pair-by-pair one (``hs = 1``)."""
+    return p if hs > 1 else nh * p
+
+
+@njit(cache=True, inline="always")
+def _law(p, q, hs, lx, ly, d2, ri, rj, dvx0, dvy0, wi, wj, hist, pc, L00, L01, L10, L11, normal, damping,
+         tangential, rolling, hroll, dt, fast):
+    """The contact law on pair p (pair constants ``pc[p]``, history slots ``hist[q + k hs]``), given its
     branch, ``|l|^2``, radii, ``v_j - v_i`` and spins. Returns (fx, fy, mi, mj, mr, Un, Ut, Ur,
-    fn, kn): the force on j, the torque terms (the torques are ``-mi - mr`` on i and
+    fn, kn, ok): the force on j, the torque terms (the torques are ``-mi - mr`` on i and
     ``-mj + mr`` on j, subtracted and added in this order), the elastic energies, the normal
-    force and the normal tangent stiffness."""
+    force, the normal tangent stiffness, and False if ``fast`` skipped a rare branch of the
+    tangential model (the results are then not valid; see ``tangential_force``)."""
     rs = ri + rj
     d = math.sqrt(d2)
     nx = lx / d
@@ -877,12 +892,12 @@ def _law(p, q, lx, ly, d2, ri, rj, dvx0, dvy0, wi, wj, hist, pc, L00, L01, L10, 
     fn, kn, Un = normal_force(normal, delta)
     vn = dvx * nx + dvy * ny
     fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-    ftx, fty, Ut, mi, mj = tangential_force(tangential, damping, hist, q, dvx, dvy, vn, lx, ly, d, nx, ny, ri,
-                                            rj, wi, wj, fn, kn, ct, dt)
-    Ur, mr = rolling_torque(rolling, hist, q, hroll, ri, rj, wi, wj, fn, kn, dt)
+    ftx, fty, Ut, mi, mj, ok = tangential_force(tangential, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny,
+                                                ri, rj, wi, wj, fn, kn, ct, dt, fast)
+    Ur, mr = rolling_torque(rolling, hist, q, hs, hroll, ri, rj, wi, wj, fn, kn, dt)
     fx = fn * nx + ftx
     fy = fn * ny + fty
-    return fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn
+    return fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok
 
 
 @njit(cache=True, inline="always")
@@ -927,12 +942,14 @@ def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
 
 
 @njit(cache=True, inline="always")
-def _contact_forces(m, hist, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
+def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
                     tally, buf):
-    """Pass 2 of a chunk of m pairs (``hist``, ``pc``: the chunk's slices): the contact law on
+    """Pass 2 of a chunk of m pairs (``hist``: the chunk's history, slot k of pair p at
+    ``hist[hq(p) + k hs]``, see :func:`_slot0`; ``pc``: the chunk's pair constants): the contact law on
     every pair, without a branch on the contact, so that the compiler vectorises it. The pairs
     not in contact get zero history and a zero ``_TOUCH`` row (pass 3 skips them). ``tally`` (a
-    constant where this is inlined) also stores the energy, force-magnitude and stiffness terms."""
+    constant where this is inlined) also stores the energy, force-magnitude and stiffness terms.
+    A pair whose tangential model skipped a rare branch (``ok`` False) is marked 2 in ``_TOUCH``."""
     for p in range(m):
         lx = buf[_LX + p]
         ly = buf[_LY + p]
@@ -941,23 +958,53 @@ def _contact_forces(m, hist, pc, nh, L00, L01, L10, L11, normal, damping, tangen
         rs = ri + rj
         d2 = lx * lx + ly * ly
         touch = d2 < rs * rs
-        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn = _law(p, nh * p, lx, ly, d2, ri, rj, buf[_VX + p], buf[_VY + p],
-                                                      buf[_WI + p], buf[_WJ + p], hist, pc, L00, L01, L10, L11,
-                                                      normal, damping, tangential, rolling, hroll, dt)
-        for k in range(nh * p, nh * p + nh):
-            hist[k] = hist[k] if touch else 0.0
+        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, ri, rj, buf[_VX + p],
+                                                          buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist, pc, L00,
+                                                          L01, L10, L11, normal, damping, tangential, rolling,
+                                                          hroll, dt, True)
+        for k in range(nh):
+            h = _slot0(p, nh, hs) + k * hs
+            hist[h] = hist[h] if touch else 0.0
         buf[_FX + p] = fx
         buf[_FY + p] = fy
         buf[_MI + p] = mi
         buf[_MJ + p] = mj
         buf[_MR + p] = mr
-        buf[_TOUCH + p] = 1.0 if touch else 0.0
+        buf[_TOUCH + p] = (1.0 if ok else 2.0) if touch else 0.0
         if tally:
             buf[_UN + p] = Un
             buf[_UT + p] = Ut
             buf[_UR + p] = Ur
             buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
             buf[_KD + p] = kn * d2
+
+
+@njit(cache=True, inline="always")
+def _exact(p, nh, hist, hs, hbak, pc, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt, tally, buf):
+    """Pass 3's exact path for pair p of a chunk marked 2 by pass 2: its history back from
+    ``hbak`` (the chunk's history before pass 2), the law evaluated with ``fast = False`` (the
+    serial loop's operations), its rows of ``buf`` overwritten."""
+    for k in range(nh):
+        h = _slot0(p, nh, hs) + k * hs
+        hist[h] = hbak[h]
+    lx = buf[_LX + p]
+    ly = buf[_LY + p]
+    d2 = lx * lx + ly * ly
+    fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, buf[_RI + p], buf[_RJ + p],
+                                                     buf[_VX + p], buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist,
+                                                     pc, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                                                     hroll, dt, False)
+    buf[_FX + p] = fx
+    buf[_FY + p] = fy
+    buf[_MI + p] = mi
+    buf[_MJ + p] = mj
+    buf[_MR + p] = mr
+    if tally:
+        buf[_UN + p] = Un
+        buf[_UT + p] = Ut
+        buf[_UR + p] = Ur
+        buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
+        buf[_KD + p] = kn * d2
 
 
 @njit(cache=True, inline="always")
@@ -1005,22 +1052,36 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
     block = np.uint64(KICK_BLOCK)
     buf = np.zeros(_NROWS)
     ij = np.empty(2 * CHUNK, np.uint64)
+    hb = np.zeros(max(nh, 1) * CHUNK)
+    hbak = np.empty(max(nh, 1) * CHUNK)
+    hstride = CHUNK if nh > 1 else 1
     npair = jc.shape[0]
     npc = pc.shape[0] // npair if npair > 0 else 0
     for p0 in range(0, npair, CHUNK):
         m = min(CHUNK, npair - p0)
         _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf)
-        hs = hist[nh * p0:nh * (p0 + m)]
+        if nh > 1:
+            # more than one slot: the chunk's history slot by slot (unit stride for the compiler)
+            for k in range(nh):
+                for q in range(m):
+                    hb[q + k * CHUNK] = hist[nh * (p0 + q) + k]
+            hc = hb
+        else:
+            hc = hist[p0 * nh:(p0 + m) * nh]
+        hbak[:hc.shape[0]] = hc
         pcs = pc[npc * p0:npc * (p0 + m)]
         if tally:
-            _contact_forces(m, hs, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
-                            True, buf)
+            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                            hroll, dt, True, buf)
         else:
-            _contact_forces(m, hs, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
-                            False, buf)
+            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                            hroll, dt, False, buf)
         for q in range(m):
             if buf[_TOUCH + q] == 0.0:
                 continue
+            if buf[_TOUCH + q] == 2.0:
+                _exact(q, nh, hc, hstride, hbak, pcs, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
+                       tally, buf)
             i = ij[q]
             j = ij[CHUNK + q]
             fx = buf[_FX + q]
@@ -1040,6 +1101,10 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
                 nc += 1.0
                 fsum += buf[_FM + q]
                 kl2 += buf[_KD + q]
+        if nh > 1:
+            for k in range(nh):
+                for q in range(m):
+                    hist[nh * (p0 + q) + k] = hb[q + k * CHUNK]
         if fused:
             # particles below the next pair's i have all their forces (pairs are ordered by i, j > i)
             nxt = np.uint64(np.uint32(pi[p0 + m])) if p0 + m < npair else done
@@ -1113,9 +1178,10 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
         if spin:
             wi = omega[i]
             wj = omega[j]
-        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn = _law(p, nh * p, lx, ly, d2, ri, rj, vf[j2] - vf[i2],
-                                                      vf[j2 + one] - vf[i2 + one], wi, wj, hist, pc, L00, L01,
-                                                      L10, L11, normal, damping, tangential, rolling, hroll, dt)
+        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, nh * p, 1, lx, ly, d2, ri, rj, vf[j2] - vf[i2],
+                                                         vf[j2 + one] - vf[i2 + one], wi, wj, hist, pc, L00, L01,
+                                                         L10, L11, normal, damping, tangential, rolling, hroll, dt,
+                                                         False)
         if spin:
             ti = torque[i]
             tj = torque[j]

@@ -79,12 +79,12 @@ def test_chunked_and_serial_pair_loops_are_bit_identical(name, fuse, monkeypatch
     assert (kea == keb or (np.isnan(kea) and np.isnan(keb))) and wa == wb
 
 
-def test_vectorised_loop_is_chosen_for_the_linear_and_hertz_laws():
+def test_vectorised_loop_is_chosen_for_all_laws_but_rolling_resistance():
     """Which strategy each law runs (the choice only matters for speed, docs/dem.md)."""
     assert cm.vectorises(LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7, tangential_damping=True).models)
     assert cm.vectorises(HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, restitution=0.5).models)
     assert cm.vectorises(Frictionless(kn=1e4).models)
-    assert not cm.vectorises(STRATEGY_LAWS["lammps"]().models)
+    assert cm.vectorises(STRATEGY_LAWS["lammps"]().models)
     assert not cm.vectorises(STRATEGY_LAWS["rolling"]().models)
 
 
