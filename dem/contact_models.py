@@ -205,7 +205,7 @@ def _hertz_force(model, delta):
 
 # --------------------------------------------------------------------------------------------------
 # damping models.
-#   pair_constant(model, normal, meff, out_row): fills the per-pair constants (NPC per pair),
+#   pair_constant(model, normal, meff, pc, q): fills the per-pair constants pc[q], pc[q + 1], ...
 #       computed at each list build;
 #   normal_damping(model, normal, pc, p, k_n, fn, vn) -> (fn with dashpot, tangential c_t).
 # --------------------------------------------------------------------------------------------------
@@ -222,8 +222,8 @@ class NoDamping(NamedTuple):
 
 
 @_implements(pair_constant, NoDamping)
-def _nodamp_pc(model, normal, meff, row):
-    def impl(model, normal, meff, row):
+def _nodamp_pc(model, normal, meff, pc, q):
+    def impl(model, normal, meff, pc, q):
         pass
     return impl
 
@@ -270,13 +270,13 @@ class ViscousTangential(NamedTuple):
         return cls(damping_ratio(e))
 
 
-def _viscous_pc(model, normal, meff, row):
+def _viscous_pc(model, normal, meff, pc, q):
     if _cls(normal) is Hooke:
-        def impl(model, normal, meff, row):
-            row[0] = 2.0 * model.zeta * math.sqrt(meff * normal.kn)
+        def impl(model, normal, meff, pc, q):
+            pc[q] = 2.0 * model.zeta * math.sqrt(meff * normal.kn)
     else:
-        def impl(model, normal, meff, row):
-            row[0] = meff
+        def impl(model, normal, meff, pc, q):
+            pc[q] = meff
     return impl
 
 
@@ -319,10 +319,10 @@ class MassGamma(NamedTuple):
 
 
 @_implements(pair_constant, MassGamma)
-def _massgamma_pc(model, normal, meff, row):
-    def impl(model, normal, meff, row):
-        row[0] = meff * model.gamma_n
-        row[1] = meff * model.gamma_t
+def _massgamma_pc(model, normal, meff, pc, q):
+    def impl(model, normal, meff, pc, q):
+        pc[q] = meff * model.gamma_n
+        pc[q + 1] = meff * model.gamma_t
     return impl
 
 
@@ -1256,7 +1256,7 @@ def make_pair_constants(damping, normal, mass, pi, pj, npc):
             i = pi[p]
             j = pj[p]
             meff = mass[i] * mass[j] / (mass[i] + mass[j])
-            pair_constant(damping, normal, meff, pc[npc * p:npc * (p + 1)])
+            pair_constant(damping, normal, meff, pc, npc * p)
     return pc
 
 
