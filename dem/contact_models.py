@@ -942,6 +942,23 @@ def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
 
 
 @njit(cache=True, inline="always")
+def _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally):
+    """Pair p's results of :func:`_law` into its rows of the chunk's scratch (the tally terms only
+    if ``tally``)."""
+    buf[_FX + p] = fx
+    buf[_FY + p] = fy
+    buf[_MI + p] = mi
+    buf[_MJ + p] = mj
+    buf[_MR + p] = mr
+    if tally:
+        buf[_UN + p] = Un
+        buf[_UT + p] = Ut
+        buf[_UR + p] = Ur
+        buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
+        buf[_KD + p] = kn * d2
+
+
+@njit(cache=True, inline="always")
 def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
                     tally, buf):
     """Pass 2 of a chunk of m pairs (``hist``: the chunk's history, slot k of pair p at
@@ -965,18 +982,8 @@ def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, ta
         for k in range(nh):
             h = _slot0(p, nh, hs) + k * hs
             hist[h] = hist[h] if touch else 0.0
-        buf[_FX + p] = fx
-        buf[_FY + p] = fy
-        buf[_MI + p] = mi
-        buf[_MJ + p] = mj
-        buf[_MR + p] = mr
+        _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally)
         buf[_TOUCH + p] = (1.0 if ok else 2.0) if touch else 0.0
-        if tally:
-            buf[_UN + p] = Un
-            buf[_UT + p] = Ut
-            buf[_UR + p] = Ur
-            buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
-            buf[_KD + p] = kn * d2
 
 
 @njit(cache=True, inline="always")
@@ -994,17 +1001,7 @@ def _exact(p, nh, hist, hs, hbak, pc, L00, L01, L10, L11, normal, damping, tange
                                                      buf[_VX + p], buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist,
                                                      pc, L00, L01, L10, L11, normal, damping, tangential, rolling,
                                                      hroll, dt, False)
-    buf[_FX + p] = fx
-    buf[_FY + p] = fy
-    buf[_MI + p] = mi
-    buf[_MJ + p] = mj
-    buf[_MR + p] = mr
-    if tally:
-        buf[_UN + p] = Un
-        buf[_UT + p] = Ut
-        buf[_UR + p] = Ur
-        buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
-        buf[_KD + p] = kn * d2
+    _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally)
 
 
 @njit(cache=True, inline="always")
@@ -1014,6 +1011,14 @@ def _begin(cell, x, v, f, torque, x_ref):
     torque[:] = 0.0
     return (_image_offsets(cell.h00, cell.h01, cell.h10, cell.h11), x.reshape(-1), v.reshape(-1), f.reshape(-1),
             x_ref.reshape(-1))
+
+
+@njit(cache=True, inline="always")
+def _layout(tangential, rolling):
+    """(spins?, tangential torques?, rolling torques?, history slots per pair): compile-time
+    constants of the law."""
+    tq_t, tq_r = torque_terms(tangential, rolling)
+    return spin_flag(tangential, rolling), tq_t, tq_r, history_slots(tangential, rolling)
 
 
 @njit(cache=True, inline="always")
@@ -1058,14 +1063,9 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
                         damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
     off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
-    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    fused = kick.fused
-    spin = spin_flag(tangential, rolling)
-    tq_t, tq_r = torque_terms(tangential, rolling)
-    nh = history_slots(tangential, rolling)
-    sums = (0.0, 0.0, 0.0, 0.0, 0.0)
-    done = np.uint64(0)
-    block = np.uint64(KICK_BLOCK)
+    spin, tq_t, tq_r, nh = _layout(tangential, rolling)
+    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
+    fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
     buf = np.zeros(_NROWS)
     ij = np.empty(2 * CHUNK, np.uint64)
     hb = np.zeros(max(nh, 1) * CHUNK)
@@ -1136,14 +1136,9 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
                        damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
     off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
-    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    fused = kick.fused
-    spin = spin_flag(tangential, rolling)
-    tq_t, tq_r = torque_terms(tangential, rolling)
-    nh = history_slots(tangential, rolling)
-    sums = (0.0, 0.0, 0.0, 0.0, 0.0)
-    done = np.uint64(0)
-    block = np.uint64(KICK_BLOCK)
+    spin, tq_t, tq_r, nh = _layout(tangential, rolling)
+    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
+    fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
     one = np.uint64(1)
     for p in range(jc.shape[0]):
         i, j, i2, j2, lx, ly = _branch(p, pi, jc, xf, off)
