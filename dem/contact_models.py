@@ -686,12 +686,20 @@ NO_KICK = Kick(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, Fal
 KICK_BLOCK = 64
 
 
+#: particles per block of :func:`kick_range` (its scratch rows stay in the L1 cache)
+KICK_CHUNK = 256
+# rows of the kick's scratch (flat, offsets as unsigned constants): per particle, the squared
+# non-affine displacement, the kinetic-energy and damping-work terms of x, y and the spin
+_KD2, _KEX, _KEY, _KWX, _KWY, _KER, _KWR = (np.uint64(KICK_CHUNK * k) for k in range(7))
+KICK_SCRATCH = 7 * KICK_CHUNK
+
+
 @njit(cache=True, inline="always")
-def _kick_dof(F, vo, m, dtk, dt, damping, tally, e, w):
+def _kick_dof(F, vo, m, dtk, dt, damping):
     """One degree of freedom of :func:`kick_range` (a velocity component with its mass, or a spin
     with its inertia): the new velocity ``vo + dtk (F + F_damp) / m`` with the Cundall damping
-    ``F_damp = -damping |F| sign(vo)``, and the running sums ``e`` (kinetic energy at the integer
-    time, if ``tally``) and ``w`` (damping work, if ``damping > 0``) updated."""
+    ``F_damp = -damping |F| sign(vo)``, the kinetic-energy term ``m vm^2 / 2`` at the integer time
+    (``vm`` the mean of the old and new velocities) and the damping-work term ``F_damp vm dt``."""
     Fd = 0.0
     if damping > 0.0:
         if vo > 0.0:
@@ -699,17 +707,58 @@ def _kick_dof(F, vo, m, dtk, dt, damping, tally, e, w):
         elif vo < 0.0:
             Fd = damping * abs(F)
     vn = vo + dtk * (F + Fd) / m
-    if tally or damping > 0.0:
-        vm = 0.5 * (vo + vn)
-        if tally:
-            e += 0.5 * m * vm * vm
-        if damping > 0.0:
-            w += Fd * vm * dt
-    return vn, e, w
+    vm = 0.5 * (vo + vn)
+    return vn, 0.5 * m * vm * vm, Fd * vm * dt
 
 
-@njit(cache=True)
-def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums):
+@njit(cache=True, inline="always")
+def _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, terms, kb):
+    """The updates of particles b0..b1-1 of :func:`kick_range` (no reduction: vectorised), the
+    squared non-affine displacements into ``kb`` and, if ``terms`` (a constant where inlined),
+    the kinetic-energy and damping-work terms."""
+    dtk = kick.dtk
+    dt = kick.dt
+    damping = kick.damping
+    L00, L01, L10, L11 = kick.L00, kick.L01, kick.L10, kick.L11
+    F00, F01, F10, F11 = kick.F00, kick.F01, kick.F10, kick.F11
+    one = np.uint64(1)
+    for k in range(b0, b1):
+        q = k - b0
+        k2 = k + k
+        m = mass[k]
+        v0, ex, wx = _kick_dof(ff[k2], vf[k2], m, dtk, dt, damping)
+        v1, ey, wy = _kick_dof(ff[k2 + one], vf[k2 + one], m, dtk, dt, damping)
+        vf[k2] = v0
+        vf[k2 + one] = v1
+        x0 = xf[k2]
+        x1 = xf[k2 + one]
+        y0 = x0 + dt * (v0 + L00 * x0 + L01 * x1)
+        y1 = x1 + dt * (v1 + L10 * x0 + L11 * x1)
+        xf[k2] = y0
+        xf[k2 + one] = y1
+        r0 = rf[k2]
+        r1 = rf[k2 + one]
+        dx = y0 - (F00 * r0 + F01 * r1)
+        dy = y1 - (F10 * r0 + F11 * r1)
+        kb[_KD2 + q] = dx * dx + dy * dy
+        if terms:
+            kb[_KEX + q] = ex
+            kb[_KEY + q] = ey
+            kb[_KWX + q] = wx
+            kb[_KWY + q] = wy
+    if spins:
+        for k in range(b0, b1):
+            q = k - b0
+            wn, er, wr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping)
+            omega[k] = wn
+            theta[k] += dt * wn
+            if terms:
+                kb[_KER + q] = er
+                kb[_KWR + q] = wr
+
+
+@njit(cache=True, error_model="numpy")
+def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb):
     """Kick and drift particles lo..hi-1 (flat (2N,) views of x, v, f, x_ref), then their spins if
     ``omega`` is not empty:
 
@@ -720,38 +769,41 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
     ``sums`` = (max non-affine displacement^2 ``|x - F x_ref|^2``, translational KE at the integer
     time, its damping work, rotational KE, its damping work) is returned updated; the kinetic
     energies only if ``kick.tally``, the damping work only if ``kick.damping > 0`` (it is 0
-    otherwise). The sums are added to particle by particle, in order, so that blocks of particles
-    give the same bits as one pass.
+    otherwise). ``kb``: scratch of :data:`KICK_SCRATCH` floats.
+
+    The particles go in blocks of :data:`KICK_CHUNK`: the updates of a block have no reduction,
+    so the compiler vectorises them (their terms of the sums go to the scratch rows), then the
+    sums are added to particle by particle, in order, so that any split into blocks or ranges
+    gives the same bits as one pass.
     """
     d2m, ke, wd, ker, wdr = sums
-    dtk = kick.dtk
-    dt = kick.dt
     damping = kick.damping
     tally = kick.tally
-    L00, L01, L10, L11 = kick.L00, kick.L01, kick.L10, kick.L11
-    F00, F01, F10, F11 = kick.F00, kick.F01, kick.F10, kick.F11
-    for k in range(lo, hi):
-        m = mass[k]
-        for c in range(2):
-            vf[2 * k + c], ke, wd = _kick_dof(ff[2 * k + c], vf[2 * k + c], m, dtk, dt, damping, tally, ke, wd)
-        x0 = xf[2 * k]
-        x1 = xf[2 * k + 1]
-        y0 = x0 + dt * (vf[2 * k] + L00 * x0 + L01 * x1)
-        y1 = x1 + dt * (vf[2 * k + 1] + L10 * x0 + L11 * x1)
-        xf[2 * k] = y0
-        xf[2 * k + 1] = y1
-        r0 = rf[2 * k]
-        r1 = rf[2 * k + 1]
-        dx = y0 - (F00 * r0 + F01 * r1)
-        dy = y1 - (F10 * r0 + F11 * r1)
-        d2 = dx * dx + dy * dy
-        if d2 > d2m:
-            d2m = d2
-    if omega.shape[0] > 0:
-        for k in range(lo, hi):
-            wn, ker, wdr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping, tally, ker, wdr)
-            omega[k] = wn
-            theta[k] += dt * wn
+    spins = omega.shape[0] > 0
+    terms = tally or damping > 0.0
+    a = np.uint64(lo)
+    z = np.uint64(hi)
+    for b0 in range(a, z, np.uint64(KICK_CHUNK)):
+        b1 = min(z, b0 + np.uint64(KICK_CHUNK))
+        if terms:
+            _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, True, kb)
+        else:
+            _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, False, kb)
+        for q in range(b1 - b0):
+            d2 = kb[_KD2 + q]
+            if d2 > d2m:
+                d2m = d2
+            if tally:
+                ke += kb[_KEX + q]
+                ke += kb[_KEY + q]
+            if damping > 0.0:
+                wd += kb[_KWX + q]
+                wd += kb[_KWY + q]
+            if spins:
+                if tally:
+                    ker += kb[_KER + q]
+                if damping > 0.0:
+                    wdr += kb[_KWR + q]
     return d2m, ke, wd, ker, wdr
 
 
@@ -761,7 +813,7 @@ def kick_all(x, v, f, x_ref, mass, omega, theta, torque, inertia, kick):
     inertia (N,) or empty. Returns its five sums. (In this module, next to :func:`kick_range`:
     numba's disk cache of a function is invalidated by changes to its own file only.)"""
     return kick_range(0, x.shape[0], x.reshape(-1), v.reshape(-1), f.reshape(-1), x_ref.reshape(-1), mass, omega,
-                      theta, torque, inertia, kick, (0.0, 0.0, 0.0, 0.0, 0.0))
+                      theta, torque, inertia, kick, (0.0, 0.0, 0.0, 0.0, 0.0), np.empty(KICK_SCRATCH))
 
 
 class Cell(NamedTuple):
@@ -1033,12 +1085,12 @@ def _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, fm, kd):
 
 
 @njit(cache=True, inline="always")
-def _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t):
+def _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t):
     """A fused kick's last particles (from ``done``) and its sums into ``acc``; the tallies into
     ``out[:8]``."""
     if fused:
         sums = kick_range(done, np.uint64(mass.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia,
-                          kick, sums)
+                          kick, sums, kb)
         for k in range(5):
             acc[k] = sums[k]
     if tally:
@@ -1066,6 +1118,7 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
     spin, tq_t, tq_r, nh = _layout(tangential, rolling)
     t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
     fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
+    kb = np.empty(KICK_SCRATCH)
     buf = np.zeros(_NROWS)
     ij = np.empty(2 * CHUNK, np.uint64)
     hb = np.zeros(max(nh, 1) * CHUNK)
@@ -1115,9 +1168,9 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
             # particles below the next pair's i have all their forces (pairs are ordered by i, j > i)
             nxt = np.uint64(np.uint32(pi[p0 + m])) if p0 + m < npair else done
             if nxt >= done + block:
-                sums = kick_range(done, nxt, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+                sums = kick_range(done, nxt, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb)
                 done = nxt
-    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t)
+    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t)
 
 
 pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
@@ -1139,12 +1192,13 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
     spin, tq_t, tq_r, nh = _layout(tangential, rolling)
     t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
     fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
+    kb = np.empty(KICK_SCRATCH)
     one = np.uint64(1)
     for p in range(jc.shape[0]):
         i, j, i2, j2, lx, ly = _branch(p, pi, jc, xf, off)
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
-            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb)
             done = i
         ri = radius[i]
         rj = radius[j]
@@ -1166,7 +1220,7 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
         _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque)
         if tally:
             t = _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, force_magnitude(tangential, fn, fx, fy), kn * d2)
-    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t)
+    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t)
 
 
 pair_forces_serial.__doc__ = _PAIR_FORCES_DOC + """
