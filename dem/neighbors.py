@@ -233,30 +233,70 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
                 break
 
 
+_KEY_BITS = 4  # bits per shift component in a packed pair key: shifts in [-8, 7]
+_KEY_MAX_N = 1 << 27  # i * n + j fits in 54 bits: the packed key stays below 2**62
+
+
+@njit(cache=True, inline="always")
+def _pair_key(i, j, s0, s1, n):
+    """Packed int64 key of the pair (i, j, shift (s0, s1)) for n particles, increasing with
+    (i, j, s0, s1) in lexicographic order; -1 if a shift component is outside [-8, 7]."""
+    a = s0 + 8
+    b = s1 + 8
+    if (a | b) & ~15:
+        return np.int64(-1)
+    return (((i * n + j) << _KEY_BITS | a) << _KEY_BITS) | b
+
+
+@njit(cache=True, inline="always")
+def _old_key(oi, oj, osh, k, q, n):
+    """Key of old pair q with the wrap shifts ``k`` (N, 2) applied: ``s + k_j - k_i``."""
+    i = oi[q]
+    j = oj[q]
+    return _pair_key(i, j, osh[q, 0] + k[j, 0] - k[i, 0], osh[q, 1] + k[j, 1] - k[i, 1], n)
+
+
 @njit(cache=True)
 def _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
-    """As :func:`_carry_history` for an old list still ordered by (i, j) (no re-ordering since it
-    was built): one merge pass, the wrap shifts ``k`` applied on the fly. Returns False (nothing
-    written) if the old list is not ordered by (i, j)."""
-    for q in range(1, oi.shape[0]):
-        if oi[q] < oi[q - 1] or (oi[q] == oi[q - 1] and oj[q] < oj[q - 1]):
-            return False
-    nk = ft.shape[1]
-    q = 0
+    """As :func:`_carry_history` for an old list ordered as :func:`_find_pairs` leaves it (no
+    re-ordering since it was built): one merge pass on packed (i, j, shift) keys, the wrap shifts
+    ``k`` (N, 2) applied to the old shifts on the fly.
+
+    oi, oj (P_old,), osh (P_old, 2), oft (P_old, nk): the old list; pi, pj (P,), ps (P, 2): the new
+    list, strictly increasing in (i, j, shift); ft (P, nk) is written entirely (0 where no old pair
+    matches). Returns False, with ft partly written, if the old keys are not strictly increasing,
+    an old shift leaves [-8, 7] or N >= 2**27: the caller then uses :func:`_carry_history`."""
+    n = k.shape[0]
     nold = oi.shape[0]
+    nk = ft.shape[1]
+    if nold == 0 or n >= _KEY_MAX_N:
+        return False
+    q = 0  # the first old pair whose key kq is >= the current new key (nold past the end)
+    kq = _old_key(oi, oj, osh, k, 0, n)
+    if kq < 0:
+        return False
     for p in range(pi.shape[0]):
-        # both lists are ordered by (i, j): advance the old one to the first pair >= (i, j)
-        i = pi[p]
-        j = pj[p]
-        while q < nold and (oi[q] < i or (oi[q] == i and oj[q] < j)):
+        kp = _pair_key(pi[p], pj[p], ps[p, 0], ps[p, 1], n)
+        while kq < kp:
             q += 1
-        r = q
-        while r < nold and oi[r] == i and oj[r] == j:
-            if osh[r, 0] + k[j, 0] - k[i, 0] == ps[p, 0] and osh[r, 1] + k[j, 1] - k[i, 1] == ps[p, 1]:
-                for c in range(nk):
-                    ft[p, c] = oft[r, c]
+            if q == nold:
+                kq = np.int64(1) << 62
                 break
-            r += 1
+            knext = _old_key(oi, oj, osh, k, q, n)
+            if knext <= kq:  # out of order (or out of range: -1)
+                return False
+            kq = knext
+        if kq == kp:
+            for c in range(nk):
+                ft[p, c] = oft[q, c]
+        else:
+            for c in range(nk):
+                ft[p, c] = 0.0
+    for r in range(q + 1, nold):  # the rest of the old list must be ordered too
+        knext = _old_key(oi, oj, osh, k, r, n)
+        if knext <= kq:
+            return False
+        kq = knext
     return True
 
 
@@ -316,11 +356,13 @@ def rebuild(state, skin, *, sort=False, history=None):
     pi, pj, ps = pi[:m], pj[:m], ps[:m]  # views: the capacity is at most ~25 % above m
     ft = None
     if nk > 0:
-        ft = np.zeros((m, nk))
-        if old and not _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft):
-            oi, oj, osh = oi.copy(), oj.copy(), osh.copy()
-            _shift_old_pairs(oi, oj, osh, k)
-            _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
+        ft = np.empty((m, nk))
+        if not (old and _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft)):
+            ft[:] = 0.0
+            if old:
+                oi, oj, osh = oi.copy(), oj.copy(), osh.copy()
+                _shift_old_pairs(oi, oj, osh, k)
+                _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
         if nk == 1:
             ft = ft.reshape(m)
     state.nl_i, state.nl_j, state.nl_shift, state.nl_ft = pi, pj, ps, ft
