@@ -110,16 +110,14 @@ def _remap_old_pairs(oi, oj, osh, inv, oft, parity):
 
 
 @njit(cache=True)
-def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
-    """Pairs (i < j, image shift) closer than ``r_i + r_j + skin``, grouped by i and sorted by
-    (j, shift) within each i (so that the order of the force sums does not depend on the bin
-    layout), and their count ``m`` (only the first ``cap`` are stored: call again with
-    ``cap = m`` if ``m > cap``).
+def _gather_by_bin(x, radius, binof, nba, nbb):
+    """Counting sort of the particles by bin (row-major, ``c = b * nba + a``).
 
-    The particles are counting-sorted by bin and their positions and radii gathered in that order,
-    so the candidates of a bin are read contiguously. Within a bin the particles are in increasing
-    order, so a bin is scanned from its end and left at the first ``j <= i``: only the candidates
-    ``j > i`` are read."""
+    Returns start (nbins + 1,): bin c holds slots start[c]..start[c+1]-1; members (N,): the
+    particle of each slot (increasing within a bin); slot (N,): each particle's slot; xs (N, 2), rs
+    (N,): positions and radii gathered by slot; run (nbins,) bool: the bins c-1, c, c+1 of one row
+    (1 <= a <= nba-2, no wrap) hold increasing particles (a spatially sorted state: then the three
+    bins can be scanned as one range)."""
     n = x.shape[0]
     nbins = nba * nbb
     start = np.zeros(nbins + 1, np.int64)
@@ -129,64 +127,134 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     members = np.empty(n, np.int64)
+    slot = np.empty(n, np.int64)
     xs = np.empty((n, 2))
     rs = np.empty(n)
     for i in range(n):
         c = binof[i]
         q = fill[c]
         members[q] = i
+        slot[i] = q
         xs[q, 0] = x[i, 0]
         xs[q, 1] = x[i, 1]
         rs[q] = radius[i]
         fill[c] = q + 1
+    descents = np.zeros(n + 1, np.int64)  # descents[q]: slots r < q with members[r] < members[r-1]
+    for q in range(1, n):
+        descents[q + 1] = descents[q] + (members[q] < members[q - 1])
+    run = np.zeros(nbins, np.bool_)
+    for b in range(nbb):
+        for a in range(1, nba - 1):
+            c = b * nba + a
+            lo = start[c - 1]
+            hi = start[c + 2]
+            run[c] = hi <= lo + 1 or descents[hi] == descents[lo + 1]
+    return start, members, slot, xs, rs, run
+
+
+@njit(cache=True)
+def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
+    """Pairs (i < j, image shift) closer than ``r_i + r_j + skin``, grouped by i and sorted by
+    (j, shift) within each i (so that the order of the force sums does not depend on the bin
+    layout), and their count ``m`` (only the first ``cap`` are stored: call again with
+    ``cap = m`` if ``m > cap``). Returns pi, pj (cap + 1,), ps (cap + 1, 2) int64 and m.
+
+    The particles are gathered by bin (:func:`_gather_by_bin`), so the candidates of a bin are
+    read contiguously, and the candidates ``j > i`` of particle i are scanned as ranges of slots:
+    a bin, or a row of three bins when their particles increase (``run``). A range holding i
+    starts after i's slot (its smaller particles are all before it); a row all ``<= i`` is
+    skipped; otherwise ``j > i`` is part of the (branch-free) test. Fast path, the common case in
+    a spatially sorted state: the three rows around i are runs, the row below holds only
+    particles ``< i`` and the row above only particles above those of i's row. Then the candidates
+    are the slots after i in its row and the row above, read in increasing j (all with shift 0),
+    and need no sort."""
+    n = x.shape[0]
+    start, members, slot, xs, rs, run = _gather_by_bin(x, radius, binof, nba, nbb)
     pi = np.empty(cap + 1, np.int64)
     pj = np.empty(cap + 1, np.int64)
     ps = np.empty((cap + 1, 2), np.int64)
+    seg = np.empty((9, 4), np.int64)  # ranges of slots to scan: first, end, shift (sa, sb)
     m = 0
     for i in range(n):
-        ca = binof[i] % nba
-        cb = binof[i] // nba
+        c = binof[i]
+        ca = c % nba
+        cb = c // nba
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         ri = radius[i]
+        si = slot[i]
         m0 = m
-        for db in range(-1, 2):
-            ub = cb + db
-            sb = 0
-            if ub < 0:
-                ub += nbb
-                sb = -1
-            elif ub >= nbb:
-                ub -= nbb
-                sb = 1
-            for da in range(-1, 2):
-                ua = ca + da
-                sa = 0
-                if ua < 0:
-                    ua += nba
-                    sa = -1
-                elif ua >= nba:
-                    ua -= nba
-                    sa = 1
-                c = ub * nba + ua
-                ox = h00 * sa + h01 * sb
-                oy = h10 * sa + h11 * sb
-                for q in range(start[c + 1] - 1, start[c] - 1, -1):
-                    j = members[q]
-                    if j <= i:
-                        break
-                    dx = xs[q, 0] + ox - xi0
-                    dy = xs[q, 1] + oy - xi1
-                    rc = ri + rs[q] + skin
-                    # branch-free append: written at slot min(m, cap) (slot cap is scratch), kept
-                    # by advancing m (an unpredictable test costs more than the stores)
-                    w = m if m < cap else cap
-                    pi[w] = i
-                    pj[w] = j
-                    ps[w, 0] = sa
-                    ps[w, 1] = sb
-                    m += dx * dx + dy * dy < rc * rc
-        if m <= cap:
+        nseg = 0
+        ordered = False
+        if 1 <= cb and cb <= nbb - 2 and run[c] and run[c - nba] and run[c + nba]:
+            below = start[c - nba + 2]
+            end0 = start[c + 2]
+            lo_up = start[c + nba - 1]
+            hi_up = start[c + nba + 2]
+            if ((below == start[c - nba - 1] or members[below - 1] < i)
+                    and (lo_up == hi_up or members[end0 - 1] < members[lo_up])):
+                seg[0, 0] = si + 1
+                seg[0, 1] = end0
+                seg[1, 0] = lo_up
+                seg[1, 1] = hi_up
+                seg[0, 2] = seg[0, 3] = seg[1, 2] = seg[1, 3] = 0
+                nseg = 2
+                ordered = True
+        if nseg == 0:
+            for db in range(-1, 2):
+                ub = cb + db
+                sb = 0
+                if ub < 0:
+                    ub += nbb
+                    sb = -1
+                elif ub >= nbb:
+                    ub -= nbb
+                    sb = 1
+                row = run[ub * nba + ca]
+                for t in range(1 if row else 3):
+                    if row:
+                        lo = start[ub * nba + ca - 1]
+                        hi = start[ub * nba + ca + 2]
+                        sa = 0
+                        if hi <= lo or members[hi - 1] <= i:
+                            continue
+                    else:
+                        ua = ca + t - 1
+                        sa = 0
+                        if ua < 0:
+                            ua += nba
+                            sa = -1
+                        elif ua >= nba:
+                            ua -= nba
+                            sa = 1
+                        lo = start[ub * nba + ua]
+                        hi = start[ub * nba + ua + 1]
+                    if lo <= si and si < hi:
+                        lo = si + 1
+                    seg[nseg, 0] = lo
+                    seg[nseg, 1] = hi
+                    seg[nseg, 2] = sa
+                    seg[nseg, 3] = sb
+                    nseg += 1
+        for t in range(nseg):
+            sa = seg[t, 2]
+            sb = seg[t, 3]
+            ox = h00 * sa + h01 * sb
+            oy = h10 * sa + h11 * sb
+            for q in range(seg[t, 0], seg[t, 1]):
+                j = members[q]
+                dx = xs[q, 0] + ox - xi0
+                dy = xs[q, 1] + oy - xi1
+                rc = ri + rs[q] + skin
+                # branch-free append: written at slot min(m, cap) (slot cap is scratch), kept
+                # by advancing m (an unpredictable test costs more than the stores)
+                w = m if m < cap else cap
+                pi[w] = i
+                pj[w] = j
+                ps[w, 0] = sa
+                ps[w, 1] = sb
+                m += (dx * dx + dy * dy < rc * rc) & (j > i)
+        if not ordered and m <= cap:
             _sort_group(pj, ps, m0, m)
     return pi, pj, ps, m
 
