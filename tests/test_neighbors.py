@@ -218,3 +218,17 @@ def test_rebuild_pairs_at_the_cutoff_of_a_square_lattice():
         st.nl_shift = np.zeros((0, 2), np.int64)
         st.nl_ft = np.zeros(0)
         assert_rebuild_matches(st, skin, parity=(1,))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_rebuild_of_a_spatially_sorted_state(seed):
+    """A dense state sorted by bin, then moved by up to about a bin: most neighbourhoods are
+    still in increasing order (the search's fast path), some disks have crossed into the rows
+    above and below."""
+    rng = np.random.default_rng(seed)
+    st = random_state(rng, 1200, None, phi=0.8, shear=0.2, spread=0.0)
+    st = assert_rebuild_matches(st, 0.3, sort=True, parity=(1, -1))
+    for step in (0.2, 0.4, 0.8):
+        history(st, rng, 2)
+        evolve(st, rng, step=step, jump_fraction=0.0, strain=0.005)
+        st = assert_rebuild_matches(st, 0.3, sort=False, parity=(1, -1))
