@@ -48,12 +48,21 @@ def bin_counts(h, rc):
     return max(1, int(H[0] // rc)), max(1, int(H[1] // rc))
 
 
+@njit(cache=True, inline="always")
+def _fractional(x0, x1, h00, h01, h10, h11, det):
+    """Fractional coordinates ``h^{-1} x`` of one position (by the cofactors of h)."""
+    return (h11 * x0 - h01 * x1) / det, (-h10 * x0 + h00 * x1) / det
+
+
 @njit(cache=True)
-def _wrap_inplace(x, h00, h01, h10, h11, k):
+def _wrap_and_bin(x, h00, h01, h10, h11, nba, nbb, k, binof):
+    """Wrap the positions x (N, 2) into the cell in place, ``x -= h k`` with k (N, 2) the whole
+    cell vectors removed (``floor`` of the fractional coordinates), and write the bin of each
+    wrapped position into binof (N,): ``b * nba + a`` on the nba x nbb grid of fractional
+    coordinates (clipped to the grid against rounding at the faces)."""
     det = h00 * h11 - h01 * h10
     for i in range(x.shape[0]):
-        s0 = (h11 * x[i, 0] - h01 * x[i, 1]) / det
-        s1 = (-h10 * x[i, 0] + h00 * x[i, 1]) / det
+        s0, s1 = _fractional(x[i, 0], x[i, 1], h00, h01, h10, h11, det)
         k0 = math.floor(s0)
         k1 = math.floor(s1)
         k[i, 0] = k0
@@ -61,52 +70,38 @@ def _wrap_inplace(x, h00, h01, h10, h11, k):
         if k0 != 0 or k1 != 0:
             x[i, 0] -= h00 * k0 + h01 * k1
             x[i, 1] -= h10 * k0 + h11 * k1
+            s0, s1 = _fractional(x[i, 0], x[i, 1], h00, h01, h10, h11, det)
+        a = min(max(int(math.floor(s0 * nba)), 0), nba - 1)
+        b = min(max(int(math.floor(s1 * nbb)), 0), nbb - 1)
+        binof[i] = b * nba + a
 
 
 @njit(cache=True)
-def _bin_index(x, h00, h01, h10, h11, nba, nbb, out):
-    det = h00 * h11 - h01 * h10
-    for i in range(x.shape[0]):
-        s0 = (h11 * x[i, 0] - h01 * x[i, 1]) / det
-        s1 = (-h10 * x[i, 0] + h00 * x[i, 1]) / det
-        a = int(math.floor(s0 * nba))
-        b = int(math.floor(s1 * nbb))
-        if a < 0:
-            a = 0
-        elif a >= nba:
-            a = nba - 1
-        if b < 0:
-            b = 0
-        elif b >= nbb:
-            b = nbb - 1
-        out[i] = b * nba + a
-
-
-@njit(cache=True)
-def _shift_old_pairs(oi, oj, osh, k):
-    for p in range(oi.shape[0]):
-        osh[p, 0] += k[oj[p], 0] - k[oi[p], 0]
-        osh[p, 1] += k[oj[p], 1] - k[oi[p], 1]
-
-
-@njit(cache=True)
-def _remap_old_pairs(oi, oj, osh, inv, oft, parity):
-    """Apply a particle permutation (new index = inv[old]) to the old list, keeping i < j; the
-    history slots of a swapped pair are multiplied by their parity (+1 or -1)."""
-    for p in range(oi.shape[0]):
-        a = inv[oi[p]]
-        b = inv[oj[p]]
-        if a < b:
-            oi[p] = a
-            oj[p] = b
-        else:
-            oi[p] = b
-            oj[p] = a
-            osh[p, 0] = -osh[p, 0]
-            osh[p, 1] = -osh[p, 1]
-            for k in range(parity.shape[0]):
-                if parity[k] < 0:
-                    oft[p, k] = -oft[p, k]
+def _relabel_old_pairs(oi, oj, osh, oft, k, inv, parity):
+    """The old list oi, oj (P_old,), osh (P_old, 2), oft (P_old, nk) with the wrap shifts k (N, 2)
+    applied (``s + k_j - k_i``) and in the labels of a particle permutation (new index =
+    inv[old]), as new arrays keeping i < j: a swapped pair's shift changes sign and its history
+    slots are multiplied by their parities (N, +1 or -1)."""
+    nold = oi.shape[0]
+    ni = np.empty(nold, np.int64)
+    nj = np.empty(nold, np.int64)
+    nsh = np.empty((nold, 2), np.int64)
+    nft = np.empty_like(oft)
+    for p in range(nold):
+        i = oi[p]
+        j = oj[p]
+        s0 = osh[p, 0] + k[j, 0] - k[i, 0]
+        s1 = osh[p, 1] + k[j, 1] - k[i, 1]
+        a = inv[i]
+        b = inv[j]
+        swap = b < a
+        ni[p] = b if swap else a
+        nj[p] = a if swap else b
+        nsh[p, 0] = -s0 if swap else s0
+        nsh[p, 1] = -s1 if swap else s1
+        for c in range(parity.shape[0]):
+            nft[p, c] = -oft[p, c] if swap and parity[c] < 0 else oft[p, c]
+    return ni, nj, nsh, nft
 
 
 @njit(cache=True)
@@ -278,8 +273,12 @@ def _sort_group(pj, ps, p, q):
 
 
 @njit(cache=True)
-def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
-    """ft[p, :] = oft[q, :] of the old pair q with the same (i, j, shift), else 0."""
+def _carry_history(oi, oj, osh, oft, k, pi, pj, ps, ft):
+    """ft[p, :] = oft[q, :] of the first old pair q with the same (i, j, shift), the wrap shifts
+    k (N, 2) applied to the old shifts (``s + k_j - k_i``); rows without one are left as they are.
+    The old list oi, oj (P_old,), osh (P_old, 2), oft (P_old, nk) in any order; the new one pi, pj
+    (P,), ps (P, 2); ft (P, nk)."""
+    n = k.shape[0]
     start = np.zeros(n + 1, np.int64)
     for p in range(oi.shape[0]):
         start[oi[p] + 1] += 1
@@ -295,9 +294,11 @@ def _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft):
         i = pi[p]
         for q in range(start[i], start[i + 1]):
             o = order[q]
-            if oj[o] == pj[p] and osh[o, 0] == ps[p, 0] and osh[o, 1] == ps[p, 1]:
-                for k in range(nk):
-                    ft[p, k] = oft[o, k]
+            j = oj[o]
+            if (j == pj[p] and osh[o, 0] + k[j, 0] - k[i, 0] == ps[p, 0]
+                    and osh[o, 1] + k[j, 1] - k[i, 1] == ps[p, 1]):
+                for c in range(nk):
+                    ft[p, c] = oft[o, c]
                 break
 
 
@@ -389,15 +390,14 @@ def rebuild(state, skin, *, sort=False, history=None):
         history = (1,) if state.nl_ft is not None else ()
     parity = np.array(history, dtype=np.int64)
     nk = parity.shape[0]
-    k = np.zeros((n, 2), np.int64)
-    _wrap_inplace(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], k)
+    k = np.empty((n, 2), np.int64)
+    binof = np.empty(n, np.int64)
+    _wrap_and_bin(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], nba, nbb, k, binof)
     old = (state.nl_i is not None and nk > 0 and state.nl_ft is not None
            and state.nl_ft.size == nk * state.nl_i.shape[0])
     if old:
         oi, oj, osh = state.nl_i, state.nl_j, state.nl_shift
         oft = state.nl_ft.reshape(oi.shape[0], nk)
-    binof = np.empty(n, np.int64)
-    _bin_index(state.x, h[0, 0], h[0, 1], h[1, 0], h[1, 1], nba, nbb, binof)
     if sort:
         perm = np.argsort(binof, kind="stable")
         for name in _PER_PARTICLE:
@@ -405,12 +405,10 @@ def rebuild(state, skin, *, sort=False, history=None):
             if arr is not None:
                 setattr(state, name, np.ascontiguousarray(arr[perm]))
         binof = binof[perm]
-        if old:  # the old list in the new labels (copies: the state's list is not modified)
-            oi, oj, osh, oft = oi.copy(), oj.copy(), osh.copy(), oft.copy()
-            _shift_old_pairs(oi, oj, osh, k)
+        if old:  # the old list in the new labels (new arrays: the state's list is not modified)
             inv = np.empty(n, np.int64)
             inv[perm] = np.arange(n)
-            _remap_old_pairs(oi, oj, osh, inv, oft, parity)
+            oi, oj, osh, oft = _relabel_old_pairs(oi, oj, osh, oft, k, inv, parity)
             k[:] = 0
     # room for the new list: 25 % above the old one (a second pass if it is exceeded)
     prev = state.nl_i.shape[0] if state.nl_i is not None else 0
@@ -425,12 +423,11 @@ def rebuild(state, skin, *, sort=False, history=None):
     ft = None
     if nk > 0:
         ft = np.empty((m, nk))
-        if not (old and _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft)):
+        # a list not re-ordered since its build is merged; a relabelled one searched per particle
+        if not (old and not sort and _carry_history_ordered(oi, oj, osh, oft, k, pi, pj, ps, ft)):
             ft[:] = 0.0
             if old:
-                oi, oj, osh = oi.copy(), oj.copy(), osh.copy()
-                _shift_old_pairs(oi, oj, osh, k)
-                _carry_history(n, oi, oj, osh, oft, pi, pj, ps, ft)
+                _carry_history(oi, oj, osh, oft, k, pi, pj, ps, ft)
         if nk == 1:
             ft = ft.reshape(m)
     state.nl_i, state.nl_j, state.nl_shift, state.nl_ft = pi, pj, ps, ft
