@@ -105,16 +105,11 @@ def _relabel_old_pairs(oi, oj, osh, oft, k, inv, parity):
 
 
 @njit(cache=True)
-def _gather_by_bin(x, radius, binof, nba, nbb):
-    """Counting sort of the particles by bin (row-major, ``c = b * nba + a``).
-
-    Returns start (nbins + 1,): bin c holds slots start[c]..start[c+1]-1; members (N,): the
-    particle of each slot (increasing within a bin); slot (N,): each particle's slot; xs (N, 2), rs
-    (N,): positions and radii gathered by slot; run (nbins,) bool: the bins c-1, c, c+1 of one row
-    (1 <= a <= nba-2, no wrap) hold increasing particles (a spatially sorted state: then the three
-    bins can be scanned as one range)."""
-    n = x.shape[0]
-    nbins = nba * nbb
+def _bin_slots(binof, nbins):
+    """Counting sort of the particles by their bin binof (N,) in [0, nbins): start (nbins + 1,),
+    bin c holds the slots start[c]..start[c+1]-1; members (N,), the particle in each slot
+    (increasing within a bin: the stable ``argsort(binof)``); slot (N,), each particle's slot."""
+    n = binof.shape[0]
     start = np.zeros(nbins + 1, np.int64)
     for i in range(n):
         start[binof[i] + 1] += 1
@@ -123,17 +118,30 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
     fill = start[:-1].copy()
     members = np.empty(n, np.int64)
     slot = np.empty(n, np.int64)
-    xs = np.empty((n, 2))
-    rs = np.empty(n)
     for i in range(n):
-        c = binof[i]
-        q = fill[c]
+        q = fill[binof[i]]
         members[q] = i
         slot[i] = q
+        fill[binof[i]] = q + 1
+    return start, members, slot
+
+
+@njit(cache=True)
+def _gather_by_bin(x, radius, binof, nba, nbb):
+    """The particles by bin (row-major, ``c = b * nba + a``): start, members, slot of
+    :func:`_bin_slots`; xs (N, 2), rs (N,): positions and radii gathered by slot; run (nbins,)
+    bool: the bins c-1, c, c+1 of one row (1 <= a <= nba-2, no wrap) hold increasing particles
+    (a spatially sorted state: then the three bins can be scanned as one range)."""
+    n = x.shape[0]
+    nbins = nba * nbb
+    start, members, slot = _bin_slots(binof, nbins)
+    xs = np.empty((n, 2))
+    rs = np.empty(n)
+    for q in range(n):
+        i = members[q]
         xs[q, 0] = x[i, 0]
         xs[q, 1] = x[i, 1]
         rs[q] = radius[i]
-        fill[c] = q + 1
     descents = np.zeros(n + 1, np.int64)  # descents[q]: slots r < q with members[r] < members[r-1]
     for q in range(1, n):
         descents[q + 1] = descents[q] + (members[q] < members[q - 1])
@@ -399,11 +407,11 @@ def rebuild(state, skin, *, sort=False, history=None):
         oi, oj, osh = state.nl_i, state.nl_j, state.nl_shift
         oft = state.nl_ft.reshape(oi.shape[0], nk)
     if sort:
-        perm = np.argsort(binof, kind="stable")
+        perm = _bin_slots(binof, nba * nbb)[1]  # the stable argsort of binof
         for name in _PER_PARTICLE:
             arr = getattr(state, name)
             if arr is not None:
-                setattr(state, name, np.ascontiguousarray(arr[perm]))
+                setattr(state, name, np.take(arr, perm, axis=0))
         binof = binof[perm]
         if old:  # the old list in the new labels (new arrays: the state's list is not modified)
             inv = np.empty(n, np.int64)
