@@ -131,7 +131,8 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
     """The particles by bin (row-major, ``c = b * nba + a``): start, members, slot of
     :func:`_bin_slots`; xs (N, 2), rs (N,): positions and radii gathered by slot; run (nbins,)
     bool: the bins c-1, c, c+1 of one row (1 <= a <= nba-2, no wrap) hold increasing particles
-    (a spatially sorted state: then the three bins can be scanned as one range)."""
+    (a spatially sorted state: then the three bins can be scanned as one range); top (nbins,):
+    the largest particle in these three bins (-1 if none; N at the edges a = 0, nba-1)."""
     n = x.shape[0]
     nbins = nba * nbb
     start, members, slot = _bin_slots(binof, nbins)
@@ -146,13 +147,18 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
     for q in range(1, n):
         descents[q + 1] = descents[q] + (members[q] < members[q - 1])
     run = np.zeros(nbins, np.bool_)
+    top = np.full(nbins, n, np.int64)
     for b in range(nbb):
         for a in range(1, nba - 1):
             c = b * nba + a
             lo = start[c - 1]
             hi = start[c + 2]
             run[c] = hi <= lo + 1 or descents[hi] == descents[lo + 1]
-    return start, members, slot, xs, rs, run
+            top[c] = -1
+            for d in range(c - 1, c + 2):  # the last slot of a bin holds its largest particle
+                if start[d + 1] > start[d]:
+                    top[c] = max(top[c], members[start[d + 1] - 1])
+    return start, members, slot, xs, rs, run, top
 
 
 @njit(cache=True)
@@ -167,12 +173,12 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
     a bin, or a row of three bins when their particles increase (``run``). A range holding i
     starts after i's slot (its smaller particles are all before it); a row all ``<= i`` is
     skipped; otherwise ``j > i`` is part of the (branch-free) test. Fast path, the common case in
-    a spatially sorted state: the three rows around i are runs, the row below holds only
+    a spatially sorted state: i's row and the row above are runs, the row below holds only
     particles ``< i`` and the row above only particles above those of i's row. Then the candidates
     are the slots after i in its row and the row above, read in increasing j (all with shift 0),
     and need no sort."""
     n = x.shape[0]
-    start, members, slot, xs, rs, run = _gather_by_bin(x, radius, binof, nba, nbb)
+    start, members, slot, xs, rs, run, top = _gather_by_bin(x, radius, binof, nba, nbb)
     pi = np.empty(cap + 1, np.int64)
     pj = np.empty(cap + 1, np.int64)
     ps = np.empty((cap + 1, 2), np.int64)
@@ -189,13 +195,11 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
         m0 = m
         nseg = 0
         ordered = False
-        if 1 <= cb and cb <= nbb - 2 and run[c] and run[c - nba] and run[c + nba]:
-            below = start[c - nba + 2]
+        if 1 <= cb and cb <= nbb - 2 and run[c] and run[c + nba] and top[c - nba] < i:
             end0 = start[c + 2]
             lo_up = start[c + nba - 1]
             hi_up = start[c + nba + 2]
-            if ((below == start[c - nba - 1] or members[below - 1] < i)
-                    and (lo_up == hi_up or members[end0 - 1] < members[lo_up])):
+            if lo_up == hi_up or members[end0 - 1] < members[lo_up]:
                 seg[0, 0] = si + 1
                 seg[0, 1] = end0
                 seg[1, 0] = lo_up
