@@ -17,6 +17,7 @@ import pytest
 from dem.neighbors import rebuild
 from dem.state import State
 from microhom.periodic import heights
+from studies import bench_rebuild
 
 SHIFTS = np.array([(a, b) for a in range(-2, 3) for b in range(-2, 3)], dtype=np.int64)
 
@@ -232,3 +233,13 @@ def test_rebuild_of_a_spatially_sorted_state(seed):
         history(st, rng, 2)
         evolve(st, rng, step=step, jump_fraction=0.0, strain=0.005)
         st = assert_rebuild_matches(st, 0.3, sort=False, parity=(1, -1))
+
+
+@pytest.mark.slow
+def test_bench_rebuild_runs_and_matches_head(capsys):
+    """``studies.bench_rebuild --against HEAD`` on a small scene runs, and the working tree's
+    rebuild gives the same lists as the committed one, with and without the spatial sort."""
+    bench_rebuild.main(["--base-n", "1000", "--ns", "4000", "--repeats", "1", "--inner", "1",
+                        "--against", "HEAD"])
+    out = capsys.readouterr().out
+    assert out.count("outputs bit-identical: True") == 2, out
