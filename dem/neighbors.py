@@ -161,6 +161,17 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
     return start, members, slot, xs, rs, run, top
 
 
+@njit(cache=True, inline="always")
+def _periodic_bin(u, nb):
+    """Bin index u in [-1, nb] of a row or column of nb bins brought into [0, nb), and the image
+    shift (-1, 0 or +1) that this crossing of the cell's face adds."""
+    if u < 0:
+        return u + nb, -1
+    if u >= nb:
+        return u - nb, 1
+    return u, 0
+
+
 @njit(cache=True)
 def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
     """Pairs (i < j, image shift) closer than ``r_i + r_j + skin``, grouped by i and sorted by
@@ -209,14 +220,7 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
                 ordered = True
         if nseg == 0:
             for db in range(-1, 2):
-                ub = cb + db
-                sb = 0
-                if ub < 0:
-                    ub += nbb
-                    sb = -1
-                elif ub >= nbb:
-                    ub -= nbb
-                    sb = 1
+                ub, sb = _periodic_bin(cb + db, nbb)
                 row = run[ub * nba + ca]
                 for t in range(1 if row else 3):
                     if row:
@@ -226,14 +230,7 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
                         if hi <= lo or members[hi - 1] <= i:
                             continue
                     else:
-                        ua = ca + t - 1
-                        sa = 0
-                        if ua < 0:
-                            ua += nba
-                            sa = -1
-                        elif ua >= nba:
-                            ua -= nba
-                            sa = 1
+                        ua, sa = _periodic_bin(ca + t - 1, nba)
                         lo = start[ub * nba + ua]
                         hi = start[ub * nba + ua + 1]
                     if lo <= si and si < hi:
