@@ -23,6 +23,10 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
 * ``check()``: raises ``ValueError`` naming the coefficient and its allowed range;
 * ``HISTORY`` (slots per pair in the contact history) and ``PARITY`` (per slot, +1 if the slot is
   unchanged when the pair's i and j are swapped, -1 if it changes sign; used at list rebuilds);
+* ``VECTOR``: True if its hooks vectorise well (no branch the compiler cannot turn into a select,
+  cheap to evaluate on pairs not in contact); a law whose sub-models all say so runs the
+  vectorised pair loop (:func:`pair_forces_chunked`), any other the serial one
+  (:func:`pair_forces_serial`), with bit-identical results;
 * ``dt_stiffness(normal)``: its stiffness for the critical time step [N/m] (see :mod:`dem.integrate`);
 * normal and tangential models: ``tangent(delta)`` (``tangent(normal, delta)``), the tangent
   stiffness [N/m] at overlaps ``delta`` [m]; normal models: ``fn_elastic(delta)``, the elastic
@@ -31,7 +35,8 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
   below (``normal_force``, ``pair_constants``, ``normal_damping``, ``tangential_force``,
   ``rolling_torque``).
 
-:func:`pair_forces` is the pair loop, written once. numba compiles one specialisation per
+:func:`pair_forces` is the pair loop, written once (in two strategies, serial and chunked and
+vectorised, that share the law's evaluation :func:`_law`). numba compiles one specialisation per
 combination of sub-model types (the types are part of the signature and the hooks are resolved
 at compile time through ``numba.extending.overload``), so a contact never branches on the law at
 run time, and the compiled loops are cached on disk like any ``cache=True`` function. A new law
@@ -49,15 +54,22 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numba.core.errors import NumbaIRAssumptionWarning
 from numba.extending import overload
+
+# numba's SSA check flags the branches of the hooks it inlines into the pair loops ("variable ...
+# is not in scope"); it is a pedantic internal check, the compiled code is right (the loops are
+# tested bit for bit), so this one message is silenced rather than shown at every compilation
+warnings.filterwarnings("ignore", message=r"variable '.*' is not in scope", category=NumbaIRAssumptionWarning)
 
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
-           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "compact_list", "make_pair_constants",
+           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "pair_forces_chunked", "pair_forces_serial", "vectorises", "compact_list", "make_pair_constants",
            "kick_range", "kick_all", "SUBMODELS"]
 
 
@@ -94,6 +106,7 @@ rolling_torque = _hook("rolling_torque")
 force_magnitude = _hook("force_magnitude")
 history_slots = _hook("history_slots")
 spin_flag = _hook("spin_flag")
+torque_terms = _hook("torque_terms")
 
 
 def _implements(hook, *classes):
@@ -125,6 +138,7 @@ class Hooke(NamedTuple):
     kn: float
 
     HISTORY = 0
+    VECTOR = True
     PARITY = ()
 
     def check(self):
@@ -160,6 +174,7 @@ class Hertz(NamedTuple):
     delta_ref: float
 
     HISTORY = 0
+    VECTOR = True
     PARITY = ()
 
     def check(self):
@@ -199,6 +214,7 @@ class NoDamping(NamedTuple):
     zero: float = 0.0
 
     NPC = 0
+    VECTOR = True
     TANGENTIAL = False
 
     def check(self):
@@ -226,6 +242,7 @@ class Viscous(NamedTuple):
     zeta: float
 
     NPC = 1
+    VECTOR = True
     TANGENTIAL = False
 
     def check(self):
@@ -243,6 +260,7 @@ class ViscousTangential(NamedTuple):
     zeta: float
 
     NPC = 1
+    VECTOR = True
     TANGENTIAL = True
 
     check = Viscous.check
@@ -286,6 +304,7 @@ class MassGamma(NamedTuple):
     gamma_t: float
 
     NPC = 2
+    VECTOR = True
     TANGENTIAL = True
 
     def check(self):
@@ -326,16 +345,23 @@ def damping_ratio(e) -> float:
 
 # --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
-#                    fn, kn, ct, dt, ti, tj) -> (ftx, fty, elastic energy, ti, tj)
-#   adds the torques of the tangential force itself to ti, tj (torques on i and j); ``hist`` is the flat (P * nh,) history, the
-#   pair's slots start at nh * p.
+#   tangential_force(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
+#                    fn, kn, ct, dt, fast) -> (ftx, fty, elastic energy, mi, mj, ok)
+#   the torques of the tangential force on i and j are -mi and -mj (the loop subtracts them, in
+#   this order); the pair's history slots are ``hist[q]``, ``hist[q + hs]``, ... (the tangential
+#   model's first). The
+#   loop calls it for every pair of the list, in contact or not (it keeps the results of the
+#   pairs in contact only and zeroes the others' history), so it must not branch on the contact.
+#   ``fast`` (a compile-time constant): the vectorised loop's call, where a model may skip a rare
+#   and costly branch and return ``ok = False`` instead; the loop then recomputes that pair with
+#   ``fast = False`` from its saved history. Otherwise ``ok`` is True.
 # --------------------------------------------------------------------------------------------------
 class NoTangential(NamedTuple):
     """No tangential force (no spins needed)."""
     zero: float = 0.0
 
     HISTORY = 0
+    VECTOR = True
     PARITY = ()
     SPIN = False
 
@@ -354,11 +380,9 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
-            ti, tj):
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
-             ti, tj):
-        return 0.0, 0.0, 0.0, ti, tj
+def _notang(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
+        return 0.0, 0.0, 0.0, 0.0, 0.0, True
     return impl
 
 
@@ -384,6 +408,7 @@ class LinearHistory(NamedTuple):
     contact_arms: bool = False
 
     HISTORY = 1
+    VECTOR = True
     PARITY = (1,)
     SPIN = True
 
@@ -409,6 +434,7 @@ class Mindlin(NamedTuple):
     contact_arms: bool = False
 
     HISTORY = 1
+    VECTOR = True
     PARITY = (1,)
     SPIN = True
 
@@ -438,13 +464,12 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt, ti, tj):
+def _scalar_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, fast):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
-             ti, tj):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
         tx = -ny
         ty = nx
         ai = ri
@@ -460,15 +485,10 @@ def _scalar_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
             kt = model.kt
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu * fc
-        q = nh * p
         fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, ct, vt, tdamp)
         hist[q] = fs
-        U = 0.0
-        if kt > 0.0:
-            U = 0.5 * fs * fs / kt
-        ti -= ai * ftot
-        tj -= aj * ftot
-        return ftot * tx, ftot * ty, U, ti, tj
+        U = 0.5 * fs * fs / kt if kt > 0.0 else 0.0
+        return ftot * tx, ftot * ty, U, ai * ftot, aj * ftot, True
     return impl
 
 
@@ -490,6 +510,7 @@ class LammpsHistory(NamedTuple):
     mu: float
 
     HISTORY = 2
+    VECTOR = True  # its slip branch (a sqrt, three divisions) is left to the exact path (``fast``)
     PARITY = (-1, -1)
     SPIN = True
 
@@ -502,18 +523,16 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt, ti, tj):
+def _lammps_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
+                       kn, ct, dt, fast):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
     # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
     # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
     # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
     # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
-    def impl(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt,
-             ti, tj):
+    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
         kt = model.kt
-        q = nh * p
         # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
         vt1 = dvx - nx * vn
         vt2 = dvy - ny * vn
@@ -521,7 +540,7 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         vtr1 = vt1 + ny * ws
         vtr2 = vt2 - nx * ws
         s1 = hist[q]
-        s2 = hist[q + 1]
+        s2 = hist[q + hs]
         if dt > 0.0:
             s1 += vtr1 * dt
             s2 += vtr2 * dt
@@ -534,7 +553,11 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
         fs2 = -(kt * s2 + ct * vtr2)
         fs2sum = fs1 * fs1 + fs2 * fs2
         lim = model.mu * abs(fn)
-        if fs2sum > lim * lim:
+        ok = True
+        if fast:
+            # the vectorised loop: a sliding contact is flagged and recomputed by the exact path
+            ok = not fs2sum > lim * lim
+        elif fs2sum > lim * lim:
             # (LAMMPS compares |fs| > lim and tests the shear magnitude before the projection)
             if shr2 != 0.0:
                 r = lim / math.sqrt(fs2sum)
@@ -548,11 +571,9 @@ def _lammps_tangential(model, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
                 fs1 = 0.0
                 fs2 = 0.0
         hist[q] = s1
-        hist[q + 1] = s2
+        hist[q + hs] = s2
         tor = nx * fs2 - ny * fs1
-        ti -= ri * tor
-        tj -= rj * tor
-        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ti, tj
+        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ri * tor, rj * tor, ok
     return impl
 
 
@@ -572,14 +593,16 @@ _implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(
 
 
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj)
-#   h0 = the first history slot of this sub-model; returns its elastic energy.
+# rolling resistance: rolling_torque(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt) -> (U, m)
+#   its slots are ``hist[q + h0 hs]``, ... (h0: the number of tangential slots); returns its elastic energy and the torque m on
+#   j (-m on i), which the loop applies after the tangential torques.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
     """No rolling resistance."""
     zero: float = 0.0
 
     HISTORY = 0
+    VECTOR = True
     PARITY = ()
 
     def check(self):
@@ -590,9 +613,9 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
-    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
-        return 0.0, ti, tj
+def _noroll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+        return 0.0, 0.0
     return impl
 
 
@@ -606,6 +629,7 @@ class RollingResistance(NamedTuple):
     mu_r: float
 
     HISTORY = 1
+    VECTOR = False  # measured slower vectorised (docs/dem.md)
     PARITY = (-1,)
 
     def check(self):
@@ -618,9 +642,9 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
-    def impl(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
-        q = nh * p + h0
+def _roll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
+        q = q + h0 * hs
         reff = ri * rj / (ri + rj)
         kr = model.kr_ratio * kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
@@ -629,12 +653,8 @@ def _roll(model, hist, nh, p, h0, ri, rj, wi, wj, fn, kn, dt, ti, tj):
         if abs(m) > lim:
             m = lim if m > 0.0 else -lim
         hist[q] = m
-        tj += m
-        ti -= m
-        U = 0.0
-        if kr > 0.0:
-            U = 0.5 * m * m / kr
-        return U, ti, tj
+        U = 0.5 * m * m / kr if kr > 0.0 else 0.0
+        return U, m
     return impl
 
 
@@ -811,10 +831,195 @@ def _spin_flag(model, rolling):
 _implements(spin_flag, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_spin_flag)
 
 
-@njit(cache=True)
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-                damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
-    """Contact forces (and, with ``kick``, the integration) of one step.
+def _torque_terms(model, rolling):
+    flags = (bool(_cls(model).SPIN), _cls(rolling) is not NoRolling)
+
+    def impl(model, rolling):
+        return flags
+    return impl
+
+
+_implements(torque_terms, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_torque_terms)
+
+#: pairs per chunk of :func:`pair_forces_chunked` (its scratch rows stay in the L1 cache)
+CHUNK = 128
+# scratch of a chunk, flat (rows of CHUNK: one-dimensional indexing is what the compiler vectorises):
+# gathered inputs, per-pair results, tally terms; the offsets of the rows
+(_LX, _LY, _RI, _RJ, _VX, _VY, _WI, _WJ, _FX, _FY, _MI, _MJ, _MR, _TOUCH, _UN, _UT, _UR, _FM, _KD,
+ _NROWS) = (CHUNK * k for k in range(20))
+
+
+@njit(cache=True, inline="always")
+def _branch(p, pi, jc, xf, off):
+    """(i, j, 2i, 2j, lx, ly) of pair p: the branch ``l = x_j + h s - x_i`` summed as
+    ``((x_j + h00 s_a) + h01 s_b) - x_i``. Unsigned indices: numba then skips its negative-index
+    wraparound on every access."""
+    one = np.uint64(1)
+    i = np.uint64(np.uint32(pi[p]))
+    c = np.uint32(jc[p])
+    j = np.uint64(c >> np.uint32(SHIFT_BITS))
+    o = np.uint64(4) * np.uint64(c & np.uint32((1 << SHIFT_BITS) - 1))
+    i2 = i + i
+    j2 = j + j
+    lx = xf[j2] + off[o] + off[o + one] - xf[i2]
+    ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xf[i2 + one]
+    return i, j, i2, j2, lx, ly
+
+
+@njit(cache=True, inline="always")
+def _slot0(p, nh, hs):
+    """Index of the first history slot of pair p of a chunk: ``p`` in the slot-by-slot layout
+    (``hs = CHUNK``, more than one slot), ``nh p`` in the pair-by-pair one (``hs = 1``)."""
+    return p if hs > 1 else nh * p
+
+
+@njit(cache=True, inline="always")
+def _law(p, q, hs, lx, ly, d2, ri, rj, dvx0, dvy0, wi, wj, hist, pc, L00, L01, L10, L11, normal, damping,
+         tangential, rolling, hroll, dt, fast):
+    """The contact law on pair p (pair constants ``pc[p]``, history slots ``hist[q + k hs]``), given its
+    branch, ``|l|^2``, radii, ``v_j - v_i`` and spins. Returns (fx, fy, mi, mj, mr, Un, Ut, Ur,
+    fn, kn, ok): the force on j, the torque terms (the torques are ``-mi - mr`` on i and
+    ``-mj + mr`` on j, subtracted and added in this order), the elastic energies, the normal
+    force, the normal tangent stiffness, and False if ``fast`` skipped a rare branch of the
+    tangential model (the results are then not valid; see ``tangential_force``)."""
+    rs = ri + rj
+    d = math.sqrt(d2)
+    nx = lx / d
+    ny = ly / d
+    delta = rs - d
+    dvx = dvx0 + L00 * lx + L01 * ly
+    dvy = dvy0 + L10 * lx + L11 * ly
+    fn, kn, Un = normal_force(normal, delta)
+    vn = dvx * nx + dvy * ny
+    fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
+    ftx, fty, Ut, mi, mj, ok = tangential_force(tangential, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny,
+                                                ri, rj, wi, wj, fn, kn, ct, dt, fast)
+    Ur, mr = rolling_torque(rolling, hist, q, hs, hroll, ri, rj, wi, wj, fn, kn, dt)
+    fx = fn * nx + ftx
+    fy = fn * ny + fty
+    return fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok
+
+
+@njit(cache=True, inline="always")
+def _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque):
+    """Add a pair's force (fx, fy on j, the opposite on i) and torques to the particles."""
+    one = np.uint64(1)
+    if spin:
+        ti = torque[i]
+        tj = torque[j]
+        if tq_t:
+            ti -= mi
+            tj -= mj
+        if tq_r:
+            tj += mr
+            ti -= mr
+        torque[i] = ti
+        torque[j] = tj
+    ff[j2] += fx
+    ff[j2 + one] += fy
+    ff[i2] -= fx
+    ff[i2 + one] -= fy
+
+
+@njit(cache=True, inline="always")
+def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
+    """Pass 1 of a chunk: the branches, radii, ``v_j - v_i`` and spins of pairs p0..p0+m-1,
+    gathered into contiguous rows of ``buf`` (and i, j into ``ij``)."""
+    one = np.uint64(1)
+    for q in range(m):
+        i, j, i2, j2, lx, ly = _branch(p0 + q, pi, jc, xf, off)
+        buf[_LX + q] = lx
+        buf[_LY + q] = ly
+        buf[_RI + q] = radius[i]
+        buf[_RJ + q] = radius[j]
+        buf[_VX + q] = vf[j2] - vf[i2]
+        buf[_VY + q] = vf[j2 + one] - vf[i2 + one]
+        if spin:
+            buf[_WI + q] = omega[i]
+            buf[_WJ + q] = omega[j]
+        ij[q] = i
+        ij[CHUNK + q] = j
+
+
+@njit(cache=True, inline="always")
+def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
+                    tally, buf):
+    """Pass 2 of a chunk of m pairs (``hist``: the chunk's history, slot k of pair p at
+    ``hist[hq(p) + k hs]``, see :func:`_slot0`; ``pc``: the chunk's pair constants): the contact law on
+    every pair, without a branch on the contact, so that the compiler vectorises it. The pairs
+    not in contact get zero history and a zero ``_TOUCH`` row (pass 3 skips them). ``tally`` (a
+    constant where this is inlined) also stores the energy, force-magnitude and stiffness terms.
+    A pair whose tangential model skipped a rare branch (``ok`` False) is marked 2 in ``_TOUCH``."""
+    for p in range(m):
+        lx = buf[_LX + p]
+        ly = buf[_LY + p]
+        ri = buf[_RI + p]
+        rj = buf[_RJ + p]
+        rs = ri + rj
+        d2 = lx * lx + ly * ly
+        touch = d2 < rs * rs
+        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, ri, rj, buf[_VX + p],
+                                                          buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist, pc, L00,
+                                                          L01, L10, L11, normal, damping, tangential, rolling,
+                                                          hroll, dt, True)
+        for k in range(nh):
+            h = _slot0(p, nh, hs) + k * hs
+            hist[h] = hist[h] if touch else 0.0
+        buf[_FX + p] = fx
+        buf[_FY + p] = fy
+        buf[_MI + p] = mi
+        buf[_MJ + p] = mj
+        buf[_MR + p] = mr
+        buf[_TOUCH + p] = (1.0 if ok else 2.0) if touch else 0.0
+        if tally:
+            buf[_UN + p] = Un
+            buf[_UT + p] = Ut
+            buf[_UR + p] = Ur
+            buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
+            buf[_KD + p] = kn * d2
+
+
+@njit(cache=True, inline="always")
+def _exact(p, nh, hist, hs, hbak, pc, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt, tally, buf):
+    """Pass 3's exact path for pair p of a chunk marked 2 by pass 2: its history back from
+    ``hbak`` (the chunk's history before pass 2), the law evaluated with ``fast = False`` (the
+    serial loop's operations), its rows of ``buf`` overwritten."""
+    for k in range(nh):
+        h = _slot0(p, nh, hs) + k * hs
+        hist[h] = hbak[h]
+    lx = buf[_LX + p]
+    ly = buf[_LY + p]
+    d2 = lx * lx + ly * ly
+    fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, buf[_RI + p], buf[_RJ + p],
+                                                     buf[_VX + p], buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist,
+                                                     pc, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                                                     hroll, dt, False)
+    buf[_FX + p] = fx
+    buf[_FY + p] = fy
+    buf[_MI + p] = mi
+    buf[_MJ + p] = mj
+    buf[_MR + p] = mr
+    if tally:
+        buf[_UN + p] = Un
+        buf[_UT + p] = Ut
+        buf[_UR + p] = Ur
+        buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
+        buf[_KD + p] = kn * d2
+
+
+@njit(cache=True, inline="always")
+def _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2):
+    out[0] = s00
+    out[1] = s01
+    out[2] = s10
+    out[3] = s11
+    out[4] = nc
+    out[5] = fsum
+    out[6] = U
+    out[7] = kl2
+
+
+_PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of one step.
 
     x, v (N, 2); omega, theta, inertia (N,) or empty; pi, jc (P,) the Verlet list
     (:func:`compact_list`: pairs ordered by i, j > i);
@@ -823,11 +1028,12 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, 
     not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
     fused kick, ``acc`` (5,) = the sums of :func:`kick_range`.
+"""
 
-    One flat loop over the pairs: i's force is added to in memory pair by pair (summing it in
-    registers per block of i's pairs was measured slower: the block's end is a branch that the
-    processor mispredicts about once per particle).
-    """
+
+@njit(cache=True, error_model="numpy")
+def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
+                        damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
     off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
     f[:, :] = 0.0
@@ -836,29 +1042,118 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, 
     vf = v.reshape(-1)
     ff = f.reshape(-1)
     rf = x_ref.reshape(-1)
-    s00 = 0.0
-    s01 = 0.0
-    s10 = 0.0
-    s11 = 0.0
-    nc = 0.0
-    fsum = 0.0
-    U = 0.0
-    kl2 = 0.0
+    s00 = s01 = s10 = s11 = nc = fsum = U = kl2 = 0.0
     fused = kick.fused
     spin = spin_flag(tangential, rolling)
+    tq_t, tq_r = torque_terms(tangential, rolling)
     nh = history_slots(tangential, rolling)
     sums = (0.0, 0.0, 0.0, 0.0, 0.0)
     done = np.uint64(0)
-    one = np.uint64(1)
     block = np.uint64(KICK_BLOCK)
+    buf = np.zeros(_NROWS)
+    ij = np.empty(2 * CHUNK, np.uint64)
+    hb = np.zeros(max(nh, 1) * CHUNK)
+    hbak = np.empty(max(nh, 1) * CHUNK)
+    hstride = CHUNK if nh > 1 else 1
+    npair = jc.shape[0]
+    npc = pc.shape[0] // npair if npair > 0 else 0
+    for p0 in range(0, npair, CHUNK):
+        m = min(CHUNK, npair - p0)
+        _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf)
+        if nh > 1:
+            # more than one slot: the chunk's history slot by slot (unit stride for the compiler)
+            for k in range(nh):
+                for q in range(m):
+                    hb[q + k * CHUNK] = hist[nh * (p0 + q) + k]
+            hc = hb
+        else:
+            hc = hist[p0 * nh:(p0 + m) * nh]
+        hbak[:hc.shape[0]] = hc
+        pcs = pc[npc * p0:npc * (p0 + m)]
+        if tally:
+            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                            hroll, dt, True, buf)
+        else:
+            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
+                            hroll, dt, False, buf)
+        for q in range(m):
+            if buf[_TOUCH + q] == 0.0:
+                continue
+            if buf[_TOUCH + q] == 2.0:
+                _exact(q, nh, hc, hstride, hbak, pcs, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
+                       tally, buf)
+            i = ij[q]
+            j = ij[CHUNK + q]
+            fx = buf[_FX + q]
+            fy = buf[_FY + q]
+            _apply(i, j, i + i, j + j, fx, fy, buf[_MI + q], buf[_MJ + q], buf[_MR + q], spin, tq_t, tq_r, ff,
+                   torque)
+            if tally:
+                U += buf[_UN + q]
+                U += buf[_UT + q]
+                U += buf[_UR + q]
+                lx = buf[_LX + q]
+                ly = buf[_LY + q]
+                s00 += fx * lx
+                s01 += fx * ly
+                s10 += fy * lx
+                s11 += fy * ly
+                nc += 1.0
+                fsum += buf[_FM + q]
+                kl2 += buf[_KD + q]
+        if nh > 1:
+            for k in range(nh):
+                for q in range(m):
+                    hist[nh * (p0 + q) + k] = hb[q + k * CHUNK]
+        if fused:
+            # particles below the next pair's i have all their forces (pairs are ordered by i, j > i)
+            nxt = np.uint64(np.uint32(pi[p0 + m])) if p0 + m < npair else done
+            if nxt >= done + block:
+                sums = kick_range(done, nxt, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+                done = nxt
+    if fused:
+        sums = kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick,
+                          sums)
+        for k in range(5):
+            acc[k] = sums[k]
+    if tally:
+        _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2)
+
+
+pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
+    The pairs go in chunks of :data:`CHUNK`, each in three passes: gather the pairs' positions and
+    velocities into contiguous rows (:func:`_gather`), evaluate the law on all of them without a
+    branch on the contact (:func:`_contact_forces`, which the compiler vectorises: 4 pairs per
+    instruction with AVX2), then add the forces and torques to the particles, and the tallies to
+    their sums, pair by pair in list order, the pairs not in contact skipped. Every floating-point
+    operation and every sum is that of :func:`pair_forces_serial`, in the same order: the results
+    are bit-identical (tested for every law).
+    """
+
+
+@njit(cache=True, error_model="numpy")
+def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
+                       damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
+    L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
+    off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
+    f[:, :] = 0.0
+    torque[:] = 0.0
+    xf = x.reshape(-1)
+    vf = v.reshape(-1)
+    ff = f.reshape(-1)
+    rf = x_ref.reshape(-1)
+    s00 = s01 = s10 = s11 = nc = fsum = U = kl2 = 0.0
+    fused = kick.fused
+    spin = spin_flag(tangential, rolling)
+    tq_t, tq_r = torque_terms(tangential, rolling)
+    nh = history_slots(tangential, rolling)
+    sums = (0.0, 0.0, 0.0, 0.0, 0.0)
+    done = np.uint64(0)
+    block = np.uint64(KICK_BLOCK)
+    one = np.uint64(1)
     mask = np.uint32((1 << SHIFT_BITS) - 1)
     for p in range(jc.shape[0]):
-        # unsigned indices: numba then skips its negative-index wraparound on every access
         i = np.uint64(np.uint32(pi[p]))
-        if fused and i >= done + block:
-            # particles below i have all their forces (pairs are ordered by i, j > i)
-            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
-            done = i
         c = np.uint32(jc[p])
         j = np.uint64(c >> np.uint32(SHIFT_BITS))
         o = np.uint64(4) * np.uint64(c & mask)
@@ -866,6 +1161,10 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, 
         j2 = j + j
         lx = xf[j2] + off[o] + off[o + one] - xf[i2]
         ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xf[i2 + one]
+        if fused and i >= done + block:
+            # particles below i have all their forces (pairs are ordered by i, j > i)
+            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
+            done = i
         ri = radius[i]
         rj = radius[j]
         rs = ri + rj
@@ -874,32 +1173,26 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, 
             for k in range(nh * p, nh * p + nh):
                 hist[k] = 0.0
             continue
-        d = math.sqrt(d2)
-        nx = lx / d
-        ny = ly / d
-        delta = rs - d
-        dvx = vf[j2] - vf[i2] + L00 * lx + L01 * ly
-        dvy = vf[j2 + one] - vf[i2 + one] + L10 * lx + L11 * ly
-        fn, kn, Un = normal_force(normal, delta)
-        vn = dvx * nx + dvy * ny
-        fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
         wi = 0.0
         wj = 0.0
-        ti = 0.0
-        tj = 0.0
         if spin:
             wi = omega[i]
             wj = omega[j]
+        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, nh * p, 1, lx, ly, d2, ri, rj, vf[j2] - vf[i2],
+                                                         vf[j2 + one] - vf[i2 + one], wi, wj, hist, pc, L00, L01,
+                                                         L10, L11, normal, damping, tangential, rolling, hroll, dt,
+                                                         False)
+        if spin:
             ti = torque[i]
             tj = torque[j]
-        ftx, fty, Ut, ti, tj = tangential_force(tangential, damping, hist, nh, p, dvx, dvy, vn, lx, ly, d, nx,
-                                                ny, ri, rj, wi, wj, fn, kn, ct, dt, ti, tj)
-        Ur, ti, tj = rolling_torque(rolling, hist, nh, p, hroll, ri, rj, wi, wj, fn, kn, dt, ti, tj)
-        if spin:
+            if tq_t:
+                ti -= mi
+                tj -= mj
+            if tq_r:
+                tj += mr
+                ti -= mr
             torque[i] = ti
             torque[j] = tj
-        fx = fn * nx + ftx
-        fy = fn * ny + fty
         ff[j2] += fx
         ff[j2 + one] += fy
         ff[i2] -= fx
@@ -920,16 +1213,38 @@ def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, 
                           sums)
         for k in range(5):
             acc[k] = sums[k]
-    if not tally:
-        return
-    out[0] = s00
-    out[1] = s01
-    out[2] = s10
-    out[3] = s11
-    out[4] = nc
-    out[5] = fsum
-    out[6] = U
-    out[7] = kl2
+    if tally:
+        _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2)
+
+
+pair_forces_serial.__doc__ = _PAIR_FORCES_DOC + """
+    One flat loop over the pairs: i's force is added to in memory pair by pair (summing it in
+    registers per block of i's pairs was measured slower: the block's end is a branch that the
+    processor mispredicts about once per particle). For laws whose sub-models do not all
+    vectorise (:func:`vectorises`).
+    """
+
+
+def vectorises(models) -> bool:
+    """True if every sub-model of ``models`` declares ``VECTOR = True``: its hooks have no
+    branch the compiler cannot turn into a select, and evaluating them on pairs not in contact
+    is cheap. :func:`pair_forces` then runs :func:`pair_forces_chunked`, else
+    :func:`pair_forces_serial` (the two give bit-identical results; the flag only chooses the
+    faster one, measured in ``docs/dem.md``)."""
+    return all(getattr(type(m), "VECTOR", False) for m in models)
+
+
+def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal, damping,
+                tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
+    loop = pair_forces_chunked if vectorises((normal, damping, tangential, rolling)) else pair_forces_serial
+    loop(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal, damping, tangential,
+         rolling, hroll, kick, dt, tally, f, torque, out, acc)
+
+
+pair_forces.__doc__ = _PAIR_FORCES_DOC + """
+    Runs :func:`pair_forces_chunked` (vectorised) when the law's sub-models allow it
+    (:func:`vectorises`), else :func:`pair_forces_serial`.
+    """
 
 
 @njit(cache=True)

@@ -9,6 +9,7 @@ import pytest
 from dem import contact_models as cm
 from dem.contact_laws import (ContactLaw, Frictionless, HertzMindlin, HertzRolling, LammpsHookeHistory,
                               LinearFriction, law_from_meta)
+from dem.cell import PressureServo
 from dem.integrate import Simulation, critical_dt
 from dem.state import State
 import engine_reference_cases as eref
@@ -39,6 +40,52 @@ def test_fused_kick_is_bit_identical_to_the_separate_pass(name):
     for f in ("x", "v", "omega", "theta", "nl_ft"):
         assert np.array_equal(getattr(a, f), getattr(b, f)) if getattr(a, f) is not None else getattr(b, f) is None
     assert kea == keb and wa == wb
+
+
+STRATEGY_LAWS = {
+    **{name: make for name, make in ref.CASES.items()},
+    "lammps": lambda: LammpsHookeHistory(kn=1e4, kt=8e3, gamma_n=30.0, gamma_t=15.0, mu=0.4),
+    "rolling": lambda: HertzRolling(kh=3e5, mu=0.4, delta_ref=0.02, mu_r=0.05, restitution=0.5),
+    "massgamma_linear": lambda: ContactLaw(cm.Hooke(1e4), cm.MassGamma(30.0, 15.0), cm.LinearHistory(8e3, 0.4)),
+}
+
+
+@pytest.mark.parametrize("name", list(STRATEGY_LAWS))
+@pytest.mark.parametrize("fuse", [False, True])
+def test_chunked_and_serial_pair_loops_are_bit_identical(name, fuse, monkeypatch):
+    """The vectorised pair loop (chunks, branch-free law, ordered scatter) and the serial one
+    give the same bits for every law: under a pressure servo (every step tallied) and without a
+    control, with the kick fused or not, through frequent rebuilds and spatial sorts. The list
+    length is not a multiple of the chunk, and many listed pairs are not in contact."""
+    runs = []
+    for loop in (cm.pair_forces_serial, cm.pair_forces_chunked):
+        monkeypatch.setattr(cm, "vectorises", lambda models, loop=loop: loop is cm.pair_forces_chunked)
+        law = STRATEGY_LAWS[name]()
+        st = ref.initial_state(law.needs_spin)
+        control = None if fuse else PressureServo(p_target=80.0, max_rate=5e-3)
+        sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, fuse=fuse, control=control)
+        for k in range(120):
+            sim.step(tally=k % 7 == 0)
+        touching = sim.out[4]
+        runs.append((st, sim.out.copy(), sim.f.copy(), sim.torque.copy(), sim.ke_n, sim.damping_work))
+    (a, oa, fa, ta, kea, wa), (b, ob, fb, tb, keb, wb) = runs
+    assert st.nl_i.shape[0] % cm.CHUNK != 0 and 0 < touching < st.nl_i.shape[0]
+    for f in ("x", "v", "omega", "theta", "h", "nl_ft"):
+        if getattr(a, f) is None:
+            assert getattr(b, f) is None
+        else:
+            assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert np.array_equal(oa, ob) and np.array_equal(fa, fb) and np.array_equal(ta, tb)
+    assert (kea == keb or (np.isnan(kea) and np.isnan(keb))) and wa == wb
+
+
+def test_vectorised_loop_is_chosen_for_all_laws_but_rolling_resistance():
+    """Which strategy each law runs (the choice only matters for speed, docs/dem.md)."""
+    assert cm.vectorises(LinearFriction(kn=1e4, kt=1e4, mu=0.5, restitution=0.7, tangential_damping=True).models)
+    assert cm.vectorises(HertzMindlin(kh=3e5, mu=0.4, delta_ref=0.02, restitution=0.5).models)
+    assert cm.vectorises(Frictionless(kn=1e4).models)
+    assert cm.vectorises(STRATEGY_LAWS["lammps"]().models)
+    assert not cm.vectorises(STRATEGY_LAWS["rolling"]().models)
 
 
 def _chain_pair(law, overlap=2e-3, r=0.5):
@@ -197,3 +244,16 @@ def test_contact_arms_torque_and_slip_closed_form():
         ft = -kt * (-(aj * w)) * sim.dt      # slip velocity vt = -(w_i a_i + w_j a_j)
         assert st.nl_ft[0] == pytest.approx(ft, rel=1e-12)
         assert sim.torque == pytest.approx([-ai * ft, -aj * ft], rel=1e-12)
+
+
+@pytest.mark.parametrize("make", [lambda: LinearFriction(kn=1e4, kt=1e4, mu=0.5),
+                                  lambda: LammpsHookeHistory(kn=1e4, kt=1e4, gamma_n=10.0, mu=0.5)])
+def test_coincident_disks_stop_with_the_reason(make):
+    """Both pair loops use numba's numpy error model: two disks at the same point give a NaN
+    force (no ZeroDivisionError), which the instability guard reports."""
+    from dem.runtime import InstabilityError
+    x = np.array([[1.0, 1.0], [1.0, 1.0], [3.0, 3.0]])
+    st = State.from_disks(x, np.full(3, 0.5), np.diag([5.0, 5.0]), rho=1.0, spins=True)
+    sim = Simulation(st, make(), check_every=10)
+    with pytest.raises(InstabilityError, match="NaN"):
+        sim.run(20)
