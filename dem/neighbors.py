@@ -39,8 +39,8 @@ def list_cutoff(radius, skin) -> float:
 
 def bin_counts(h, rc):
     """Number of bins along each fractional direction (>= 1) and the check that the cell is large
-    enough: both perpendicular widths must exceed ``rc`` (a particle then meets at most one image
-    of each neighbour)."""
+    enough: both perpendicular widths must exceed ``rc`` (no particle meets its own image; a cell
+    narrower than ``2 rc`` can hold a pair at two images, and both are listed)."""
     H = heights(h)
     if np.any(H <= rc):
         raise ValueError(f"periodic cell too small: its widths {H} must exceed the neighbour-list "

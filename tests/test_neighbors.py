@@ -186,7 +186,8 @@ def test_rebuild_matches_reference(case, sort):
 
 def test_rebuild_history_from_an_unordered_or_far_shifted_list():
     """Old lists the ordered merge does not take (shuffled, shifts beyond the packed range,
-    repeated keys) go through the general carry-over with the same result."""
+    repeated keys) go through the general carry-over with the same result; an old list far
+    shorter than the new one."""
     rng = np.random.default_rng(7)
     st = random_state(rng, 300, None)
     st = assert_rebuild_matches(st, 0.3, parity=(1, -1))
@@ -206,6 +207,10 @@ def test_rebuild_history_from_an_unordered_or_far_shifted_list():
     repeated.nl_ft = np.repeat(st.nl_ft, 2, axis=0)
     repeated.nl_ft[1::2] = rng.normal(size=repeated.nl_ft[1::2].shape)
     assert_rebuild_matches(repeated, 0.3, parity=(1, -1))
+    tiny = st.copy()  # 3 old pairs: the room reserved for the new list overflows (a second pass)
+    tiny.nl_i, tiny.nl_j, tiny.nl_shift, tiny.nl_ft = st.nl_i[:3], st.nl_j[:3], st.nl_shift[:3], st.nl_ft[:3]
+    got = assert_rebuild_matches(tiny, 0.3, parity=(1, -1))
+    assert got.nl_i.shape[0] > max(64, int(1.25 * 3) + tiny.n // 8)  # the room rebuild reserves
 
 
 def test_rebuild_pairs_at_the_cutoff_of_a_square_lattice():
