@@ -146,6 +146,9 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
     descents = np.zeros(n + 1, np.int64)  # descents[q]: slots r < q with members[r] < members[r-1]
     for q in range(1, n):
         descents[q + 1] = descents[q] + (members[q] < members[q - 1])
+    last = np.empty(nbins, np.int64)  # the largest particle of each bin (in its last slot), -1
+    for c in range(nbins):
+        last[c] = members[start[c + 1] - 1] if start[c + 1] > start[c] else -1
     run = np.zeros(nbins, np.bool_)
     top = np.full(nbins, n, np.int64)
     for b in range(nbb):
@@ -154,10 +157,7 @@ def _gather_by_bin(x, radius, binof, nba, nbb):
             lo = start[c - 1]
             hi = start[c + 2]
             run[c] = hi <= lo + 1 or descents[hi] == descents[lo + 1]
-            top[c] = -1
-            for d in range(c - 1, c + 2):  # the last slot of a bin holds its largest particle
-                if start[d + 1] > start[d]:
-                    top[c] = max(top[c], members[start[d + 1] - 1])
+            top[c] = max(last[c - 1], max(last[c], last[c + 1]))
     return start, members, slot, xs, rs, run, top
 
 
