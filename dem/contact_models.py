@@ -205,7 +205,7 @@ def _hertz_force(model, delta):
 
 # --------------------------------------------------------------------------------------------------
 # damping models.
-#   pair_constant(model, normal, meff, out_row): fills the per-pair constants (NPC per pair),
+#   pair_constant(model, normal, meff, pc, q): fills the per-pair constants pc[q], pc[q + 1], ...
 #       computed at each list build;
 #   normal_damping(model, normal, pc, p, k_n, fn, vn) -> (fn with dashpot, tangential c_t).
 # --------------------------------------------------------------------------------------------------
@@ -222,8 +222,8 @@ class NoDamping(NamedTuple):
 
 
 @_implements(pair_constant, NoDamping)
-def _nodamp_pc(model, normal, meff, row):
-    def impl(model, normal, meff, row):
+def _nodamp_pc(model, normal, meff, pc, q):
+    def impl(model, normal, meff, pc, q):
         pass
     return impl
 
@@ -270,13 +270,13 @@ class ViscousTangential(NamedTuple):
         return cls(damping_ratio(e))
 
 
-def _viscous_pc(model, normal, meff, row):
+def _viscous_pc(model, normal, meff, pc, q):
     if _cls(normal) is Hooke:
-        def impl(model, normal, meff, row):
-            row[0] = 2.0 * model.zeta * math.sqrt(meff * normal.kn)
+        def impl(model, normal, meff, pc, q):
+            pc[q] = 2.0 * model.zeta * math.sqrt(meff * normal.kn)
     else:
-        def impl(model, normal, meff, row):
-            row[0] = meff
+        def impl(model, normal, meff, pc, q):
+            pc[q] = meff
     return impl
 
 
@@ -319,10 +319,10 @@ class MassGamma(NamedTuple):
 
 
 @_implements(pair_constant, MassGamma)
-def _massgamma_pc(model, normal, meff, row):
-    def impl(model, normal, meff, row):
-        row[0] = meff * model.gamma_n
-        row[1] = meff * model.gamma_t
+def _massgamma_pc(model, normal, meff, pc, q):
+    def impl(model, normal, meff, pc, q):
+        pc[q] = meff * model.gamma_n
+        pc[q + 1] = meff * model.gamma_t
     return impl
 
 
@@ -1008,15 +1008,37 @@ def _exact(p, nh, hist, hs, hbak, pc, L00, L01, L10, L11, normal, damping, tange
 
 
 @njit(cache=True, inline="always")
-def _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2):
-    out[0] = s00
-    out[1] = s01
-    out[2] = s10
-    out[3] = s11
-    out[4] = nc
-    out[5] = fsum
-    out[6] = U
-    out[7] = kl2
+def _begin(cell, x, v, f, torque, x_ref):
+    """Clear the forces and torques; the image offsets and flat views of x, v, f, x_ref."""
+    f[:, :] = 0.0
+    torque[:] = 0.0
+    return (_image_offsets(cell.h00, cell.h01, cell.h10, cell.h11), x.reshape(-1), v.reshape(-1), f.reshape(-1),
+            x_ref.reshape(-1))
+
+
+@njit(cache=True, inline="always")
+def _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, fm, kd):
+    """The tallies t = (s00, s01, s10, s11, nc, fsum, U, kl2) with one contact added: its energies,
+    ``f (x) l`` [N m], one contact, ``|f|`` and ``k_n |l|^2`` (in the serial loop's order)."""
+    s00, s01, s10, s11, nc, fsum, U, kl2 = t
+    U += Un
+    U += Ut
+    U += Ur
+    return s00 + fx * lx, s01 + fx * ly, s10 + fy * lx, s11 + fy * ly, nc + 1.0, fsum + fm, U, kl2 + kd
+
+
+@njit(cache=True, inline="always")
+def _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t):
+    """A fused kick's last particles (from ``done``) and its sums into ``acc``; the tallies into
+    ``out[:8]``."""
+    if fused:
+        sums = kick_range(done, np.uint64(mass.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia,
+                          kick, sums)
+        for k in range(5):
+            acc[k] = sums[k]
+    if tally:
+        for k in range(8):
+            out[k] = t[k]
 
 
 _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of one step.
@@ -1035,14 +1057,8 @@ _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of on
 def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
                         damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
-    f[:, :] = 0.0
-    torque[:] = 0.0
-    xf = x.reshape(-1)
-    vf = v.reshape(-1)
-    ff = f.reshape(-1)
-    rf = x_ref.reshape(-1)
-    s00 = s01 = s10 = s11 = nc = fsum = U = kl2 = 0.0
+    off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
+    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     fused = kick.fused
     spin = spin_flag(tangential, rolling)
     tq_t, tq_r = torque_terms(tangential, rolling)
@@ -1089,18 +1105,8 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
             _apply(i, j, i + i, j + j, fx, fy, buf[_MI + q], buf[_MJ + q], buf[_MR + q], spin, tq_t, tq_r, ff,
                    torque)
             if tally:
-                U += buf[_UN + q]
-                U += buf[_UT + q]
-                U += buf[_UR + q]
-                lx = buf[_LX + q]
-                ly = buf[_LY + q]
-                s00 += fx * lx
-                s01 += fx * ly
-                s10 += fy * lx
-                s11 += fy * ly
-                nc += 1.0
-                fsum += buf[_FM + q]
-                kl2 += buf[_KD + q]
+                t = _tally_add(t, buf[_UN + q], buf[_UT + q], buf[_UR + q], fx, fy, buf[_LX + q], buf[_LY + q],
+                               buf[_FM + q], buf[_KD + q])
         if nh > 1:
             for k in range(nh):
                 for q in range(m):
@@ -1111,13 +1117,7 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
             if nxt >= done + block:
                 sums = kick_range(done, nxt, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
                 done = nxt
-    if fused:
-        sums = kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick,
-                          sums)
-        for k in range(5):
-            acc[k] = sums[k]
-    if tally:
-        _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2)
+    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t)
 
 
 pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
@@ -1135,14 +1135,8 @@ pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
 def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
                        damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
     L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    off = _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
-    f[:, :] = 0.0
-    torque[:] = 0.0
-    xf = x.reshape(-1)
-    vf = v.reshape(-1)
-    ff = f.reshape(-1)
-    rf = x_ref.reshape(-1)
-    s00 = s01 = s10 = s11 = nc = fsum = U = kl2 = 0.0
+    off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
+    t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     fused = kick.fused
     spin = spin_flag(tangential, rolling)
     tq_t, tq_r = torque_terms(tangential, rolling)
@@ -1151,16 +1145,8 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
     done = np.uint64(0)
     block = np.uint64(KICK_BLOCK)
     one = np.uint64(1)
-    mask = np.uint32((1 << SHIFT_BITS) - 1)
     for p in range(jc.shape[0]):
-        i = np.uint64(np.uint32(pi[p]))
-        c = np.uint32(jc[p])
-        j = np.uint64(c >> np.uint32(SHIFT_BITS))
-        o = np.uint64(4) * np.uint64(c & mask)
-        i2 = i + i
-        j2 = j + j
-        lx = xf[j2] + off[o] + off[o + one] - xf[i2]
-        ly = xf[j2 + one] + off[o + np.uint64(2)] + off[o + np.uint64(3)] - xf[i2 + one]
+        i, j, i2, j2, lx, ly = _branch(p, pi, jc, xf, off)
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
             sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums)
@@ -1182,39 +1168,10 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
                                                          vf[j2 + one] - vf[i2 + one], wi, wj, hist, pc, L00, L01,
                                                          L10, L11, normal, damping, tangential, rolling, hroll, dt,
                                                          False)
-        if spin:
-            ti = torque[i]
-            tj = torque[j]
-            if tq_t:
-                ti -= mi
-                tj -= mj
-            if tq_r:
-                tj += mr
-                ti -= mr
-            torque[i] = ti
-            torque[j] = tj
-        ff[j2] += fx
-        ff[j2 + one] += fy
-        ff[i2] -= fx
-        ff[i2 + one] -= fy
+        _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque)
         if tally:
-            U += Un
-            U += Ut
-            U += Ur
-            s00 += fx * lx
-            s01 += fx * ly
-            s10 += fy * lx
-            s11 += fy * ly
-            nc += 1.0
-            fsum += force_magnitude(tangential, fn, fx, fy)
-            kl2 += kn * d2
-    if fused:
-        sums = kick_range(done, np.uint64(x.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick,
-                          sums)
-        for k in range(5):
-            acc[k] = sums[k]
-    if tally:
-        _store_tally(out, s00, s01, s10, s11, nc, fsum, U, kl2)
+            t = _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, force_magnitude(tangential, fn, fx, fy), kn * d2)
+    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, acc, tally, out, t)
 
 
 pair_forces_serial.__doc__ = _PAIR_FORCES_DOC + """
@@ -1256,7 +1213,7 @@ def make_pair_constants(damping, normal, mass, pi, pj, npc):
             i = pi[p]
             j = pj[p]
             meff = mass[i] * mass[j] / (mass[i] + mass[j])
-            pair_constant(damping, normal, meff, pc[npc * p:npc * (p + 1)])
+            pair_constant(damping, normal, meff, pc, npc * p)
     return pc
 
 
