@@ -36,7 +36,7 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
   ``rolling_torque``).
 
 :func:`pair_forces` is the pair loop, written once (in two strategies, serial and chunked and
-vectorised, that share the law's evaluation :func:`_law`). numba compiles one specialisation per
+vectorised, that share the law's evaluation ``_law``). numba compiles one specialisation per
 combination of sub-model types (the types are part of the signature and the hooks are resolved
 at compile time through ``numba.extending.overload``), so a contact never branches on the law at
 run time, and the compiled loops are cached on disk like any ``cache=True`` function. A new law
@@ -769,9 +769,9 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
     ``sums`` = (max non-affine displacement^2 ``|x - F x_ref|^2``, translational KE at the integer
     time, its damping work, rotational KE, its damping work) is returned updated; the kinetic
     energies only if ``kick.tally``, the damping work only if ``kick.damping > 0`` (it is 0
-    otherwise). ``kb``: scratch of :data:`KICK_SCRATCH` floats.
+    otherwise). ``kb``: scratch of ``KICK_SCRATCH`` floats.
 
-    The particles go in blocks of :data:`KICK_CHUNK`: the updates of a block have no reduction,
+    The particles go in blocks of ``KICK_CHUNK`` (256): the updates of a block have no reduction,
     so the compiler vectorises them (their terms of the sums go to the scratch rows), then the
     sums are added to particle by particle, in order, so that any split into blocks or ranges
     gives the same bits as one pass.
@@ -995,7 +995,7 @@ def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
 
 @njit(cache=True, inline="always")
 def _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally):
-    """Pair p's results of :func:`_law` into its rows of the chunk's scratch (the tally terms only
+    """Pair p's results of ``_law`` into its rows of the chunk's scratch (the tally terms only
     if ``tally``)."""
     buf[_FX + p] = fx
     buf[_FY + p] = fy
@@ -1014,7 +1014,7 @@ def _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally
 def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
                     tally, buf):
     """Pass 2 of a chunk of m pairs (``hist``: the chunk's history, slot k of pair p at
-    ``hist[hq(p) + k hs]``, see :func:`_slot0`; ``pc``: the chunk's pair constants): the contact law on
+    ``hist[_slot0(p, nh, hs) + k hs]``; ``pc``: the chunk's pair constants): the contact law on
     every pair, without a branch on the contact, so that the compiler vectorises it. The pairs
     not in contact get zero history and a zero ``_TOUCH`` row (pass 3 skips them). ``tally`` (a
     constant where this is inlined) also stores the energy, force-magnitude and stiffness terms.
@@ -1174,9 +1174,9 @@ def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc
 
 
 pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
-    The pairs go in chunks of :data:`CHUNK`, each in three passes: gather the pairs' positions and
-    velocities into contiguous rows (:func:`_gather`), evaluate the law on all of them without a
-    branch on the contact (:func:`_contact_forces`, which the compiler vectorises: 4 pairs per
+    The pairs go in chunks of ``CHUNK`` (128), each in three passes: gather the pairs' positions and
+    velocities into contiguous rows (``_gather``), evaluate the law on all of them without a
+    branch on the contact (``_contact_forces``, which the compiler vectorises: 4 pairs per
     instruction with AVX2), then add the forces and torques to the particles, and the tallies to
     their sums, pair by pair in list order, the pairs not in contact skipped. Every floating-point
     operation and every sum is that of :func:`pair_forces_serial`, in the same order: the results
