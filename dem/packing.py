@@ -417,7 +417,7 @@ class PackingResult:
 
 #: bytes per particle held by a packing run (state, Verlet list, history, engine buffers),
 #: measured by ``studies.bench_scaling``; the memory guard of :func:`check_memory` uses it
-BYTES_PER_PARTICLE = 211
+BYTES_PER_PARTICLE = 247
 
 
 def available_memory() -> int:
