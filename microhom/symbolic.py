@@ -121,13 +121,13 @@ def mean_structural_sum():
     A = {}
     for a, b, c, d in itertools.product(_R2, repeat=4):
         K_ab = kn * n[a] * n[b] + kt * (_d(a, b) - n[a] * n[b])
-        A[(a, b, c, d)] = sp.factor(circle_integral(p * K_ab * D * n[c] * D * n[d]))
+        A[(a, b, c, d)] = sp.cancel(circle_integral(p * K_ab * D * n[c] * D * n[d]))
     vb, eb = sp.symbols("vbar ebar")
     form = _iso4(vb, eb)
     sol = sp.solve([A[k] - form[k] for k in A], [vb, eb], dict=True)
     if len(sol) != 1:
         raise RuntimeError("mean structural sum is not of the isotropic form (37)")
-    return {"A": A, "vbar": sp.factor(sol[0][vb]), "ebar": sp.factor(sol[0][eb])}
+    return {"A": A, "vbar": sp.cancel(sol[0][vb]), "ebar": sp.cancel(sol[0][eb])}
 
 
 def stress_from_structural_sum(A, E):
@@ -233,7 +233,7 @@ def kroner_kernel():
     """
     Linv = sp.simplify(kroner_operator().inv())
     k = k_vec
-    return {(p, s_, rr, q): sp.factor(-k[s_] * k[q] * Linv[p, rr]) for p, s_, rr, q in itertools.product(_R2, repeat=4)}
+    return {(p, s_, rr, q): sp.cancel(-k[s_] * k[q] * Linv[p, rr]) for p, s_, rr, q in itertools.product(_R2, repeat=4)}
 
 
 def angular_mean(expr):
@@ -243,7 +243,7 @@ def angular_mean(expr):
     circle the denominator is 1 and the mean of N is a sum of moments ``<cos^a sin^b>``.
     """
     k1, k2 = k_vec
-    num, den = sp.fraction(sp.factor(expr))
+    num, den = sp.fraction(sp.cancel(expr))
     m = sp.Poly(den, k1, k2).total_degree() // 2
     if sp.expand(den - sp.LC(sp.Poly(den, k1, k2)) * (k1 ** 2 + k2 ** 2) ** m) != 0:
         raise ValueError("denominator is not a power of k^2")
@@ -483,8 +483,8 @@ def least_squares_XY():
     functional = c_vv * VV + c_vw * VW
     normal = [sp.expand(sp.diff(functional, X)), sp.expand(sp.diff(functional, Y))]
     sol = sp.solve(normal, [X, Y], dict=True)[0]
-    Xs = sp.factor(sol[X].subs(VW, S * VV))
-    Ys = sp.factor(sol[Y].subs(VW, S * VV))
+    Xs = sp.cancel(sol[X].subs(VW, S * VV))
+    Ys = sp.cancel(sol[Y].subs(VW, S * VV))
     return {"depends_on_XY_only": depends_on_XY_only, "invariant": invariant,
             "normal_equations": normal, "X": Xs, "Y": Ys, "VV": VV, "VW": VW}
 
