@@ -134,11 +134,16 @@ class Simulation:
     fuse : kick and drift inside the force loop when the cell has no control (bit-identical to
         the separate pass, one pass over the particle arrays fewer; measured no faster on the
         benchmark scene, see ``docs/dem.md``, hence off by default).
+    threads : threads of the contact-force loop (default 1). With 2 or more
+        (:func:`dem.contact_models.pair_forces_threaded`) the forces agree with one thread's to
+        round-off, not bit for bit, and a run is reproducible for a given number of threads; the
+        kick, the list builds and the rest of the step stay on one thread (measured speed-up in
+        ``docs/dem.md``).
     """
 
     def __init__(self, state, law, *, dt=None, damping=0.7, skin=None, control=None, sort_every=20,
                  check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None, startup="leapfrog",
-                 fuse=False):
+                 fuse=False, threads=1):
         self.state = state
         self.law = law
         if not (0 <= damping < 1):
@@ -169,6 +174,9 @@ class Simulation:
         if startup not in ("leapfrog", "lammps"):
             raise ValueError(f"startup must be 'leapfrog' or 'lammps', got {startup!r}")
         self.fuse = bool(fuse)
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= 1024:
+            raise ValueError(f"threads must be an integer in [1, 1024], got {threads!r}")
+        self.threads = int(threads)
         if law.needs_history and state.nl_i is not None and not _history_fits(state.nl_ft, law):
             state.nl_ft = _new_history(state.nl_i.shape[0], law)
         meta = state.meta.get("sim", {})
@@ -240,7 +248,7 @@ class Simulation:
                        st.nl_ft.reshape(-1) if law.needs_history else e, self._pc,
                        cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
                        normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
-                       self.f, self.torque, self.out, self.acc)
+                       self.f, self.torque, self.out, self.acc, threads=self.threads)
 
     def compute_forces(self):
         """Contact forces at the current positions (advances the tangential history: call it only
