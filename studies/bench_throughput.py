@@ -1,7 +1,7 @@
 """Throughput of the numba disk DEM against LAMMPS (GRANULAR, serial) on the same dense state.
 
     python -m studies.bench_throughput [--quick] [--repeats 3] [--ns 10000 100000]
-                                       [--no-lammps] [--no-pack] [--work DIR]
+                                       [--no-lammps] [--no-pack] [--work DIR] [--threads N]
 
 Scene (LJ-like units: mean diameter d = 1, a d = 1 disk has mass 1): 10 000 disks, diameters
 uniform in [0.9, 1.1], periodic square cell at solid fraction 0.84, prepared here (random gas at
@@ -116,11 +116,11 @@ def tiling(n, nbase=10000):
     return k // ry, ry
 
 
-def run_ours(base, n, steps, law, startup="leapfrog"):
+def run_ours(base, n, steps, law, startup="leapfrog", threads=1):
     """Warm-up then a timed run; returns (wall particle-steps/s, CPU particle-steps/s, sim)."""
     st = tile(base, *tiling(n, base.n))
     sim = Simulation(st, law, dt=DT, damping=0.0, skin=SKIN, sort_every=50, startup=startup,
-                     unsafe_dt=True)
+                     unsafe_dt=True, threads=threads)
     sim.run(WARM)
     c0 = time.process_time()
     rep = sim.run(steps)
@@ -172,6 +172,9 @@ def main(argv=None):
     ap.add_argument("--no-lammps", action="store_true")
     ap.add_argument("--no-pack", action="store_true")
     ap.add_argument("--work", default=None, help="folder for LAMMPS logs and data (default: a temporary one)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="also time the default law with this many threads (multi-core; reported apart from "
+                         "the per-core ratios, against the same serial LAMMPS runs)")
     a = ap.parse_args(argv)
     steps_of = {n: (max(100, int(3e6 / n)) if a.quick else max(150, int(3e7 / n))) for n in a.ns}
     print(f"loadavg at start {os.getloadavg()} (2-core machine shared with other jobs: see the spread)")
@@ -189,15 +192,17 @@ def main(argv=None):
     data = os.path.join(work, "dense.data")
     write_base(base, data)
 
-    laws = {"lammps-law": (lammps_law(), "lammps"), "default": (bench_law(), "leapfrog")}
+    laws = {"lammps-law": (lammps_law(), "lammps", 1), "default": (bench_law(), "leapfrog", 1)}
+    if a.threads > 1:
+        laws[f"default-{a.threads}t"] = (bench_law(), "leapfrog", a.threads)
     for n in a.ns:
         steps = steps_of[n]
         res = {k: ([], []) for k in (*laws, "LAMMPS")}
         print(f"\nN={n} steps={steps} (interleaved repeats: {', '.join(res)})", flush=True)
         for rep in range(a.repeats):
-            for name, (law, startup) in laws.items():
+            for name, (law, startup, threads) in laws.items():
                 load = os.getloadavg()[0]
-                w, c, sim = run_ours(base, n, steps, law, startup)
+                w, c, sim = run_ours(base, n, steps, law, startup, threads)
                 res[name][0].append(w)
                 res[name][1].append(c)
                 m = sim.measure()
@@ -219,11 +224,12 @@ def main(argv=None):
                   f"[{lc:.3e}, {hc:.3e}] particle-steps/s", flush=True)
         if use_lammps:
             lm_w, lm_c = statistics.median(res["LAMMPS"][0]), statistics.median(res["LAMMPS"][1])
-            for name in laws:
+            for name, (_, _, threads) in laws.items():
                 pair_ratios = [o / lm for o, lm in zip(res[name][0], res["LAMMPS"][0])]
+                kind = "(serial, per core)" if threads == 1 else f"(MULTI-CORE, {threads} threads against serial LAMMPS)"
                 print(f"N={n} ratio ours({name})/LAMMPS: wall {statistics.median(res[name][0]) / lm_w:.3f} "
                       f"(per repeat {min(pair_ratios):.2f}-{max(pair_ratios):.2f}), "
-                      f"cpu {statistics.median(res[name][1]) / lm_c:.3f} (serial, per core)", flush=True)
+                      f"cpu {statistics.median(res[name][1]) / lm_c:.3f} {kind}", flush=True)
 
     if not a.no_pack:
         npk = 1000 if a.quick else 10000
