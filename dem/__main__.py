@@ -165,6 +165,10 @@ def _parser():
     a("--checkpoint-every", type=int, default=None, metavar="STEPS",
       help="also write a checkpoint every STEPS time steps, an integer >= 1 (default: by time "
            "only); the API's checkpoint_every")
+    a("--threads", type=int, default=1, metavar="N",
+      help="threads of the contact-force loop, an integer in [1, 1024] (default 1; with more, the "
+           "run is reproducible for that number of threads, forces agree with one thread's to "
+           "round-off; docs/dem.md, multi-core mode)")
     a("--no-progress", action="store_true", help="no progress bar")
     return ap
 
@@ -323,6 +327,8 @@ def cmd_pack(args) -> int:
         raise BadInput(f"--checkpoint-every must be an integer >= 1 [steps], got {args.checkpoint_every}")
     if args.resume and args.fresh:
         raise BadInput("--resume and --fresh exclude each other")
+    if not 1 <= args.threads <= 1024:
+        raise BadInput(f"--threads must be an integer in [1, 1024], got {args.threads}")
     paths = _paths(args.out)
     folder = os.path.dirname(os.path.abspath(paths["npz"]))
     ck = paths["checkpoint"]
@@ -352,7 +358,7 @@ def cmd_pack(args) -> int:
     kw = dict(kn=prm["kn"], kt=prm["kt"], mu=prm["mu"], mu_prep=prm["mu_prep"],
               dispersity=prm["dispersity"], seed=prm["seed"], tol_unbalanced=prm["tol_unbalanced"],
               max_steps=args.max_steps, checkpoint=ck, checkpoint_every=args.checkpoint_every,
-              checkpoint_seconds=args.checkpoint_seconds, meta={"cli": prm})
+              checkpoint_seconds=args.checkpoint_seconds, meta={"cli": prm}, threads=args.threads)
     if prm["pressure_pa"] is not None:
         kw["pressure"] = prm["pressure_pa"]
     else:

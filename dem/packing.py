@@ -590,7 +590,7 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
          alpha=0.5, dt_over_dtcrit=1.0, fire=True, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
          max_steps=2_000_000, check_every=100, checkpoint=None, checkpoint_every=20000,
          checkpoint_seconds=None, progress=None, verbose=False, frictionless=None,
-         growth_dispersity=0.0, restore_increments=50, meta=None) -> PackingResult:
+         growth_dispersity=0.0, restore_increments=50, meta=None, threads=1) -> PackingResult:
     """Dense random packing of ``n`` disks at a target pressure (protocol in the module docstring).
 
     Units are any consistent set, 2D per unit thickness. The run is a sequence of named phases
@@ -670,6 +670,11 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
     meta : dict or None
         JSON-able dict merged into ``state.meta`` of a new run (it travels in every checkpoint;
         a resumed run keeps the checkpoint's).
+    threads : int
+        Threads of the contact-force loop, in [1, 1024] (default 1; see
+        :class:`dem.integrate.Simulation`). With more than one, the run is reproducible for that
+        number of threads only (forces agree with one thread's to round-off), and a resumed run
+        continues bit for bit only with the same number.
 
     An unstable run raises :class:`dem.runtime.InstabilityError` (``state`` = last good state);
     its ``checkpoint``/``checkpoint_step`` attributes name the last checkpoint written (None if
@@ -738,7 +743,7 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
                                             resumed=True, already_converged=True))
             return PackingResult(st0, law_test, rep)
         ctl = PressureServo(**{k: v for k, v in st0.meta["sim"]["control"].items() if k != "kind"})
-        sim = Simulation.load(checkpoint, control=ctl)
+        sim = Simulation.load(checkpoint, control=ctl, threads=threads)
         history = pk.get("history", [])
     else:
         st = random_gas(n, radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
@@ -751,7 +756,7 @@ def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=N
             st.meta.update(meta)
         sim = Simulation(st, law_prep, dt=dt_over_dtcrit * critical_dt(st, law_prep),
                          damping=damping if damping_compaction is None else damping_compaction,
-                         check_every=0)
+                         check_every=0, threads=threads)
         ctl = PressureServo(p_target=p_target, max_rate=max_strain_per_step / sim.dt, alpha=alpha)
         sim.control = ctl
         phase = phases[0].name

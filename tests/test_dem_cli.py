@@ -87,6 +87,7 @@ def test_resume_after_interruption_is_bit_exact(straight, tmp_path):
     (["--n", "50", "--tol-unbalanced", "2"], "--tol-unbalanced", "(0, 1)"),
     (["--n", "50", "--checkpoint-seconds", "0"], "--checkpoint-seconds", "> 0"),
     (["--n", "50", "--checkpoint-every", "0"], "--checkpoint-every", ">= 1"),
+    (["--n", "50", "--threads", "0"], "--threads", "[1, 1024]"),
     (["--n", "50", "--pressure-pa", "100"], "--pressure-pa", "--kn"),
     (["--n", "50", "--pressure-pa", "1e3", "--kn", "1e3"], "--pressure-pa", "(0, 0.1]"),
     (["--n", "50", "--out", "x.txt"], "--out", ".npz"),
