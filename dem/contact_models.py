@@ -106,7 +106,6 @@ tangential_force = _hook("tangential_force")
 rolling_torque = _hook("rolling_torque")
 force_magnitude = _hook("force_magnitude")
 history_slots = _hook("history_slots")
-spin_flag = _hook("spin_flag")
 torque_terms = _hook("torque_terms")
 
 
@@ -873,17 +872,6 @@ def _image_offsets(h00, h01, h10, h11):
     return o
 
 
-def _spin_flag(model, rolling):
-    flag = bool(_cls(model).SPIN) or _cls(rolling) is not NoRolling
-
-    def impl(model, rolling):
-        return flag
-    return impl
-
-
-_implements(spin_flag, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_spin_flag)
-
-
 def _torque_terms(model, rolling):
     flags = (bool(_cls(model).SPIN), _cls(rolling) is not NoRolling)
 
@@ -1069,9 +1057,9 @@ def _begin(cell, x, v, f, torque, x_ref):
 @njit(cache=True, inline="always")
 def _layout(tangential, rolling):
     """(spins?, tangential torques?, rolling torques?, history slots per pair): compile-time
-    constants of the law."""
+    constants of the law (spins exactly when some sub-model exerts a torque)."""
     tq_t, tq_r = torque_terms(tangential, rolling)
-    return spin_flag(tangential, rolling), tq_t, tq_r, history_slots(tangential, rolling)
+    return tq_t or tq_r, tq_t, tq_r, history_slots(tangential, rolling)
 
 
 @njit(cache=True, inline="always")
@@ -1275,14 +1263,16 @@ class _Threads:
     def __init__(self):
         self.key = None
         self.pool = None
+        self.workers = 0
 
     def get(self, threads, n, spin):
         key = (threads, n, spin)
         if key != self.key:
-            if self.pool is None or self.pool._max_workers != threads - 1:
+            if self.workers != threads - 1:
                 if self.pool is not None:
                     self.pool.shutdown()
                 self.pool = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="dem-pairs")
+                self.workers = threads - 1
             self.F = np.zeros((threads - 1, n, 2))
             self.T = np.zeros((threads - 1, n if spin else 0))
             self.O = np.zeros((threads - 1, 8))
