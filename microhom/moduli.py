@@ -24,6 +24,7 @@ import numpy as np
 from .hierarchy import relaxation_hierarchy
 from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
 from .structural_sums import network_statistics
+from .results import Result
 
 __all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
            "PHI_MAX", "PHI_MIN_NBAR"]
@@ -70,9 +71,10 @@ def rho_from_alpha(alpha):
     return 0.5 * np.pi * np.sinc(0.5 * (1.0 - a)) / (1.0 + a)
 
 
-@dataclass
-class Prediction:
-    """Result of :func:`predict_moduli`; every field is an array of the broadcast input shape.
+@dataclass(frozen=True, eq=False)
+class Prediction(Result):
+    """Result of :func:`predict_moduli` (read-only); every field is an array of the broadcast input
+    shape.
 
     Moduli in the unit of kn (N/m for 2D disks per unit thickness).
 

@@ -180,3 +180,15 @@ def test_near_jamming_never_valid(near_jamming):
     assert "isostatic" in str(p.reason) or "upper bound" in str(p.reason)
     q = predict_from_network(near_jamming, warn=False)
     assert "upper bound" in str(q.reason)       # the rigorous hierarchy bound alone catches it too
+
+
+def test_prediction_is_a_read_only_result():
+    """Prediction is frozen like every result type, and exports through Result.as_dict()."""
+    import dataclasses
+
+    p = predict_moduli(kn=1e8, kt=1e8, nc=4.1, phi=0.82, r=0.35, alpha=1.76, nbar=5)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.K = 0.0
+    d = p.as_dict()
+    assert d["K"] == pytest.approx(float(p.K)) and d["valid"] is True
+    assert list(p.to_frame()["reason"]) == ["ok"]
