@@ -12,18 +12,19 @@ from scipy.spatial import Delaunay
 import dem.__main__ as cli
 from dem import measure
 from dem.integrate import InstabilityError, Simulation
-from dem.packing import PackingResult, PackReport, hexatic_psi6, network_from_state, pack, random_gas
+from dem.packing import (PackingProtocol, PackingResult, PackReport, ProtocolError, hexatic_psi6,
+                         network_from_state, pack, random_gas)
 from dem.scenes import isotropic
 from dem.state import State
 from microhom import lattices
 
-PACK_KW = dict(p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3, tol_unbalanced=1e-4,
-               tol_ke=1e-6, max_steps=200_000)
+PROTO = PackingProtocol(n=60, p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3,
+                        tol_unbalanced=1e-4, tol_ke=1e-6)
 
 
 @pytest.fixture(scope="module")
 def small_packing():
-    return pack(120, **PACK_KW)
+    return pack(PROTO.replace(n=120), max_steps=200_000)
 
 
 def test_packing_meets_its_stop_criteria(small_packing):
@@ -61,8 +62,9 @@ def _psi6_delaunay(net):
 
 
 def test_random_gas_without_overlaps():
-    a = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
-    b = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    cold = PackingProtocol(n=400, seed=5, dispersity=0.3, phi0=0.44, gas_overlaps=False)
+    a = random_gas(cold)
+    b = random_gas(cold)
     assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
     assert a.solid_fraction == pytest.approx(0.44)
     L = a.h[0, 0]
@@ -72,16 +74,15 @@ def test_random_gas_without_overlaps():
     gap = np.hypot(d[..., 0], d[..., 1]) - (a.radius[:, None] + a.radius[None, :])
     np.fill_diagonal(gap, np.inf)
     assert gap.min() >= 0
-    assert not np.array_equal(a.x, random_gas(400, seed=6, dispersity=0.3, phi0=0.44, overlaps=False).x)
+    assert not np.array_equal(a.x, random_gas(cold.replace(seed=6)).x)
     with pytest.raises(ValueError, match="phi0"):
-        random_gas(50, phi0=0.5, overlaps=False)
+        cold.replace(phi0=0.5)
 
 
 def test_old_protocol_options_reproduce_the_earlier_packing():
     """The options of the protocol before issue 12.3 give the packing that code gave, bit for
     bit (values recorded with the code of commit 890360b, before FIRE and dt = dt_crit)."""
-    kw = dict(PACK_KW, mu_prep=0.1, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
-    r = pack(60, **kw)
+    r = pack(PROTO.replace(mu_prep=0.1, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False))
     assert r.report["phase_steps"] == [{"phase": "compact", "step": 5400},
                                        {"phase": "prep", "step": 5500},
                                        {"phase": "test", "step": 5600}]
@@ -91,15 +92,15 @@ def test_old_protocol_options_reproduce_the_earlier_packing():
 
 
 def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
-    kw = dict(PACK_KW, mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14, checkpoint_every=100)
-    straight = pack(60, **kw)
+    proto = PROTO.replace(mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14)
+    straight = pack(proto, checkpoint_every=100)
     assert [h["phase"] for h in straight.report["phase_steps"]] == ["compact", "prep", "test"]
     stop = straight.report["phase_steps"][0]["step"] + 100          # inside prep (FIRE on)
     ck = tmp_path / "pack.npz"
-    pack(60, **dict(kw, max_steps=stop, checkpoint=ck))
+    pack(proto, checkpoint_every=100, max_steps=stop, checkpoint=ck)
     pk = State.load(ck).meta["packing"]
     assert pk["phase"] == "prep" and pk["fire"]["n_pos"] + pk["fire"]["n_quench"] > 0
-    resumed = pack(60, **dict(kw, checkpoint=ck))
+    resumed = pack(proto, checkpoint_every=100, checkpoint=ck)
     assert resumed.report["resumed"] and resumed.report["steps"] == straight.report["steps"]
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
         assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
@@ -129,13 +130,13 @@ def test_compaction_fire_gate_follows_the_solid_fraction():
 def test_resume_with_the_compaction_gate_counting_is_bit_exact(tmp_path):
     # N = 400, seed 0: the gate opens at step 11 800 (fifth still check), the checkpoint at
     # 11 500 is inside the count
-    kw = dict(p_over_kn=1e-4, mu=0.5, seed=0, checkpoint_every=100)
-    straight = pack(400, **kw)
+    proto = PackingProtocol(n=400, p_over_kn=1e-4, mu=0.5, mu_prep=0.5, seed=0)
+    straight = pack(proto, checkpoint_every=100)
     ck = tmp_path / "pack.npz"
-    pack(400, **dict(kw, max_steps=11500, checkpoint=ck))
+    pack(proto, checkpoint_every=100, max_steps=11500, checkpoint=ck)
     pk = State.load(ck).meta["packing"]
     assert pk["phase"] == "compact" and pk["n_still"] > 0 and pk["last_phi"] is not None
-    resumed = pack(400, **dict(kw, checkpoint=ck))
+    resumed = pack(proto, checkpoint_every=100, checkpoint=ck)
     assert resumed.report["steps"] == straight.report["steps"]
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
         assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
@@ -163,21 +164,19 @@ def test_network_handover_matches_pressure(small_packing):
 
 
 def test_same_seed_bit_identical_and_other_seed_differs():
-    kw = dict(PACK_KW, max_steps=3000)
-    a = pack(60, **kw)
-    b = pack(60, **kw)
-    c = pack(60, **dict(kw, seed=4))
+    a = pack(PROTO, max_steps=3000)
+    b = pack(PROTO, max_steps=3000)
+    c = pack(PROTO.replace(seed=4), max_steps=3000)
     for name in ("x", "v", "omega", "h", "nl_ft"):
         assert np.array_equal(getattr(a.state, name), getattr(b.state, name)), name
     assert not np.array_equal(a.state.x, c.state.x)
 
 
 def test_checkpoint_resume_is_bit_exact(tmp_path):
-    kw = dict(PACK_KW, max_steps=4000, checkpoint_every=1000)
-    straight = pack(60, **kw)
+    straight = pack(PROTO, max_steps=4000, checkpoint_every=1000)
     ck = tmp_path / "pack.npz"
-    pack(60, **dict(kw, max_steps=2000, checkpoint=ck))
-    resumed = pack(60, **dict(kw, checkpoint=ck))
+    pack(PROTO, max_steps=2000, checkpoint_every=1000, checkpoint=ck)
+    resumed = pack(PROTO, max_steps=4000, checkpoint_every=1000, checkpoint=ck)
     assert resumed.report["resumed"]
     assert resumed.state.step == straight.state.step == 4000
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
@@ -192,28 +191,33 @@ def test_result_save_load(tmp_path, small_packing):
     assert back.to_network().n_contacts == small_packing.to_network().n_contacts
 
 
-def test_pressure_given_in_pa():
-    r = pack(40, pressure=2e3, kn=1e6, mu=0.0, mu_prep=0.0, seed=1, tol_unbalanced=1e-3,
-             tol_ke=1e-4, max_steps=100_000).report
+def test_absolute_units():
+    proto = PackingProtocol(n=40, p_over_kn=2e3 / 1e6, kn=1e6, mu=0.0, mu_prep=0.0, seed=1,
+                            tol_unbalanced=1e-3, tol_ke=1e-4)
+    assert proto.p_target == pytest.approx(2e3, rel=1e-15) and proto.kt == 1e6
+    r = pack(proto, max_steps=100_000).report
     assert r["converged"] and r["p_over_kn"] == pytest.approx(2e-3, rel=1e-3)
+    assert r["pressure"] == pytest.approx(2e3, rel=1e-3) and r["p_target"] == proto.p_target
     assert math.isnan(r["sliding_fraction"]) and r["kt"] == 0.0
 
 
 def test_random_gas_seeded_and_bad_input():
-    a = random_gas(50, seed=9, dispersity=0.1)
-    b = random_gas(50, seed=9, dispersity=0.1)
+    a = random_gas(PackingProtocol(n=50, seed=9, dispersity=0.1))
+    b = random_gas(PackingProtocol(n=50, seed=9, dispersity=0.1))
     assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
     assert a.solid_fraction == pytest.approx(0.2)
     with pytest.raises(ValueError, match="dispersity"):
-        random_gas(50, dispersity=0.7)
-    with pytest.raises(ValueError, match="target pressure"):
-        pack(50, p_over_kn=-1.0)
+        PackingProtocol(n=50, dispersity=0.7)
+    with pytest.raises(ValueError, match=r"p_over_kn must be in \(0, 0.1\], got -1.0"):
+        PackingProtocol(n=50, p_over_kn=-1.0)
+    with pytest.raises(TypeError, match="PackingProtocol"):
+        pack(50)
 
 
 def test_isotropic_scene_wiring():
     """The scene's servo brings a frictionless gas to the target pressure, and the pressure it
     reports is the Love-Weber pressure of the contact network computed independently."""
-    st = random_gas(80, seed=2, spins=False)
+    st = random_gas(PackingProtocol(n=80, seed=2), spins=False)
     sim = isotropic.simulation(st, p_target=1e-3, kn=1.0)  # frictionless: no spins, no history
     for _ in range(100):
         sim.run(500)
@@ -242,7 +246,7 @@ def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
     monkeypatch.setattr(Simulation, "run", poisoned)
     ck = tmp_path / "ck.npz"
     with pytest.raises(InstabilityError, match="NaN") as err:
-        pack(60, **dict(PACK_KW, checkpoint=ck, checkpoint_every=500))
+        pack(PROTO, max_steps=200_000, checkpoint=ck, checkpoint_every=500)
     e = err.value
     assert e.step == 1100 and e.state.step == 1000 and np.isfinite(e.state.v).all()
     assert e.checkpoint == str(ck) and e.checkpoint_step == 1000
@@ -252,8 +256,8 @@ def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
 def test_checkpoint_by_wall_time_and_progress(tmp_path):
     seen = []
     ck = tmp_path / "ck.npz"
-    r = pack(60, **dict(PACK_KW, max_steps=3000, checkpoint=ck, checkpoint_every=None,
-                        checkpoint_seconds=0.0), progress=seen.append)
+    r = pack(PROTO, max_steps=3000, checkpoint=ck, checkpoint_every=None, checkpoint_seconds=0.0,
+             progress=seen.append)
     assert [s["step"] for s in seen] == list(range(100, 3001, 100))
     assert all(s["checkpoint_step"] == s["step"] - 100 for s in seen[1:])  # saved at every check
     assert all(s["ke_rel"] is not None for s in seen[9::10])
@@ -266,10 +270,10 @@ def test_compaction_phase_then_equilibrium_damping(small_packing):
     assert phases == ["compact", "prep"]  # mu == mu_prep: no test phase
     assert r["compaction_steps"] == r["phase_steps"][0]["step"] < r["steps"]
     assert small_packing.state.meta["sim"]["damping"] == 0.7 == r["damping"]
-    old = pack(60, **dict(PACK_KW, damping_compaction=None, max_steps=2000))
+    old = pack(PROTO.replace(damping_compaction=None), max_steps=2000)
     assert old.report["compaction_steps"] is None
     with pytest.raises(ValueError, match="damping_compaction"):
-        pack(60, damping_compaction=1.0)
+        PROTO.replace(damping_compaction=1.0)
 
 
 # the npz meta and the summary CSV of `python -m dem pack` as they were before the report became
@@ -320,7 +324,8 @@ def test_cli_outputs_keep_their_schema(tmp_path):
 def test_pack_with_two_threads_converges_and_is_reproducible():
     """The multi-core force loop in a whole packing run: converged, the same bits twice with two
     threads, and the same packing as one thread's up to the round-off that grows over the run."""
-    runs = [pack(60, p_over_kn=1e-3, seed=3, threads=t) for t in (2, 2, 1)]
+    proto = PackingProtocol(n=60, p_over_kn=1e-3, mu=0.5, mu_prep=0.5, seed=3)
+    runs = [pack(proto, threads=t) for t in (2, 2, 1)]
     a, b, c = runs
     assert a.report["converged"] and b.report["converged"] and c.report["converged"]
     assert np.array_equal(a.state.x, b.state.x) and a.report["steps"] == b.report["steps"]
