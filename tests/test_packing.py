@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial import Delaunay
 
 import dem.__main__ as cli
+from dem import io as dio
 from dem import measure
 from dem.integrate import InstabilityError, Simulation
 from dem.packing import (PackingProtocol, PackingResult, PackReport, ProtocolError, hexatic_psi6,
@@ -284,7 +285,7 @@ META_KEYS = ['source', 'note', 'timestep', 'n', 'seed', 'converged', 'steps', 'c
              'elastic_energy', 'phi', 'n_contacts', 'Z', 'sliding_fraction', 'dt', 'dt_over_dtcrit',
              'mu', 'mu_prep', 'kn', 'kt', 'tol_p', 'tol_unbalanced', 'tol_ke', 'damping',
              'damping_compaction', 'damping_work', 'psi6', 'psi6_local', 'timing',
-             'particle_steps_per_s', 'law']
+             'particle_steps_per_s', 'law', 'protocol']
 CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_per_s', 'n', 'seed',
             'p_target', 'pressure', 'p_over_kn', 'rel_p_err', 'tol_p', 'unbalanced',
             'unbalanced_max', 'tol_unbalanced', 'ke_rel', 'tol_ke', 'phi', 'Z', 'n_contacts',
@@ -295,7 +296,7 @@ CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_
 
 def test_cli_outputs_keep_their_schema(tmp_path):
     out = tmp_path / "p.npz"
-    assert cli.main(["pack", "--n", "40", "--pressure", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
+    assert cli.main(["pack", "--n", "40", "--p-over-kn", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
                      "--seed", "2", "--tol-unbalanced", "1e-3", "--no-progress",
                      "--out", str(out)]) == 0
     with np.load(out) as z:
@@ -313,12 +314,21 @@ def test_cli_outputs_keep_their_schema(tmp_path):
     assert json.loads(json.dumps(rep.as_dict()))["steps"] == rep.steps   # JSON-ready
     with pytest.raises(Exception):
         rep.steps = 0                                                    # frozen
+    with pytest.raises(TypeError):
+        rep["steps"] = 0                                                 # no item assignment
     with pytest.raises(TypeError, match="read-only"):
-        rep["steps"] = 0
-    rep["wall_time"] = 1.5                   # a caller's annotation travels with the packing
-    PackingResult(PackingResult.load(out).state, PackingResult.load(out).law, rep).save(out)
-    annotation = PackingResult.load(out).report["wall_time"]   # a caller's annotation, not a timing
-    assert annotation == 1.5
+        rep.annotate(steps=0)
+    noted = rep.annotate(wall_time=1.5)      # a caller's annotation travels with the packing
+    assert "wall_time" not in rep and noted["wall_time"] == 1.5
+    back = PackingResult.load(out)
+    PackingResult(back.state, back.law, noted, back.protocol).save(out)
+    again = PackingResult.load(out)
+    assert again.report["wall_time"] == 1.5  # a caller's annotation, not a timing
+    # the file says how it was made: the protocol, equal to the one the options gave
+    assert again.protocol == PackingProtocol(n=40, p_over_kn=1e-3, mu=0.3, mu_prep=0.1, seed=2,
+                                             tol_unbalanced=1e-3)
+    assert meta["protocol"] == again.protocol.as_dict()
+    assert dio.read(out).meta["protocol"] == again.protocol.as_dict()
 
 
 def test_pack_with_two_threads_converges_and_is_reproducible():
@@ -330,3 +340,91 @@ def test_pack_with_two_threads_converges_and_is_reproducible():
     assert a.report["converged"] and b.report["converged"] and c.report["converged"]
     assert np.array_equal(a.state.x, b.state.x) and a.report["steps"] == b.report["steps"]
     assert abs(a.report["phi"] - c.report["phi"]) < 0.02
+
+
+# ---- the protocol object ----------------------------------------------------------------------
+#: one value just outside the allowed range of every field (a new field must be added here)
+BAD = {"n": 1, "seed": -1, "p_over_kn": 0.2, "kn": 0.0, "kt_over_kn": 10.5, "mu": -0.1,
+       "mu_prep": 11.0, "radius": 0.0, "dispersity": 0.5, "rho": 0.0, "phi0": 0.9,
+       "gas_overlaps": 1, "growth_dispersity": 0.5, "restore_increments": 0,
+       "damping_compaction": 1.0, "jam_p": 1.0, "jam_unbalanced": 0.0, "damping": -0.01,
+       "fire": "yes", "restitution": 0.0, "max_strain_per_step": 0.1, "alpha": 0.0,
+       "dt_over_dtcrit": 1.01, "tol_p": 0.0, "tol_unbalanced": 1.0, "tol_ke": 0.0,
+       "check_every": 0}
+
+
+def test_protocol_is_frozen_hashable_serialisable_data():
+    p = PackingProtocol(n=100, mu_prep=0.05, seed=3)
+    assert p == PackingProtocol(n=100, mu_prep=0.05, seed=3)
+    assert hash(p) == hash(PackingProtocol(n=100, mu_prep=0.05, seed=3))
+    assert len({p, p.replace(seed=3), p.replace(seed=4)}) == 2
+    assert PackingProtocol.from_json(p.to_json()) == p == PackingProtocol.from_dict(p.as_dict())
+    assert json.loads(p.to_json())["mu_prep"] == 0.05
+    with pytest.raises(Exception):
+        p.mu = 0.3                                        # frozen
+    corpus = [p.replace(seed=s) for s in range(3)]
+    assert [q.seed for q in corpus] == [0, 1, 2] and all(q.mu_prep == 0.05 for q in corpus)
+    with pytest.raises(ValueError, match="unknown packing protocol field.*'pressure'"):
+        PackingProtocol.from_dict({"n": 10, "pressure": 1.0})
+    # derived quantities, in N/m
+    q = PackingProtocol(n=10, p_over_kn=2e-3, kn=5e6, kt_over_kn=0.5)
+    assert q.p_target == 2e-3 * 5e6 and q.kt == 2.5e6
+    assert q.areal_density == pytest.approx(1 / (math.pi * 0.25), rel=1e-15)
+    assert PackingProtocol(n=10, kt_over_kn=0).frictionless
+    assert PackingProtocol(n=10, mu=0, mu_prep=0).frictionless
+    assert not PackingProtocol(n=10, mu=0).frictionless
+    # an integer given as a float is an integer; a fractional one is refused
+    assert PackingProtocol(n=1e3).n == 1000 and isinstance(PackingProtocol(n=1e3).n, int)
+
+
+def test_protocol_defaults_are_the_seed_papers_conditions():
+    p = PackingProtocol(n=10)
+    assert p.mu == round(math.tan(math.radians(26.0)), 3)       # friction angle 26 deg
+    assert (p.p_over_kn, p.kt_over_kn, p.kn, p.mu_prep, p.dispersity, p.radius) == \
+        (1e-4, 1.0, 1.0, 0.1, 0.0, 0.5)
+    assert (p.tol_p, p.tol_unbalanced, p.tol_ke, p.damping, p.damping_compaction, p.fire,
+            p.dt_over_dtcrit) == (1e-3, 1e-5, 1e-8, 0.7, 0.05, True, 1.0)
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_protocol_refuses_each_bad_field_naming_it_and_its_range(name):
+    from dem.packing import ProtocolError
+    prm = PackingProtocol.params()[name][1]
+    with pytest.raises(ProtocolError) as err:
+        PackingProtocol(**{"n": 10, name: BAD[name]})
+    assert err.value.field == name and str(err.value).startswith(f"{name} must be ")
+    assert (prm.allowed_text() in str(err.value)) or prm.kind == "bool"
+    if prm.kind != "bool":                                    # NaN and inf never pass
+        for v in (float("nan"), float("inf")):
+            with pytest.raises(ProtocolError, match=name):
+                PackingProtocol(**{"n": 10, name: v})
+    assert set(BAD) == set(PackingProtocol.params())
+
+
+def test_lammps_writer_maps_the_protocol(tmp_path):
+    """write_inputs takes the protocol's values (no defaults of its own): the same gas, the
+    contact law, the servo target, the criteria, the time step; the dashpot from the restitution
+    gives that restitution back (closed form of a linear spring-dashpot collision)."""
+    from dem import io as dio
+    from dem.contact_laws import LinearFriction
+    from dem.integrate import critical_dt
+    from dem.lammps import INPUT_NAME, write_inputs
+    proto = PackingProtocol(n=50, p_over_kn=2e-3, kn=3.0, kt_over_kn=0.5, mu=0.4, mu_prep=0.05,
+                            dispersity=0.1, seed=7, restitution=0.6, tol_p=2e-3, tol_ke=1e-7,
+                            check_every=50, dt_over_dtcrit=0.9, jam_p=0.02)
+    prm = write_inputs(tmp_path, proto)
+    text = (tmp_path / INPUT_NAME).read_text()
+    gas = random_gas(proto)
+    data = dio.read(tmp_path / "gas.data").sorted_by_id()
+    assert np.array_equal(data.positions, gas.x) and np.array_equal(data.radii, gas.radius)
+    assert prm["p_target"] == 6e-3 and prm["kt"] == 1.5 and prm["mu_prep"] == 0.05
+    assert prm["dt"] == 0.9 * critical_dt(gas, LinearFriction(kn=3.0, kt=1.5, mu=0.05))
+    assert f"pair_style      gran/hooke/history 3.0 1.5 {prm['gamma_n']!r} " in text
+    assert f"halt 50 v_conv" in text and "(v_perr<0.002)" in text and "(v_kerel<1e-07)" in text
+    assert "(v_perr<0.02)" in text                             # jam_p
+    assert json.loads(text.splitlines()[4][len("# protocol "):]) == proto.as_dict()
+    m_eff = 0.5 * gas.rho * math.pi * 0.5 ** 2
+    zeta = prm["gamma_n"] / (2 * math.sqrt(3.0 / m_eff))
+    assert math.exp(-math.pi * zeta / math.sqrt(1 - zeta ** 2)) == pytest.approx(0.6, rel=1e-12)
+    with pytest.raises(ValueError, match="growth_dispersity"):
+        write_inputs(tmp_path, proto.replace(growth_dispersity=0.1))
