@@ -46,7 +46,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import os
 import sys
 import tempfile
@@ -447,7 +446,7 @@ def _write_failed(exc, ck, log):
 
 
 def _join_negative_numbers(argv):
-    """``--pressure -1e-4`` -> ``--pressure=-1e-4`` (argparse would take ``-1e-4`` for an option,
+    """``--p-over-kn -1e-4`` -> ``--p-over-kn=-1e-4`` (argparse would take ``-1e-4`` for an option,
     and the range check, not a usage error, should answer)."""
     out = []
     k = 0
