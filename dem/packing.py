@@ -320,6 +320,22 @@ class PackingProtocol(Result):
         return cls.from_dict(json.loads(text))
 
 
+def _fields_doc(cls):
+    """The field table appended to ``cls.__doc__`` (generated from the ``param`` metadata, so the
+    docstring, ``--help`` and the checks cannot disagree)."""
+    lines = ["", "    Fields (name [unit], default, allowed: meaning)", "    " + "-" * 48]
+    for name, (default, prm) in cls.params().items():
+        unit = "" if prm.unit == "-" else f" [{prm.unit}]"
+        shown = "required" if default is None and not prm.optional else f"default {default!r}"
+        allowed = ("None or " if prm.optional else "") + prm.allowed
+        end = "" if prm.help.endswith(".") else "."
+        lines.append(f"    ``{name}``{unit}, {shown}, {allowed}: {prm.help}{end}")
+    return "\n".join(lines) + "\n"
+
+
+PackingProtocol.__doc__ += _fields_doc(PackingProtocol)
+
+
 def _coerce(name, v, p):
     """``v`` as the field's kind, or :class:`ProtocolError` naming ``name`` and its range."""
     if p.kind == "bool":
