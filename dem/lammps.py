@@ -95,22 +95,33 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     their part, and the compaction phase always runs). A protocol with ``growth_dispersity`` > 0
     is refused (no LAMMPS counterpart).
 
-    LAMMPS-specific knobs (2D per unit thickness, the protocol's units):
-
-    max_steps : cap on the steps of each phase (an integer >= 1).
-    drag, drag_compaction : global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``),
-        m the mass of a disk of the mean radius, >= 0. It acts on translation only: the spins
-        are zeroed once at the start of each equilibrium phase (a lightly loaded disk spinning
-        after the compaction would otherwise hold the kinetic-energy criterion for tens of
-        thousands of steps; zero-temperature ``fix langevin ... omega yes`` damps the spins too
-        but was 5x slower, measured). Light (``drag_compaction``) during the compaction phase,
-        ``drag`` in the equilibrium phases (the analogue of dem's ``damping_compaction`` /
-        ``damping``).
-    jam_z : the compaction also needs a mean contact number of the disks that have contacts of
-        at least ``jam_z``, in [0, 6) (a contact network exists; lower it for mu_prep >~ 1, where
+    Parameters
+    ----------
+    folder : path
+        Folder of the run (created if missing).
+    protocol : dem.packing.PackingProtocol
+        The packing protocol.
+    max_steps : int
+        Cap on the steps of each phase, >= 1.
+    drag, drag_compaction : float
+        Global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``), m the mass of a disk of
+        the mean radius, >= 0 [-]. It acts on translation only: the spins are zeroed once at the
+        start of each equilibrium phase (a lightly loaded disk spinning after the compaction
+        would otherwise hold the kinetic-energy criterion for tens of thousands of steps;
+        zero-temperature ``fix langevin ... omega yes`` damps the spins too but was 5x slower,
+        measured). Light (``drag_compaction``) during the compaction phase, ``drag`` in the
+        equilibrium phases (the analogue of dem's ``damping_compaction`` / ``damping``).
+    jam_z : float
+        The compaction also needs a mean contact number of the disks that have contacts of at
+        least ``jam_z``, in [0, 6) (a contact network exists; lower it for mu_prep >~ 1, where
         jammed packings approach Z = 3).
-    skin : neighbour skin [m] (default 0.2 mean radius). dt : time step [s] overriding the
-        protocol's ``dt_over_dtcrit``.
+    skin : float or None
+        Neighbour skin [m] (default 0.2 mean radius).
+    dt : float or None
+        Time step [s] overriding the protocol's ``dt_over_dtcrit``.
+
+    Returns the dict of the values written (``kn``, ``kt``, ``mu``, ``p_target``, ``dt``, ...,
+    and ``protocol``, its ``as_dict()``).
     """
     if not isinstance(protocol, PackingProtocol):
         raise TypeError(f"write_inputs takes a dem.packing.PackingProtocol, got "

@@ -163,7 +163,7 @@ class PackingProtocol(Result):
     and its range, when the protocol is made: :func:`pack`, :func:`random_gas`,
     ``python -m dem pack`` and :func:`dem.lammps.write_inputs` take a protocol and check nothing
     themselves. Variants: ``protocol.replace(mu=0.3)``; a corpus of packings is a list of
-    protocols. Serialised by :meth:`as_dict` / :meth:`from_dict` (and :meth:`to_json` /
+    protocols. Serialised by ``as_dict()`` / :meth:`from_dict` (and :meth:`to_json` /
     :meth:`from_json`); every packing npz stores its protocol (``PackingResult.protocol``).
 
     Units: any consistent set, 2D per unit thickness. The target pressure is ``p_over_kn``
@@ -178,8 +178,8 @@ class PackingProtocol(Result):
     disks with Nc ~ 3.9; ``docs/dem.md``). The numerical defaults (damping, FIRE, time step,
     stop criteria) are the protocol measured in ``docs/dem.md``.
 
-    Derived (read-only): :attr:`p_target` [N/m], :attr:`kt` [N/m], :attr:`areal_density`
-    [kg/m^2], :attr:`frictionless`.
+    Derived (read-only properties): ``p_target`` [N/m], ``kt`` [N/m], ``areal_density``
+    [kg/m^2], ``frictionless``.
     """
 
     n: int = field(metadata={"param": Param("-", "an integer in [2, 1e9]",
@@ -279,7 +279,8 @@ class PackingProtocol(Result):
 
     @property
     def frictionless(self) -> bool:
-        """The specialised frictionless law (no spins, no history): kt = 0 or mu = mu_prep = 0."""
+        """True when the packing uses the specialised frictionless law (no spins, no history),
+        that is when kt = 0 or mu = mu_prep = 0."""
         return self.kt_over_kn == 0 or (self.mu == 0 and self.mu_prep == 0)
 
     def laws(self):
@@ -303,7 +304,7 @@ class PackingProtocol(Result):
 
     @classmethod
     def from_dict(cls, d) -> "PackingProtocol":
-        """From :meth:`as_dict`'s dict (missing fields take their defaults; an unknown key raises
+        """From ``as_dict()``'s dict (missing fields take their defaults; an unknown key raises
         ``ValueError`` naming it)."""
         unknown = sorted(set(d) - set(cls.params()))
         if unknown:
@@ -312,11 +313,12 @@ class PackingProtocol(Result):
         return cls(**d)
 
     def to_json(self) -> str:
-        """JSON text of :meth:`as_dict` (``from_json`` reads it back to an equal protocol)."""
+        """JSON text of ``as_dict()`` (:meth:`from_json` reads it back to an equal protocol)."""
         return json.dumps(self.as_dict())
 
     @classmethod
     def from_json(cls, text) -> "PackingProtocol":
+        """From :meth:`to_json`'s text (checked as a new protocol)."""
         return cls.from_dict(json.loads(text))
 
 
@@ -329,7 +331,8 @@ def _fields_doc(cls):
         shown = "required" if default is None and not prm.optional else f"default {default!r}"
         allowed = ("None or " if prm.optional else "") + prm.allowed
         end = "" if prm.help.endswith(".") else "."
-        lines.append(f"    ``{name}``{unit}, {shown}, {allowed}: {prm.help}{end}")
+        text = prm.help.replace("|", "\\|")          # reST: a bare |x| is a substitution
+        lines.append(f"    ``{name}``{unit}, {shown}, {allowed}: {text}{end}")
     return "\n".join(lines) + "\n"
 
 
