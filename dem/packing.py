@@ -726,8 +726,9 @@ class Grow:
 @dataclass(frozen=True)
 class Restore:
     """Phase ``restore``: shrink the growth spread of the radii to zero in ``increments`` checks
-    (one increment per check); done when the radii are back."""
-    increments: int = 50
+    (one increment per check, the protocol's ``restore_increments``); done when the radii are
+    back."""
+    increments: int
     name = "restore"
 
     def enter(self, run):
@@ -750,7 +751,8 @@ class Restore:
 class Compact:
     """Phase ``compact``: the servo drives the pressure to the target under the light damping
     ``damping`` (set when the simulation is built); ends when the packing has jammed:
-    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``.
+    ``|p - p_t| < tol_p p_t`` and unbalanced ratio < ``jam_unbalanced`` (the protocol's
+    ``jam_p`` and ``jam_unbalanced``: :func:`phases` fills them in).
 
     Once the packing has stopped compacting (the solid fraction changed by less than
     ``still_tol`` (relative) between consecutive checks, ``still_checks`` times in a row), the
@@ -759,8 +761,8 @@ class Compact:
     packing; during the flow it would stop the flow, hence the gate.
     """
     damping: float
-    jam_unbalanced: float = 1e-3
-    tol_p: float = 1e-2
+    jam_unbalanced: float
+    tol_p: float
     still_tol: float = 3e-7
     still_checks: int = 5
     name = "compact"
@@ -797,14 +799,16 @@ class Equilibrate:
     tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
     fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`~dem.fire.Fire` at the
         start of the phase), on top of the damping.
+
+    The values are the protocol's (:func:`phases` fills them in); the phase has no defaults.
     """
     name: str
     law: object
     damping: float
-    tol_p: float = 1e-3
-    tol_unbalanced: float = 1e-5
-    tol_ke: float = 1e-8
-    fire: bool = False
+    tol_p: float
+    tol_unbalanced: float
+    tol_ke: float
+    fire: bool
 
     def enter(self, run):
         if run.sim.law is not self.law and run.sim.law.to_meta() != self.law.to_meta():

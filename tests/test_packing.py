@@ -117,7 +117,7 @@ def test_compaction_fire_gate_follows_the_solid_fraction():
 
     run = _Run.__new__(_Run)
     run.state, run.p_target, run.fire, run.last_phi, run.n_still = St(), 1.0, None, None, 0
-    ph = Compact(0.05, still_tol=1e-6, still_checks=3)
+    ph = Compact(0.05, 1e-3, 1e-2, still_tol=1e-6, still_checks=3)
     m = {"pressure": 2.0, "unbalanced": 1.0}              # far from done
     seen = []
     for phi in (0.8, 0.8, 0.8, 0.8, 0.8, 0.81, 0.81):
@@ -125,7 +125,7 @@ def test_compaction_fire_gate_follows_the_solid_fraction():
         assert not ph.done(run, m)
         seen.append((run.n_still, run.fire is not None))
     assert seen == [(0, False), (1, False), (2, False), (3, True), (4, True), (0, False), (1, False)]
-    assert Compact(0.05, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
+    assert Compact(0.05, 1e-3, 1e-2, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
 
 
 def test_resume_with_the_compaction_gate_counting_is_bit_exact(tmp_path):
