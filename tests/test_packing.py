@@ -428,3 +428,19 @@ def test_lammps_writer_maps_the_protocol(tmp_path):
     assert math.exp(-math.pi * zeta / math.sqrt(1 - zeta ** 2)) == pytest.approx(0.6, rel=1e-12)
     with pytest.raises(ValueError, match="growth_dispersity"):
         write_inputs(tmp_path, proto.replace(growth_dispersity=0.1))
+
+
+def test_npz_schema_has_one_writer(tmp_path, small_packing):
+    """The packing file is dem.io.simple.write_npz's schema plus the state as extra arrays: the
+    configuration keys equal a plain write_npz of the same configuration, array for array."""
+    from dem.io.simple import write_npz
+    path = small_packing.save(tmp_path / "p.npz")
+    cfg = dio.read(path)
+    write_npz(tmp_path / "plain.npz", cfg)
+    with np.load(path) as z, np.load(tmp_path / "plain.npz") as plain:
+        for k in plain.files:
+            if k != "meta_json":
+                assert np.array_equal(z[k], plain[k]), k
+        assert set(z.files) - set(plain.files) == set(small_packing.state.arrays()) - {"ids"}
+    with pytest.raises(ValueError, match=r"clash with the npz schema's keys"):
+        write_npz(tmp_path / "x.npz", cfg, extra={"radii": np.zeros(3)})
