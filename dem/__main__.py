@@ -1,11 +1,14 @@
 """Command line of the disk DEM (also installed as the ``dem`` console script).
 
-    python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 --out packing.npz
+    python -m dem pack --n 4000 --p-over-kn 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 --out packing.npz
     python -m dem analyse packing.npz                 # or any file dem.io reads (see dem.analyse_cli)
 
 ``pack`` builds a dense random packing with :func:`dem.packing.pack` (random gas -> compaction
 under the pressure servo -> equilibrium at the preparation friction -> equilibrium at the test
-friction) and writes, next to ``--out`` (``packing.npz`` below):
+friction). Its protocol options are the fields of :class:`dem.packing.PackingProtocol`, generated
+from the protocol's own table (``--p-over-kn``, ``--kn``, ``--mu-prep``, ...: the same names,
+units, ranges and defaults; ``--p-target`` [N/m] with ``--kn`` instead of ``--p-over-kn``). It
+writes, next to ``--out`` (``packing.npz`` below):
 
 * ``packing.npz`` — the packing: a bit-exact state (``dem.packing.PackingResult.load``) that is
   also a ``dem.io`` configuration (``dem.io.read``);
@@ -22,8 +25,8 @@ friction) and writes, next to ``--out`` (``packing.npz`` below):
 
 Exit codes of ``pack``: 0 converged (also: ``--resume`` of a run that had already converged,
 whose stored report and outputs are written again); 2 bad input (the message names the option and
-its allowed range; this includes a packing too large for the available memory, about 211 B per
-particle); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
+its allowed range; this includes a packing too large for the available memory, about 247 B per
+particle, ``dem.packing.BYTES_PER_PARTICLE``); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
 False``; continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good
 checkpoint kept); 1 an output or the checkpoint cannot be written (a folder that cannot be
 created or written is found before computing; a full disk during the run or the outputs: one
@@ -43,7 +46,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import os
 import sys
 import tempfile
@@ -56,31 +58,129 @@ from . import io as dio
 from . import measure
 from .integrate import InstabilityError
 from .io import Configuration, FormatError
-from .packing import check_memory, pack
+from .packing import (BYTES_PER_PARTICLE, PackingProtocol, ProtocolError, check_memory,
+                      check_run_options, pack)
 from .runtime import remove_stale_temporaries
 from .state import State
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 EXIT_MACHINE, EXIT_BROKEN_PIPE = 1, 141
 
-#: physics options of ``pack``: (default, allowed range text, check). A resumed run keeps the
-#: values stored in its checkpoint; giving a different one is refused.
-_PHYSICS = {
-    "n": (None, "an integer >= 2", lambda v: v >= 2),
-    "pressure": (1e-4, "(0, 0.1] (p/kn, dimensionless)", lambda v: 0 < v <= 0.1),
-    "pressure_pa": (None, "> 0 [N/m] with p/kn in (0, 0.1]", lambda v: v > 0 and math.isfinite(v)),
-    "kn": (1.0, "> 0 [N/m]", lambda v: v > 0 and math.isfinite(v)),
-    "kt": (None, "[0, 10 kn] [N/m]", None),
-    "mu": (0.488, "[0, 10]", lambda v: 0 <= v <= 10),
-    "mu_prep": (0.1, "[0, 10]", lambda v: 0 <= v <= 10),
-    "dispersity": (0.0, "[0, 0.5)", lambda v: 0 <= v < 0.5),
-    "seed": (0, "an integer >= 0", lambda v: v >= 0),
-    "tol_unbalanced": (1e-5, "(0, 1)", lambda v: 0 < v < 1),
+class BadInput(ValueError):
+    """A command-line value outside its allowed range (exit code 2)."""
+
+
+def _opt(name):
+    return "--" + name.replace("_", "-")
+
+
+#: the run options of ``pack`` (how long and where, not how the packing is made; checked by
+#: dem.packing.check_run_options): name -> (default, metavar, help)
+_RUN_OPTIONS = {
+    "max_steps": (2_000_000, "STEPS", "cap on the total number of time steps, an integer >= 1 "
+                  "(default 2e6); a run that reaches it without converging exits with code 3"),
+    "checkpoint_seconds": (5.0, "SECONDS", "wall-clock seconds between atomic checkpoints, >= 0 "
+                           "(default 5); the API's checkpoint_seconds"),
+    "checkpoint_every": (None, "STEPS", "also write a checkpoint every STEPS time steps, an "
+                         "integer >= 1 (default: by time only); the API's checkpoint_every"),
+    "threads": (1, "N", "threads of the contact-force loop, an integer in [1, 1024] (default 1; "
+                "with more, the run is reproducible for that number of threads, forces agree with "
+                "one thread's to round-off; docs/dem.md, multi-core mode)"),
 }
 
 
-class BadInput(ValueError):
-    """A command-line value outside its allowed range (exit code 2)."""
+def _protocol_help(name, default, prm):
+    """The --help text of a protocol field: its help, range with unit, default."""
+    if prm.kind == "bool":
+        return f"{prm.help} (default {'on' if default else 'off'})"
+    if default is None and not prm.optional:
+        return f"{prm.help}, {prm.allowed_text()} (required unless --resume)"
+    unit = " (dimensionless)" if prm.unit == "-" else ""
+    shown = "None" if default is None else f"{default:g}"
+    return f"{prm.help}; {prm.allowed_text()}{unit} (default {shown})"
+
+
+def _add_protocol_options(group):
+    """One option per field of dem.packing.PackingProtocol: its name, unit, range, default and
+    help come from the protocol's own table (nothing is repeated here)."""
+    for name, (default, prm) in PackingProtocol.params().items():
+        text = _protocol_help(name, default, prm).replace("%", "%%")
+        if prm.kind == "bool":
+            group.add_argument(_opt(name), dest=name, action=argparse.BooleanOptionalAction,
+                               default=None, help=text)
+        else:
+            group.add_argument(_opt(name), dest=name, default=None, metavar=name.upper(),
+                               help=text + ("; 'none' for None" if prm.optional else ""))
+    group.add_argument("--p-target", dest="p_target", default=None, metavar="P",
+                       help="target pressure in absolute units [N/m] (2D: force per unit length, a "
+                            "'Pa m'), instead of --p-over-kn: needs --kn [N/m]; p/kn must lie in "
+                            "(0, 0.1]")
+
+
+def _number(text, optional=False):
+    """Option text as a float (None for 'none' where None is allowed); other text is returned
+    as it is, for the protocol's check to refuse with the option's range."""
+    if text is None or isinstance(text, bool):
+        return text
+    if optional and text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _given(args):
+    """The protocol fields given on the command line, {name: value}."""
+    params = PackingProtocol.params()
+    out = {k: _number(getattr(args, k), prm.optional) for k, (_, prm) in params.items()
+           if getattr(args, k) is not None}
+    if args.p_target is not None:
+        if args.p_over_kn is not None:
+            raise BadInput("give either --p-over-kn (dimensionless) or --p-target [N/m], not both")
+        if args.kn is None:
+            raise BadInput("--p-target [N/m] needs --kn [N/m] (the normal stiffness that sets "
+                           "the scale)")
+        p, kn = _number(args.p_target), out["kn"]
+        ratio = p / kn if isinstance(p, float) and isinstance(kn, float) and kn > 0 else None
+        if ratio is None or not (0 < ratio <= 0.1):
+            raise BadInput(f"--p-target / --kn = {args.p_target} / {args.kn} must be in (0, 0.1] "
+                           f"(p/kn, dimensionless)")
+        out["p_over_kn"] = ratio
+    return out
+
+
+def _protocol(args, stored):
+    """The protocol of the run: from the options (defaults: the protocol's), or the checkpoint's
+    (``stored``, a PackingProtocol) on --resume, which the options may not contradict."""
+    given = _given(args)
+    try:
+        if stored is None:
+            if "n" not in given:
+                raise BadInput("--n (number of disks, an integer in [2, 1e9]) is required")
+            return PackingProtocol(**given)
+        proto = stored.replace(**given)
+    except ProtocolError as exc:
+        name = "p_target" if exc.field == "p_over_kn" and args.p_target is not None else exc.field
+        raise BadInput(f"{_opt(name)} must be {exc.allowed}, got {exc.value!r}") from None
+    diff = [k for k in given if getattr(proto, k) != getattr(stored, k)]
+    if diff:
+        raise BadInput(", ".join(f"{_opt(k)} {getattr(proto, k)!r} differs from the checkpoint's "
+                                 f"{getattr(stored, k)!r}" for k in diff)
+                       + ": a resumed run keeps its protocol (drop the option, or start again "
+                         "with --fresh)")
+    return stored
+
+
+def _run_options(args):
+    """(max_steps, checkpoint_every, checkpoint_seconds, threads), checked by
+    dem.packing.check_run_options (BadInput naming the option)."""
+    vals = {k: _number(getattr(args, k)) if getattr(args, k) is not None else _RUN_OPTIONS[k][0]
+            for k in _RUN_OPTIONS}
+    try:
+        return check_run_options(**vals)
+    except ProtocolError as exc:
+        raise BadInput(f"{_opt(exc.field)} must be {exc.allowed}, got {exc.value!r}") from None
 
 
 def _parser():
@@ -100,121 +200,48 @@ def _parser():
             "pressure: random gas -> compaction under the pressure servo -> equilibrium at\n"
             "--mu-prep -> equilibrium at --mu.\n\n"
             "Units: consistent, 2D per unit thickness. Disks have mean diameter 1 [m] and unit\n"
-            "mass [kg/m]; kn and kt are forces per overlap [N/m]; the pressure p = -tr(sigma)/2\n"
-            "is a force per length [N/m]. The geometry depends on p/kn only, so the default is\n"
-            "--pressure as p/kn with kn = 1; --pressure-pa with --kn gives absolute values."),
+            "mass [kg/m]; kn is a force per overlap [N/m]; the pressure p = -tr(sigma)/2 is a\n"
+            "force per length [N/m]. The geometry depends on p/kn only, so the target is\n"
+            "--p-over-kn (dimensionless) with kn = 1 by default; --p-target [N/m] with --kn\n"
+            "gives absolute values.\n\n"
+            "The packing protocol options are the fields of dem.packing.PackingProtocol (same\n"
+            "names, units, ranges and defaults: the seed paper's conditions); the protocol is\n"
+            "stored in STEM.npz."),
         epilog=(
-            "stop criteria (all three, checked every 100 steps):\n"
-            "  |p - p_target| / p_target < 1e-3\n"
+            "stop criteria (all three, checked every --check-every steps):\n"
+            "  |p - p_target| / p_target < --tol-p\n"
             "  unbalanced force ratio (mean |resultant force| over mean |contact force|, Yade)\n"
             "    < --tol-unbalanced\n"
-            "  kinetic energy of the particles in contact < 1e-8 x elastic contact energy\n"
+            "  kinetic energy of the particles in contact < --tol-ke x elastic contact energy\n"
             "outputs next to --out STEM.npz:\n"
             "  STEM.npz (packing: PackingResult.load, dem.io.read), STEM_summary.csv (also\n"
             "  printed), STEM.png (force chains), STEM.lammpstrj (OVITO), STEM.vtu (ParaView),\n"
             "  STEM.checkpoint.npz while running (kept unless converged)\n"
             "exit codes:\n"
             "  0 converged (or already converged on --resume), 2 bad input (incl. too many disks\n"
-            "  for the available memory), 3 not converged within --max-steps (outputs written,\n"
-            "  flagged converged=False), 4 unstable (last good checkpoint kept), 1 an output or\n"
-            "  the checkpoint cannot be written (read-only folder, full disk; checkpoint kept),\n"
-            "  130 interrupted\n"
+            f"  for the available memory, {BYTES_PER_PARTICLE} B per particle), 3 not converged within\n"
+            "  --max-steps (outputs written, flagged converged=False), 4 unstable (last good\n"
+            "  checkpoint kept), 1 an output or the checkpoint cannot be written (read-only\n"
+            "  folder, full disk; checkpoint kept), 130 interrupted\n"
             "example:\n"
-            "  python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 \\\n"
+            "  python -m dem pack --n 4000 --p-over-kn 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 \\\n"
             "      --out packing.npz"))
-    a = p.add_argument
-    a("--n", type=int, default=None, metavar="N",
-      help="number of disks, an integer >= 2 (required unless --resume)")
-    a("--pressure", type=float, default=None, metavar="P_OVER_KN",
-      help="target pressure as p/kn, dimensionless, in (0, 0.1] (default 1e-4); p = -tr(sigma)/2 "
-           "is a force per length [N/m], kn a force per overlap [N/m]")
-    a("--pressure-pa", type=float, default=None, metavar="P",
-      help="target pressure in absolute units [N/m] (2D: force per unit length, a 'Pa m'); "
-           "needs --kn [N/m]; p/kn must lie in (0, 0.1]")
-    a("--kn", type=float, default=None, metavar="KN",
-      help="normal contact stiffness [N/m], > 0 (default 1, scaled units)")
-    a("--kt", type=float, default=None, metavar="KT",
-      help="tangential contact stiffness [N/m], in [0, 10 kn] (default kt = kn)")
-    a("--mu", type=float, default=None,
-      help="test friction coefficient (dimensionless), in [0, 10] (default 0.488 = tan 26 deg)")
-    a("--mu-prep", type=float, default=None,
-      help="preparation friction (dimensionless), in [0, 10]: the knob for the coordination "
-           "number (default 0.1, amorphous identical disks with Nc ~ 3.9; 0.05 gives Nc ~ 4.0 but "
-           "some packings order (psi6 up to 0.5); 0 = densest, crystallises)")
-    a("--dispersity", type=float, default=None,
-      help="radii uniform in r (1 +- dispersity), dimensionless, in [0, 0.5) (default 0: identical "
-           "disks of diameter 1)")
-    a("--seed", type=int, default=None, help="random seed, an integer >= 0 (default 0)")
-    a("--max-steps", type=int, default=2_000_000, metavar="STEPS",
-      help="cap on the total number of time steps, an integer >= 1 (default 2e6); a run that "
-           "reaches it without converging exits with code 3")
-    a("--tol-unbalanced", type=float, default=None, metavar="TOL",
-      help="stop when the unbalanced force ratio (dimensionless) is below TOL, in (0, 1) "
-           "(default 1e-5)")
+    _add_protocol_options(p.add_argument_group(
+        "packing protocol (dem.packing.PackingProtocol; unset options take its defaults)"))
+    run = p.add_argument_group("run options (how long and where; not part of the protocol)")
+    for name, (default, metavar, text) in _RUN_OPTIONS.items():
+        run.add_argument(_opt(name), dest=name, default=None, metavar=metavar, help=text)
+    a = run.add_argument
     a("--out", default="packing.npz", metavar="PATH.npz",
       help="packing file (.npz); the other outputs go next to it, its folder is created if "
            "missing (default packing.npz)")
     a("--resume", action="store_true",
       help="continue the interrupted or unconverged run from STEM.checkpoint.npz (bit-exact; "
-           "the physics options are those of the checkpoint)")
+           "the protocol is the checkpoint's)")
     a("--fresh", action="store_true",
       help="discard an existing checkpoint and start again")
-    a("--checkpoint-seconds", type=float, default=5.0, metavar="SECONDS",
-      help="wall-clock seconds between atomic checkpoints, > 0 (default 5); the API's "
-           "checkpoint_seconds")
-    a("--checkpoint-every", type=int, default=None, metavar="STEPS",
-      help="also write a checkpoint every STEPS time steps, an integer >= 1 (default: by time "
-           "only); the API's checkpoint_every")
-    a("--threads", type=int, default=1, metavar="N",
-      help="threads of the contact-force loop, an integer in [1, 1024] (default 1; with more, the "
-           "run is reproducible for that number of threads, forces agree with one thread's to "
-           "round-off; docs/dem.md, multi-core mode)")
     a("--no-progress", action="store_true", help="no progress bar")
     return ap
-
-
-def _check(name, value, ok):
-    opt = "--" + name.replace("_", "-")
-    if value is None:
-        return
-    rng = _PHYSICS[name][1]
-    if isinstance(value, float) and not math.isfinite(value) or not ok(value):
-        raise BadInput(f"{opt} must be {rng}, got {value!r}")
-
-
-def _resolve(args, stored):
-    """Physics parameters from the command line (defaults filled in) or from the checkpoint."""
-    given = {k: getattr(args, k) for k in _PHYSICS}
-    for k, v in given.items():
-        if _PHYSICS[k][2] is not None:
-            _check(k, v, _PHYSICS[k][2])
-    if stored is not None:
-        for k, v in given.items():
-            if v is not None and stored.get(k) != v:
-                raise BadInput(f"--{k.replace('_', '-')} {v!r} differs from the checkpoint's "
-                               f"{stored.get(k)!r}: a resumed run keeps its parameters (drop the "
-                               f"option, or start again with --fresh)")
-        return dict(stored)
-    prm = {k: (v if v is not None else _PHYSICS[k][0]) for k, v in given.items()}
-    if prm["n"] is None:
-        raise BadInput("--n (number of disks, an integer >= 2) is required")
-    if args.pressure_pa is not None:
-        if args.kn is None:
-            raise BadInput("--pressure-pa [N/m] needs --kn [N/m] (the normal stiffness that sets "
-                           "the scale)")
-        if args.pressure is not None:
-            raise BadInput("give either --pressure (p/kn) or --pressure-pa (N/m), not both")
-        ratio = args.pressure_pa / prm["kn"]
-        if not (0 < ratio <= 0.1):
-            raise BadInput(f"--pressure-pa / --kn = {ratio:.4g} must be in (0, 0.1] "
-                           f"(p/kn, dimensionless)")
-        prm["pressure"] = None
-    if prm["kt"] is None:
-        prm["kt"] = prm["kn"]
-    if not (math.isfinite(prm["kt"]) and 0 <= prm["kt"] <= 10 * prm["kn"]):
-        raise BadInput(f"--kt must be in [0, 10 kn] = [0, {10 * prm['kn']:.4g}] [N/m], "
-                       f"got {prm['kt']!r}")
-    return prm
 
 
 def _paths(out):
@@ -252,11 +279,10 @@ def _summary_rows(res, net):
     return rows
 
 
-def _write_outputs(res, paths, params, log):
+def _write_outputs(res, paths, log):
     from .plot import plot_packing   # matplotlib: a heavy import, only when writing the picture
 
     net = res.to_network()
-    res.state.meta["cli"] = params
     res.save(paths["npz"])
     log(f"packing        {paths['npz']}")
     rows = _summary_rows(res, net)
@@ -319,54 +345,40 @@ def cmd_pack(args) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    if args.max_steps < 1:
-        raise BadInput(f"--max-steps must be an integer >= 1, got {args.max_steps}")
-    if not (math.isfinite(args.checkpoint_seconds) and args.checkpoint_seconds > 0):
-        raise BadInput(f"--checkpoint-seconds must be > 0 [s], got {args.checkpoint_seconds}")
-    if args.checkpoint_every is not None and args.checkpoint_every < 1:
-        raise BadInput(f"--checkpoint-every must be an integer >= 1 [steps], got {args.checkpoint_every}")
     if args.resume and args.fresh:
         raise BadInput("--resume and --fresh exclude each other")
-    if not 1 <= args.threads <= 1024:
-        raise BadInput(f"--threads must be an integer in [1, 1024], got {args.threads}")
+    max_steps, every, seconds, threads = _run_options(args)
     paths = _paths(args.out)
     folder = os.path.dirname(os.path.abspath(paths["npz"]))
     ck = paths["checkpoint"]
-    stored = None
     if args.resume:
         if not os.path.exists(ck):
             raise BadInput(f"--resume: no checkpoint {ck} (run without --resume first)")
         try:
-            stored = State.load(ck).meta.get("cli")
+            stored = State.load(ck).meta.get("packing_protocol")
         except Exception as exc:
             raise BadInput(f"--resume: cannot read the checkpoint {ck}: {exc}") from None
         if stored is None:
-            raise BadInput(f"--resume: {ck} was not written by 'python -m dem pack'")
-    elif os.path.exists(ck):
-        if not args.fresh:
-            raise BadInput(f"a checkpoint {ck} exists from an earlier run: pass --resume to "
-                           f"continue it or --fresh to discard it")
-        os.unlink(ck)
-    prm = _resolve(args, stored)
+            raise BadInput(f"--resume: {ck} holds no packing protocol (written by another "
+                           f"program or an earlier version): start again with --fresh")
+        proto = _protocol(args, PackingProtocol.from_dict(stored))
+    else:
+        proto = _protocol(args, None)
+        if os.path.exists(ck):
+            if not args.fresh:
+                raise BadInput(f"a checkpoint {ck} exists from an earlier run: pass --resume to "
+                               f"continue it or --fresh to discard it")
+            os.unlink(ck)
     try:
-        check_memory(prm["n"])
+        check_memory(proto.n)
     except ValueError as exc:
         raise BadInput(f"--n: {exc}") from None
     _writable(folder)
     remove_stale_temporaries(paths["npz"])    # left by a run killed while writing its packing
 
-    kw = dict(kn=prm["kn"], kt=prm["kt"], mu=prm["mu"], mu_prep=prm["mu_prep"],
-              dispersity=prm["dispersity"], seed=prm["seed"], tol_unbalanced=prm["tol_unbalanced"],
-              max_steps=args.max_steps, checkpoint=ck, checkpoint_every=args.checkpoint_every,
-              checkpoint_seconds=args.checkpoint_seconds, meta={"cli": prm}, threads=args.threads)
-    if prm["pressure_pa"] is not None:
-        kw["pressure"] = prm["pressure_pa"]
-    else:
-        kw["p_over_kn"] = prm["pressure"]
-
     bar = None
     if not args.no_progress:
-        bar = tqdm(total=args.max_steps, unit="step", mininterval=1.0, dynamic_ncols=True,
+        bar = tqdm(total=max_steps, unit="step", mininterval=1.0, dynamic_ncols=True,
                    desc="pack", file=sys.stderr)
     ke_seen = ["-"]
 
@@ -381,7 +393,8 @@ def cmd_pack(args) -> int:
 
     t0 = time.perf_counter()
     try:
-        res = pack(prm["n"], progress=progress, **kw)
+        res = pack(proto, max_steps=max_steps, checkpoint=ck, checkpoint_every=every,
+                   checkpoint_seconds=seconds, progress=progress, threads=threads)
     except InstabilityError as exc:
         if bar is not None:
             bar.close()
@@ -404,7 +417,7 @@ def cmd_pack(args) -> int:
         bar.update(res.report["steps"] - bar.n)
         bar.close()
     try:
-        rows = _write_outputs(res, paths, prm, log)
+        rows = _write_outputs(res, paths, log)
     except OSError as exc:
         return _write_failed(exc, ck, log)
     _print_table(rows, sys.stdout)
@@ -413,7 +426,7 @@ def cmd_pack(args) -> int:
         log(f"already converged: {ck} holds a finished run (step {r['steps']}); its stored report "
             f"and the outputs were written again")
     if not r["converged"]:
-        log(f"NOT CONVERGED within --max-steps {args.max_steps} (steps {r['steps']}, "
+        log(f"NOT CONVERGED within --max-steps {max_steps} (steps {r['steps']}, "
             f"dp/p {r['rel_p_err']:.2e}, unbalanced {r['unbalanced']:.2e}, ke/U {r['ke_rel']:.2e}); "
             f"outputs written and flagged converged=False; continue with --resume --max-steps M "
             f"(checkpoint {ck} kept)")
@@ -433,7 +446,7 @@ def _write_failed(exc, ck, log):
 
 
 def _join_negative_numbers(argv):
-    """``--pressure -1e-4`` -> ``--pressure=-1e-4`` (argparse would take ``-1e-4`` for an option,
+    """``--p-over-kn -1e-4`` -> ``--p-over-kn=-1e-4`` (argparse would take ``-1e-4`` for an option,
     and the range check, not a usage error, should answer)."""
     out = []
     k = 0

@@ -39,6 +39,7 @@ Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -53,10 +54,10 @@ import numpy as np
 from microhom.network import from_overlaps
 
 from . import io
-from .contact_laws import LinearFriction
+from .contact_laws import LinearFriction, damping_ratio
 from .integrate import critical_dt
 from .io import FormatError
-from .packing import random_gas
+from .packing import PackingProtocol, random_gas
 
 __all__ = ["LammpsRun", "write_inputs", "run_lammps", "read_run", "pack_lammps", "lammps_available",
            "read_dump_local", "INPUT_NAME"]
@@ -75,66 +76,80 @@ def _num(x) -> str:
     return repr(float(x))
 
 
-def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None,
-                 radius=0.5, dispersity=0.0, rho=None, seed=0, phi0=0.2, drag=0.1,
-                 drag_compaction=0.01, jam_unbalanced=1e-3, jam_p=1e-2, jam_z=3.0, restitution=None,
-                 max_strain_per_step=2e-4, alpha=0.5, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
-                 max_steps=2_000_000, check_every=100, skin=None, dt=None) -> dict:
-    """Write ``gas.data`` and ``in.packing`` into ``folder``; return the parameters used.
+def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compaction=0.01,
+                 jam_z=3.0, skin=None, dt=None) -> dict:
+    """Write ``gas.data`` and ``in.packing`` into ``folder`` for the packing ``protocol`` (a
+    :class:`dem.packing.PackingProtocol`, validated there); return the parameters used.
 
-    Parameters follow :func:`dem.packing.pack` (same meaning and units; 2D per unit thickness):
-    ``n``, ``p_over_kn`` or ``pressure``, ``kn``, ``kt`` (None: kn), ``mu``, ``mu_prep`` (None: mu),
-    ``radius``, ``dispersity``, ``rho``, ``seed``, ``phi0``, ``max_strain_per_step``, ``alpha``
-    (servo gain), ``jam_unbalanced``, ``tol_p``, ``tol_unbalanced``, ``tol_ke``, ``max_steps``
-    (per phase here), ``check_every``. The starting gas is :func:`dem.packing.random_gas` with the
-    same seed, so both engines start from the same configuration. LAMMPS-specific knobs:
+    The protocol is mapped, not repeated: the starting gas is :func:`dem.packing.random_gas` of
+    the protocol (``n``, ``seed``, ``radius``, ``dispersity``, ``rho``, ``phi0``,
+    ``gas_overlaps``), so both engines start from the same configuration; the contact law takes
+    ``kn``, ``kt``, ``mu_prep`` then ``mu`` and ``restitution`` (a normal and tangential
+    dashpot ``gamma_n = 2 zeta sqrt(kn / m_eff)`` for a pair of mean disks, ``zeta`` from
+    :func:`dem.contact_laws.damping_ratio`: LAMMPS's ``gamma_n`` is one constant for all pairs);
+    the servo ``p_target``, ``alpha``, ``max_strain_per_step``; the compaction ends on ``jam_p``
+    and ``jam_unbalanced``; the equilibrium phases on ``tol_p``, ``tol_unbalanced``, ``tol_ke``,
+    checked every ``check_every`` steps; the time step is ``dt_over_dtcrit`` times
+    :func:`dem.integrate.critical_dt`. Not mapped: ``damping``, ``damping_compaction`` and
+    ``fire`` (dem's dissipation; LAMMPS 2021 has no Cundall local damping: the drags below play
+    their part, and the compaction phase always runs). A protocol with ``growth_dispersity`` > 0
+    is refused (no LAMMPS counterpart).
 
-    drag, drag_compaction : global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``; LAMMPS
-        2021 has no Cundall local damping), m the mass of a disk of the mean radius. It acts on
-        translation only: the spins are zeroed once at the start of each equilibrium phase (a
-        lightly loaded disk spinning after the compaction would otherwise hold the kinetic-energy
-        criterion for tens of thousands of steps; zero-temperature ``fix langevin ... omega yes``
-        damps the spins too but was 5x slower, measured). Light
-        (``drag_compaction``) during the compaction phase, ``drag`` in the equilibrium phases
-        (the analogue of dem's ``damping_compaction`` / ``damping``).
-    jam_p, jam_z : the compaction phase ends when ``|p - p_t| < jam_p p_t``, the unbalanced force
-        ratio is below ``jam_unbalanced`` and the mean contact number of the disks that have
-        contacts is at least ``jam_z`` (a contact network exists; lower it for mu_prep >~ 1,
-        where jammed packings approach Z = 3).
-    restitution : optional contact dashpot, as the restitution coefficient of a pair of mean disks
-        (LAMMPS's ``gamma_n = 2 zeta sqrt(kn / m_eff)`` is one constant for all pairs).
-    skin : neighbour skin (default 0.2 mean radius). dt : time step (default ``0.8 dt_crit`` of
-        :func:`dem.integrate.critical_dt`, the same as :mod:`dem.packing`).
+    Parameters
+    ----------
+    folder : path
+        Folder of the run (created if missing).
+    protocol : dem.packing.PackingProtocol
+        The packing protocol.
+    max_steps : int
+        Cap on the steps of each phase, >= 1.
+    drag, drag_compaction : float
+        Global viscous drag ``F = -drag sqrt(kn m) v`` (``fix viscous``), m the mass of a disk of
+        the mean radius, >= 0 [-]. It acts on translation only: the spins are zeroed once at the
+        start of each equilibrium phase (a lightly loaded disk spinning after the compaction
+        would otherwise hold the kinetic-energy criterion for tens of thousands of steps;
+        zero-temperature ``fix langevin ... omega yes`` damps the spins too but was 5x slower,
+        measured). Light (``drag_compaction``) during the compaction phase, ``drag`` in the
+        equilibrium phases (the analogue of dem's ``damping_compaction`` / ``damping``).
+    jam_z : float
+        The compaction also needs a mean contact number of the disks that have contacts of at
+        least ``jam_z``, in [0, 6) (a contact network exists; lower it for mu_prep >~ 1, where
+        jammed packings approach Z = 3).
+    skin : float or None
+        Neighbour skin [m] (default 0.2 mean radius).
+    dt : float or None
+        Time step [s] overriding the protocol's ``dt_over_dtcrit``.
+
+    Returns the dict of the values written (``kn``, ``kt``, ``mu``, ``p_target``, ``dt``, ...,
+    and ``protocol``, its ``as_dict()``).
     """
+    if not isinstance(protocol, PackingProtocol):
+        raise TypeError(f"write_inputs takes a dem.packing.PackingProtocol, got "
+                        f"{type(protocol).__name__}")
+    if protocol.growth_dispersity > 0:
+        raise ValueError(f"growth_dispersity must be 0 for the LAMMPS writer (no LAMMPS "
+                         f"counterpart of the grow/restore phases), got {protocol.growth_dispersity}")
+    for name, val, allowed, ok in (
+            ("max_steps", max_steps, "an integer >= 1", int(max_steps) == max_steps >= 1),
+            ("drag", drag, ">= 0", drag >= 0), ("drag_compaction", drag_compaction, ">= 0",
+                                                  drag_compaction >= 0),
+            ("jam_z", jam_z, "in [0, 6)", 0 <= jam_z < 6),
+            ("skin", skin, "None or > 0 [m]", skin is None or skin > 0),
+            ("dt", dt, "None or > 0 [s]", dt is None or dt > 0)):
+        if not ok or (val is not None and not math.isfinite(val)):
+            raise ValueError(f"{name} must be {allowed}, got {val!r}")
+    p = protocol
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    kt = kn if kt is None else kt
-    mu_prep = mu if mu_prep is None else mu_prep
-    p_target = float(pressure) if pressure is not None else float(p_over_kn) * kn
-    for name, val, ok in (("n", n, int(n) == n and n >= 2), ("kn", kn, kn > 0), ("kt", kt, kt >= 0),
-                          ("mu", mu, mu >= 0), ("mu_prep", mu_prep, mu_prep >= 0),
-                          ("target pressure", p_target, p_target > 0 and math.isfinite(p_target)),
-                          ("drag", drag, drag >= 0), ("drag_compaction", drag_compaction, drag_compaction >= 0),
-                          ("alpha", alpha, 0 < alpha <= 1), ("jam_unbalanced", jam_unbalanced, 0 < jam_unbalanced < 1),
-                          ("jam_p", jam_p, 0 < jam_p < 1), ("jam_z", jam_z, 0 <= jam_z < 6),
-                          ("check_every", check_every, int(check_every) == check_every and check_every >= 1),
-                          ("max_strain_per_step", max_strain_per_step, 0 < max_strain_per_step < 0.1)):
-        if not ok:
-            raise ValueError(f"{name} out of range: got {val!r}")
-    st = random_gas(int(n), radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
-                    spins=True)
-    law = LinearFriction(kn=kn, kt=kt, mu=mu_prep)
+    st = random_gas(p, spins=True)
+    law = LinearFriction(kn=p.kn, kt=p.kt, mu=p.mu_prep)
     if dt is None:
-        dt = 0.8 * critical_dt(st, law)
-    m1 = float(st.rho * math.pi * radius ** 2)
+        dt = p.dt_over_dtcrit * critical_dt(st, law)
+    m1 = float(st.rho * math.pi * p.radius ** 2)
     gn = 0.0
-    if restitution is not None:
-        if not (0 < restitution <= 1):
-            raise ValueError(f"restitution must be in (0, 1], got {restitution}")
-        le = math.log(restitution)
-        zeta = -le / math.sqrt(math.pi ** 2 + le ** 2)
-        gn = 2.0 * zeta * math.sqrt(kn / (0.5 * m1))
-    skin = 0.2 * radius if skin is None else float(skin)
+    if p.restitution is not None:
+        gn = 2.0 * damping_ratio(p.restitution) * math.sqrt(p.kn / (0.5 * m1))
+    skin = 0.2 * p.radius if skin is None else float(skin)
     r = st.radius
     # mean squared branch length of a contact, (r_i + r_j)^2 for independent radii: the affine
     # isotropic stiffness K = sum_c kn |l_c|^2 / (2A) of dem.cell.PressureServo is then
@@ -144,15 +159,18 @@ def write_inputs(folder, n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, m
     cfg = io.Configuration(positions=st.x, radii=st.radius, cell=st.h, ids=np.arange(1, st.n + 1),
                            fields={"density": np.full(st.n, st.rho)})
     io.write_lammps_data(folder / "gas.data", cfg, velocities=False,
-                         title=f"random gas: dem.packing.random_gas(n={n}, seed={seed}, phi0={phi0})")
-    prm = dict(n=int(n), p_target=p_target, kn=float(kn), kt=float(kt), mu=float(mu), mu_prep=float(mu_prep),
-               radius=float(radius), dispersity=float(dispersity), rho=float(st.rho), seed=seed, phi0=phi0,
-               dt=float(dt), drag=float(drag), drag_compaction=float(drag_compaction),
-               gamma_drag=drag * math.sqrt(kn * m1), gamma_compaction=drag_compaction * math.sqrt(kn * m1),
-               gamma_n=gn, skin=skin, rate=max_strain_per_step / dt, alpha=float(alpha), l2=l2,
-               jam_unbalanced=float(jam_unbalanced), jam_p=float(jam_p), jam_z=float(jam_z),
-               tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke, max_steps=int(max_steps),
-               check_every=int(check_every), disk_area=float(np.pi * np.sum(st.radius ** 2)))
+                         title=f"random gas: dem.packing.random_gas(n={p.n}, seed={p.seed}, "
+                               f"phi0={p.phi0})")
+    prm = dict(n=p.n, p_target=p.p_target, kn=p.kn, kt=p.kt, mu=p.mu, mu_prep=p.mu_prep,
+               radius=p.radius, dispersity=p.dispersity, rho=float(st.rho), seed=p.seed,
+               phi0=p.phi0, dt=float(dt), drag=float(drag), drag_compaction=float(drag_compaction),
+               gamma_drag=drag * math.sqrt(p.kn * m1),
+               gamma_compaction=drag_compaction * math.sqrt(p.kn * m1),
+               gamma_n=gn, skin=skin, rate=p.max_strain_per_step / dt, alpha=p.alpha, l2=l2,
+               jam_unbalanced=p.jam_unbalanced, jam_p=p.jam_p, jam_z=float(jam_z),
+               tol_p=p.tol_p, tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke,
+               max_steps=int(max_steps), check_every=p.check_every,
+               disk_area=float(np.pi * np.sum(st.radius ** 2)), protocol=p.as_dict())
     (folder / INPUT_NAME).write_text(_input_text(prm))
     return prm
 
@@ -174,6 +192,7 @@ def _input_text(p) -> str:
 #   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
 # Units: the caller's consistent set ('units lj' does no conversion); 2D, per unit thickness.
 # N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}
+# protocol {json.dumps(p['protocol'])}
 
 units           lj
 dimension       2
@@ -476,10 +495,11 @@ def read_run(folder, params=None) -> LammpsRun:
                      folder=str(folder), timing={"loops": loops})
 
 
-def pack_lammps(n, folder, *, np=1, lmp="lmp", timeout=None, **kwargs) -> LammpsRun:
-    """Write the inputs (:func:`write_inputs`, same keywords as :func:`dem.packing.pack`), run LAMMPS
-    (:func:`run_lammps` with ``np`` MPI ranks) and read the result (:func:`read_run`)."""
-    prm = write_inputs(folder, n, **kwargs)
+def pack_lammps(protocol, folder, *, np=1, lmp="lmp", timeout=None, **knobs) -> LammpsRun:
+    """Write the inputs of ``protocol`` (a :class:`dem.packing.PackingProtocol`;
+    :func:`write_inputs`, with its LAMMPS ``knobs``), run LAMMPS (:func:`run_lammps` with ``np``
+    MPI ranks) and read the result (:func:`read_run`)."""
+    prm = write_inputs(folder, protocol, **knobs)
     info = run_lammps(folder, np=np, lmp=lmp, timeout=timeout)
     t0 = time.perf_counter()
     res = read_run(folder, prm)

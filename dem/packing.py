@@ -3,10 +3,21 @@ target pressure, preparation friction then test friction.
 
 Units: any consistent set; 2D quantities per unit thickness. The pressure is a force per length,
 ``p = -tr(sigma)/2`` (compression positive) with the Love-Weber stress
-``sigma = -(1/A) sum_c F_c (x) l_c`` (tension positive). Give the target either as ``p_over_kn``
-(dimensionless, p/kn) or as ``pressure`` [N/m] together with ``kn`` [N/m].
+``sigma = -(1/A) sum_c F_c (x) l_c`` (tension positive). The target is ``p_over_kn`` (p/kn,
+dimensionless) with ``kn`` [N/m]; the servo's target is ``p_target = p_over_kn kn`` [N/m].
 
-Protocol (default, :func:`pack`):
+A packing is made by a :class:`PackingProtocol`, frozen data that holds every packing parameter
+with its unit, default and allowed range (checked there, nowhere else)::
+
+    proto = PackingProtocol(n=1000, p_over_kn=1e-4, mu_prep=0.05, seed=1)
+    res = pack(proto)                    # pack(proto, checkpoint="run.npz") to resume/checkpoint
+    res.save("packing.npz")              # the protocol travels in the file
+    corpus = [proto.replace(seed=s) for s in range(5)]
+
+The same protocol drives ``python -m dem pack`` (its options are the protocol's fields) and the
+LAMMPS writer (:func:`dem.lammps.write_inputs`).
+
+Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the fields):
 
 1. *Random gas*: N disk centres uniform in a square periodic cell at solid fraction ``phi0``
    (overlaps allowed; they are pushed apart by the contact law and the local damping in the first
@@ -18,7 +29,7 @@ Protocol (default, :func:`pack`):
    stiffness-adaptive servo holds the pressure at the target while the assembly, still below
    jamming, flows into a jammed state. This phase runs with a *light* local damping
    ``damping_compaction`` (default 0.05) and ends when the packing has jammed: ``|p - p_target| <
-   1e-2 p_target`` and unbalanced force ratio < ``jam_unbalanced`` (default 1e-3). The damping then
+   jam_p p_target`` (default 1e-2) and unbalanced force ratio < ``jam_unbalanced`` (default 1e-3). The damping then
    returns to ``damping`` (default 0.7) for the equilibrium phases.
 
    Why: at the target pressure the unjammed assembly compacts like a dense granular flow whose
@@ -67,16 +78,17 @@ fixed summation order).
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (``PackingResult.load``)
 and a ``dem.io`` configuration (:func:`dem.io.read`).
-The phases are objects (:class:`Grow`, :class:`Compact`, :class:`Equilibrate`), each with its own
-parameters and stop criterion; :func:`pack` runs them in order and reports them in
-:class:`PackReport` (``phase_steps``).
-``pack(..., checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and/or
+The phases are objects (:class:`Grow`, :class:`Restore`, :class:`Compact`, :class:`Equilibrate`),
+each with its own parameters and stop criterion; :func:`pack` runs them in order and reports them
+in :class:`PackReport` (``phase_steps``).
+``pack(protocol, checkpoint=path)`` writes atomic checkpoints every ``checkpoint_every`` steps and/or
 every ``checkpoint_seconds`` of wall time (only at check points, after the instability guard
 passed, so a checkpoint is always a good state) and resumes from ``path`` if it exists: the
 continuation is bit-exact whatever the checkpoint times were.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -93,44 +105,298 @@ from .cell import PressureServo, wrap
 from .contact_laws import Frictionless, LinearFriction, law_from_meta
 from .fire import Fire
 from .integrate import InstabilityError, Simulation, critical_dt
+from .io import Configuration
+from .io.simple import write_npz
 from .measure import hexatic_order
 from .runtime import atomic_write, remove_stale_temporaries
 from .state import State
 
-__all__ = ["pack", "random_gas", "PackingResult", "PackReport", "network_from_state", "hexatic_psi6",
-           "Grow", "Compact", "Equilibrate", "BYTES_PER_PARTICLE", "check_memory"]
+__all__ = ["PackingProtocol", "ProtocolError", "Param", "pack", "random_gas", "phases",
+           "check_run_options", "PackingResult", "PackReport", "network_from_state", "hexatic_psi6",
+           "Grow", "Restore", "Compact", "Equilibrate", "BYTES_PER_PARTICLE", "check_memory"]
 
 
-def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spins=True,
-               overlaps=True) -> State:
-    """N disks at random (seeded) positions in a square periodic cell at solid fraction phi0, at
-    rest.
+# ---- the protocol: what makes a packing, validated and defaulted here only --------------------
+class ProtocolError(ValueError):
+    """A packing parameter outside its allowed range: ``field`` (its name in
+    :class:`PackingProtocol`), ``allowed`` (the range, as text, with the unit) and ``value``."""
 
-    radius [m]: mean radius; dispersity: radii uniform in radius*(1 +- dispersity), in [0, 0.5);
-    rho [kg/m^2]: areal density (default: a disk of the mean radius has unit mass).
-    overlaps: True: centres uniform and independent (disks may overlap); False: random sequential
-    addition (uniform candidate centres, each kept if its disk overlaps none placed before;
-    ``phi0`` must then be below 0.45, under the RSA jamming fraction 0.547 of disks).
+    def __init__(self, field, allowed, value):
+        self.field, self.allowed, self.value = field, allowed, value
+        super().__init__(f"{field} must be {allowed}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Param:
+    """How one field of :class:`PackingProtocol` is described and checked: ``unit`` (``"-"``
+    dimensionless), ``allowed`` (the range as text), ``ok`` (the test of a value), ``help``
+    (one sentence), ``kind`` (``"int"``, ``"float"`` or ``"bool"``), ``optional`` (None allowed;
+    the help says what it means)."""
+    unit: str
+    allowed: str
+    ok: object
+    help: str
+    kind: str = "float"
+    optional: bool = False
+
+    def allowed_text(self):
+        """The allowed range with its unit, as error messages and ``--help`` print it."""
+        unit = "" if self.unit == "-" else f" [{self.unit}]"
+        return ("None or " if self.optional else "") + self.allowed + unit
+
+
+def _param(default, unit, allowed, ok, help, kind="float", optional=False):
+    return field(default=default, metadata={"param": Param(unit, allowed, ok, help, kind, optional)})
+
+
+def _unit_interval(v):
+    return 0 <= v < 1
+
+
+@dataclass(frozen=True)
+class PackingProtocol(Result):
+    """How a packing is made (the protocol of the module docstring): frozen, hashable data.
+
+    Every packing parameter is a field here, with its unit, default and allowed range (the
+    ``param`` metadata of each field, :class:`Param`; ``python -m dem pack --help`` prints the
+    same table). A bad value raises :class:`ProtocolError` (a ``ValueError``) naming the field
+    and its range, when the protocol is made: :func:`pack`, :func:`random_gas`,
+    ``python -m dem pack`` and :func:`dem.lammps.write_inputs` take a protocol and check nothing
+    themselves. Variants: ``protocol.replace(mu=0.3)``; a corpus of packings is a list of
+    protocols. Serialised by ``as_dict()`` / :meth:`from_dict` (and :meth:`to_json` /
+    :meth:`from_json`); every packing npz stores its protocol (``PackingResult.protocol``).
+
+    Units: any consistent set, 2D per unit thickness. The target pressure is ``p_over_kn``
+    (p/kn, dimensionless): the geometry of a packing depends on p/kn only; ``kn`` [N/m] sets
+    the scale, ``p_target = p_over_kn * kn`` [N/m] is the servo's target (a force per length,
+    ``p = -tr(sigma)/2``). The tangential stiffness is ``kt_over_kn`` likewise
+    (``kt = kt_over_kn * kn`` [N/m]).
+
+    The defaults are the seed paper's conditions, which ``python -m dem pack`` has always used:
+    identical disks (diameter 1 [m], unit mass), ``kt = kn``, test friction ``mu = 0.488``
+    (tan 26 deg), ``p/kn = 1e-4``; preparation friction ``mu_prep = 0.1`` (amorphous identical
+    disks with Nc ~ 3.9; ``docs/dem.md``). The numerical defaults (damping, FIRE, time step,
+    stop criteria) are the protocol measured in ``docs/dem.md``.
+
+    Derived (read-only properties): ``p_target`` [N/m], ``kt`` [N/m], ``areal_density``
+    [kg/m^2], ``frictionless``.
     """
-    if int(n) != n or n < 2:
-        raise ValueError(f"n must be an integer >= 2, got {n}")
-    if not (0 < phi0 < 0.9):
-        raise ValueError(f"phi0 must be in (0, 0.9), got {phi0}")
-    if not (0 <= dispersity < 0.5):
-        raise ValueError(f"dispersity must be in [0, 0.5), got {dispersity}")
-    if not (radius > 0):
-        raise ValueError(f"radius must be > 0, got {radius}")
-    n = int(n)
-    rng = np.random.default_rng(seed)
+
+    n: int = field(metadata={"param": Param("-", "an integer in [2, 1e9]",
+                                            lambda v: 2 <= v <= 10 ** 9, "number of disks", "int")})
+    seed: int = _param(0, "-", "an integer >= 0", lambda v: v >= 0,
+                       "random seed of the gas (numpy.random.default_rng)", "int")
+    p_over_kn: float = _param(1e-4, "-", "in (0, 0.1]", lambda v: 0 < v <= 0.1,
+                              "target pressure over kn, p/kn (p = -tr(sigma)/2, a force per "
+                              "length; the servo's target is p_target = p_over_kn kn [N/m])")
+    kn: float = _param(1.0, "N/m", "> 0", lambda v: v > 0,
+                       "normal contact stiffness (force per overlap)")
+    kt_over_kn: float = _param(1.0, "-", "in [0, 10]", lambda v: 0 <= v <= 10,
+                               "tangential over normal contact stiffness, kt/kn (0: the "
+                               "frictionless law)")
+    mu: float = _param(0.488, "-", "in [0, 10]", lambda v: 0 <= v <= 10,
+                       "test friction coefficient (0.488 = tan 26 deg, the seed paper's)")
+    mu_prep: float = _param(0.1, "-", "in [0, 10]", lambda v: 0 <= v <= 10,
+                            "preparation friction: the knob for the coordination number (0.1: "
+                            "amorphous identical disks, Nc ~ 3.9; 0.05: Nc ~ 4.0, some packings "
+                            "order; 0: densest, crystallises)")
+    radius: float = _param(0.5, "m", "> 0", lambda v: v > 0, "mean disk radius")
+    dispersity: float = _param(0.0, "-", "in [0, 0.5)", lambda v: 0 <= v < 0.5,
+                               "radii uniform in radius (1 +- dispersity)")
+    rho: float | None = _param(None, "kg/m^2", "> 0", lambda v: v > 0,
+                               "areal density (None: a disk of the mean radius has unit mass)",
+                               optional=True)
+    phi0: float = _param(0.2, "-", "in (0, 0.9) (below 0.45 without gas overlaps)",
+                         lambda v: 0 < v < 0.9, "solid fraction of the starting gas")
+    gas_overlaps: bool = _param(True, "-", "True or False", lambda v: True,
+                                "gas of independent uniform centres (overlaps push the disks "
+                                "apart); False: random sequential addition without overlaps",
+                                "bool")
+    growth_dispersity: float = _param(0.0, "-", "in [0, 0.5)", lambda v: 0 <= v < 0.5,
+                                      "radius spread during the first compression only (phases "
+                                      "grow and restore; 0: none)")
+    restore_increments: int = _param(50, "-", "an integer >= 1", lambda v: v >= 1,
+                                     "checks over which the growth spread is removed", "int")
+    damping_compaction: float | None = _param(0.05, "-", "in [0, 1)", _unit_interval,
+                                              "local damping of the compaction phase (None: no "
+                                              "compaction phase, damping throughout)",
+                                              optional=True)
+    jam_p: float = _param(1e-2, "-", "in (0, 1)", lambda v: 0 < v < 1,
+                          "the compaction ends (jammed) when |p - p_target| < jam_p p_target ...")
+    jam_unbalanced: float = _param(1e-3, "-", "in (0, 1)", lambda v: 0 < v < 1,
+                                   "... and the unbalanced force ratio < jam_unbalanced")
+    damping: float = _param(0.7, "-", "in [0, 1)", _unit_interval,
+                            "Cundall local damping of the equilibrium phases")
+    fire: bool = _param(True, "-", "True or False", lambda v: True,
+                        "FIRE velocity mixing in the equilibrium phases and, once still, in the "
+                        "compaction (dem.fire)", "bool")
+    restitution: float | None = _param(None, "-", "in (0, 1]", lambda v: 0 < v <= 1,
+                                       "coefficient of restitution of a viscous contact "
+                                       "dashpot (None: no dashpot)", optional=True)
+    max_strain_per_step: float = _param(2e-4, "-", "in (0, 0.1)", lambda v: 0 < v < 0.1,
+                                        "cap on the servo's isotropic strain per step")
+    alpha: float = _param(0.5, "-", "in (0, 1]", lambda v: 0 < v <= 1,
+                          "servo gain: fraction of the pressure error corrected per step")
+    dt_over_dtcrit: float = _param(1.0, "-", "in (0, 1]", lambda v: 0 < v <= 1,
+                                   "time step over dem.integrate.critical_dt")
+    tol_p: float = _param(1e-3, "-", "in (0, 1)", lambda v: 0 < v < 1,
+                          "stop when |p - p_target| / p_target < tol_p ...")
+    tol_unbalanced: float = _param(1e-5, "-", "in (0, 1)", lambda v: 0 < v < 1,
+                                   "... and the unbalanced force ratio (mean |resultant force| "
+                                   "over mean |contact force|, Yade) < tol_unbalanced ...")
+    tol_ke: float = _param(1e-8, "-", "in (0, 1)", lambda v: 0 < v < 1,
+                           "... and the kinetic energy of the disks in contact < tol_ke x the "
+                           "elastic contact energy")
+    check_every: int = _param(100, "steps", "an integer >= 1", lambda v: v >= 1,
+                              "steps between checks of the criteria (at multiples of it)", "int")
+
+    def __post_init__(self):
+        for f in fields(self):
+            p = f.metadata["param"]
+            v = getattr(self, f.name)
+            if v is None and p.optional:
+                continue
+            object.__setattr__(self, f.name, _coerce(f.name, v, p))
+        if not self.gas_overlaps and not self.phi0 < 0.45:
+            raise ProtocolError("phi0", "in (0, 0.45) for a gas without overlaps "
+                                "(gas_overlaps=False)", self.phi0)
+
+    # ---- derived quantities --------------------------------------------------------------------
+    @property
+    def p_target(self) -> float:
+        """Target pressure [N/m] (force per length), ``p_over_kn * kn``."""
+        return self.p_over_kn * self.kn
+
+    @property
+    def kt(self) -> float:
+        """Tangential contact stiffness [N/m], ``kt_over_kn * kn``."""
+        return self.kt_over_kn * self.kn
+
+    @property
+    def areal_density(self) -> float:
+        """``rho`` [kg/m^2], or ``1 / (pi radius^2)`` (unit mass of a mean disk) when None."""
+        return 1.0 / (np.pi * self.radius ** 2) if self.rho is None else self.rho
+
+    @property
+    def frictionless(self) -> bool:
+        """True when the packing uses the specialised frictionless law (no spins, no history),
+        that is when kt = 0 or mu = mu_prep = 0."""
+        return self.kt_over_kn == 0 or (self.mu == 0 and self.mu_prep == 0)
+
+    def laws(self):
+        """(law of the preparation phases, law of the test phase): ``dem.contact_laws`` laws."""
+        if self.frictionless:
+            law = Frictionless(kn=self.kn, restitution=self.restitution)
+            return law, law
+        law = LinearFriction(kn=self.kn, kt=self.kt, mu=self.mu_prep, restitution=self.restitution)
+        return law, law.with_friction(self.mu)
+
+    # ---- variants and serialisation ------------------------------------------------------------
+    def replace(self, **changes) -> "PackingProtocol":
+        """A copy with ``changes`` (checked as a new protocol)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def params(cls) -> dict:
+        """{field name: (default, :class:`Param`)} in field order (``n`` has no default: None)."""
+        return {f.name: (None if f.default is dataclasses.MISSING else f.default, f.metadata["param"])
+                for f in fields(cls)}
+
+    @classmethod
+    def from_dict(cls, d) -> "PackingProtocol":
+        """From ``as_dict()``'s dict (missing fields take their defaults; an unknown key raises
+        ``ValueError`` naming it)."""
+        unknown = sorted(set(d) - set(cls.params()))
+        if unknown:
+            raise ValueError(f"unknown packing protocol field(s) {unknown}; the fields are "
+                             f"{list(cls.params())}")
+        return cls(**d)
+
+    def to_json(self) -> str:
+        """JSON text of ``as_dict()`` (:meth:`from_json` reads it back to an equal protocol)."""
+        return json.dumps(self.as_dict())
+
+    @classmethod
+    def from_json(cls, text) -> "PackingProtocol":
+        """From :meth:`to_json`'s text (checked as a new protocol)."""
+        return cls.from_dict(json.loads(text))
+
+
+def _fields_doc(cls):
+    """The field table appended to ``cls.__doc__`` (generated from the ``param`` metadata, so the
+    docstring, ``--help`` and the checks cannot disagree)."""
+    lines = ["", "    Fields (name [unit], default, allowed: meaning)", "    " + "-" * 48]
+    for name, (default, prm) in cls.params().items():
+        unit = "" if prm.unit == "-" else f" [{prm.unit}]"
+        shown = "required" if default is None and not prm.optional else f"default {default!r}"
+        allowed = ("None or " if prm.optional else "") + prm.allowed
+        end = "" if prm.help.endswith(".") else "."
+        text = prm.help.replace("|", "\\|")          # reST: a bare |x| is a substitution
+        lines.append(f"    ``{name}``{unit}, {shown}, {allowed}: {text}{end}")
+    return "\n".join(lines) + "\n"
+
+
+PackingProtocol.__doc__ += _fields_doc(PackingProtocol)
+
+
+def _coerce(name, v, p):
+    """``v`` as the field's kind, or :class:`ProtocolError` naming ``name`` and its range."""
+    if p.kind == "bool":
+        if isinstance(v, (bool, np.bool_)):
+            return bool(v)
+        raise ProtocolError(name, "True or False", v)
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ProtocolError(name, p.allowed_text(), v) from None
+    if p.kind == "int":
+        if not (math.isfinite(x) and x == int(x)) or isinstance(v, bool):
+            raise ProtocolError(name, p.allowed_text(), v)
+        x = int(x)
+    if not (math.isfinite(x) and p.ok(x)):
+        raise ProtocolError(name, p.allowed_text(), v)
+    return x
+
+
+def check_run_options(*, max_steps=None, checkpoint_every=None, checkpoint_seconds=None,
+                      threads=1):
+    """Check the run options of :func:`pack` (how long and where a packing runs, not how it is
+    made): ``max_steps`` an integer >= 1 [steps], ``checkpoint_every`` None or an integer >= 1
+    [steps], ``checkpoint_seconds`` None or >= 0 [s], ``threads`` an integer in [1, 1024].
+    Raises :class:`ProtocolError` naming the option; returns them as (int, int|None, float|None,
+    int)."""
+    run = {"max_steps": (max_steps, Param("steps", "an integer >= 1", lambda v: v >= 1, "", "int")),
+           "checkpoint_every": (checkpoint_every, Param("steps", "an integer >= 1", lambda v: v >= 1,
+                                                        "", "int", True)),
+           "checkpoint_seconds": (checkpoint_seconds, Param("s", ">= 0", lambda v: v >= 0, "",
+                                                            "float", True)),
+           "threads": (threads, Param("-", "an integer in [1, 1024]", lambda v: 1 <= v <= 1024, "",
+                                      "int"))}
+    return tuple(None if v is None and p.optional else _coerce(k, v, p) for k, (v, p) in run.items())
+
+
+def random_gas(protocol, *, spins=True) -> State:
+    """The starting gas of ``protocol`` (a :class:`PackingProtocol`): ``protocol.n`` disks at
+    random (seeded by ``protocol.seed``) positions in a square periodic cell at solid fraction
+    ``phi0``, at rest.
+
+    Radii ``radius`` [m], or uniform in ``radius (1 +- dispersity)``; areal density
+    ``protocol.areal_density`` [kg/m^2]. ``gas_overlaps`` True: centres uniform and independent
+    (disks may overlap); False: random sequential addition (uniform candidate centres, each kept
+    if its disk overlaps none placed before; the protocol then requires ``phi0`` < 0.45, under
+    the RSA jamming fraction 0.547 of disks). ``spins``: angular velocity and rotation arrays.
+    """
+    if not isinstance(protocol, PackingProtocol):
+        raise TypeError(f"random_gas takes a PackingProtocol, got {type(protocol).__name__}")
+    n, radius, dispersity, phi0 = protocol.n, protocol.radius, protocol.dispersity, protocol.phi0
+    rng = np.random.default_rng(protocol.seed)
     r = np.full(n, float(radius))
     if dispersity > 0:
         r = radius * (1.0 + dispersity * rng.uniform(-1.0, 1.0, n))
     Lbox = math.sqrt(np.pi * np.sum(r ** 2) / phi0)
-    if overlaps:
+    if protocol.gas_overlaps:
         x = rng.uniform(0.0, Lbox, (n, 2))
     else:
-        if not phi0 < 0.45:
-            raise ValueError(f"phi0 must be in (0, 0.45) for a gas without overlaps, got {phi0}")
         nc = max(1, int(Lbox / (2.0 * r.max())))
         head = np.full(nc * nc, -1, dtype=np.int64)
         nxt = np.full(n, -1, dtype=np.int64)
@@ -139,8 +405,7 @@ def random_gas(n, *, radius=0.5, dispersity=0.0, phi0=0.2, rho=None, seed=0, spi
         while count < n:   # candidates in seeded batches until every disk is placed
             count = _rsa_place(rng.uniform(0.0, Lbox, (2 * (n - count) + 16, 2)), r, Lbox, x,
                                Lbox / nc, head, nxt, count)
-    rho = 1.0 / (np.pi * radius ** 2) if rho is None else rho
-    return State.from_disks(x, r, np.diag([Lbox, Lbox]), rho=rho, spins=spins)
+    return State.from_disks(x, r, np.diag([Lbox, Lbox]), rho=protocol.areal_density, spins=spins)
 
 
 @njit(cache=True)
@@ -241,31 +506,6 @@ def hexatic_psi6(net) -> dict:
     return hexatic_order(net).as_dict()
 
 
-_CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the cell, in the "
-                "state's (spatially sorted) order; ids = original labels, 0-based")
-
-
-def _write_packing_npz(path, state):
-    """Write ``state`` (a checkpoint, :meth:`State.save`) plus the ``dem.io`` npz configuration
-    keys (``format``, ``positions``, ``radii``, ``cell``, ...; schema in :mod:`dem.io.simple`) into
-    one npz, atomically (:func:`dem.runtime.atomic_write`)."""
-    path = os.fspath(path)
-    if not path.endswith(".npz"):
-        path += ".npz"
-    xw, _ = wrap(state.x, state.h)
-    meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(state.step)}
-    meta.update({k: v for k, v in state.meta.get("packing_report", {}).items()
-                 if isinstance(v, (int, float, str, bool)) or v is None})
-    meta["law"] = state.meta.get("packing_law")
-    arrays = state.arrays()
-    # ``ids`` is already among the state's arrays (its own labels, same order as ``positions``)
-    arrays.update({"format": np.array("microhom-configuration"), "format_version": np.array(1),
-                   "positions": xw, "radii": state.radius, "cell": state.h,
-                   "origin": np.zeros(2), "types": np.ones(state.n, dtype=np.int64),
-                   "velocities": state.v, "meta_json": np.array(json.dumps(meta))})
-    atomic_write(path, lambda fh: np.savez(fh, **arrays))
-    return path
-
 
 @dataclass(frozen=True)
 class PackReport(Result):
@@ -288,9 +528,9 @@ class PackReport(Result):
     ``damping_work`` [J/m].
 
     For the code written against the earlier dict report, ``report["key"]``, ``key in report``,
-    ``report.get`` and ``report.items()`` read the fields; ``report["new_key"] = value`` adds a
-    caller's annotation to ``extra`` (saved with the packing, as the dict's keys were), and
-    assigning a field raises.
+    ``report.get`` and ``report.items()`` read the fields. The report is read-only:
+    :meth:`annotate` returns a copy with a caller's annotations in ``extra`` (saved with the
+    packing), e.g. ``res.report = res.report.annotate(wall_time=12.5)``.
     """
 
     n: int
@@ -332,8 +572,8 @@ class PackReport(Result):
     timing: str = ""
     particle_steps_per_s: float = float("nan")
     already_converged: bool = False
-    #: the caller's own annotations (``report["wall_time"] = ...``): scalars that travel with the
-    #: packing in its npz, as keys of the earlier dict report did
+    #: the caller's own annotations (:meth:`annotate`): scalars that travel with the packing in
+    #: its npz, as keys of the earlier dict report did
     extra: dict = field(default_factory=dict, metadata={"export": False})
 
     # ---- read access of the earlier dict report ------------------------------------------------
@@ -341,12 +581,6 @@ class PackReport(Result):
         if key in self._names():
             return getattr(self, key)
         return self.extra[key]
-
-    def __setitem__(self, key, value):
-        if key in self._names():
-            raise TypeError(f"PackReport.{key} is read-only (dataclasses.replace makes a copy); "
-                            f"only new keys can be added as annotations")
-        self.extra[key] = value
 
     def __contains__(self, key):
         return key in self._names() or key in self.extra
@@ -359,6 +593,14 @@ class PackReport(Result):
 
     def items(self):
         return [(k, self[k]) for k in self.keys()]
+
+    def annotate(self, **notes) -> "PackReport":
+        """A copy with ``notes`` (JSON-able scalars) added to ``extra``; a field's name raises."""
+        taken = sorted(set(notes) & set(self._names()))
+        if taken:
+            raise TypeError(f"PackReport fields {taken} are read-only (dataclasses.replace makes a "
+                            f"copy); annotations take new names")
+        return dataclasses.replace(self, extra={**self.extra, **notes})
 
     @classmethod
     def _names(cls):
@@ -392,10 +634,13 @@ class PackingResult:
     state : the final :class:`dem.state.State` (positions [m], velocities [m/s], cell [m], ...).
     law : the contact law of the last phase (a ``dem.contact_laws`` law, stiffnesses in N/m).
     report : the :class:`PackReport` of the run (criteria, counts, timings).
+    protocol : the :class:`PackingProtocol` that made it (None for a file written before
+        protocols were stored).
     """
     state: State
     law: object
     report: PackReport
+    protocol: PackingProtocol | None = None
 
     def to_network(self):
         """The :class:`microhom.network.ContactNetwork` of the packing (forces included)."""
@@ -403,16 +648,33 @@ class PackingResult:
 
     def save(self, path):
         """One npz that is a checkpoint (``load``, bit-exact state) and a ``dem.io``
-        configuration (:func:`dem.io.read`: positions, radii, cell, ids, velocities); atomic."""
+        configuration (:func:`dem.io.read`: positions, radii, cell, ids, velocities; its meta
+        holds the report, the law and the protocol); atomic. Returns the path written."""
         self.state.meta["packing_report"] = self.report.scalars()
         self.state.meta["packing_law"] = self.law.to_meta()
-        return _write_packing_npz(path, self.state)
+        path = os.fspath(path)
+        path = path if path.endswith(".npz") else path + ".npz"
+        st = self.state
+        meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(st.step),
+                **self.report.scalars(), "law": st.meta["packing_law"],
+                "protocol": None if self.protocol is None else self.protocol.as_dict()}
+        cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
+                            velocities=st.v, meta=meta)
+        extra = {k: v for k, v in st.arrays().items() if k != "ids"}   # ids: the schema's own
+        atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra))
+        return path
 
     @classmethod
     def load(cls, path):
         st = State.load(path)
+        proto = st.meta.get("packing_protocol")
         return cls(st, law_from_meta(st.meta["packing_law"]),
-                   PackReport.from_dict(st.meta.get("packing_report", {})))
+                   PackReport.from_dict(st.meta.get("packing_report", {})),
+                   None if proto is None else PackingProtocol.from_dict(proto))
+
+
+_CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the cell, in the "
+                "state's (spatially sorted) order; ids = original labels, 0-based")
 
 
 #: bytes per particle held by a packing run (state, Verlet list, history, engine buffers),
@@ -445,15 +707,13 @@ def check_memory(n, fraction=0.8):
                          f"available; allowed: n <= {int(fraction * avail / (1.3 * BYTES_PER_PARTICLE))}")
 
 
+
 # ---- the phases of pack ----------------------------------------------------------------------
 @dataclass(frozen=True)
 class Grow:
     """Phase ``grow`` (only with ``growth_dispersity`` > 0): compress with spread radii until the
-    pressure is within ``tol_p`` (5 %) of the target, then phase ``restore`` shrinks the spread to
-    zero in ``increments`` checks."""
-    growth_dispersity: float
+    pressure is within ``tol_p`` (5 %) of the target; phase :class:`Restore` follows."""
     tol_p: float = 0.05
-    increments: int = 50
     name = "grow"
 
     def enter(self, run):
@@ -462,8 +722,19 @@ class Grow:
     def done(self, run, m):
         return abs(m["pressure"] - run.p_target) < self.tol_p * run.p_target
 
-    def restore(self, run):
-        """One restore increment (phase ``restore``); True when the radii are back."""
+
+@dataclass(frozen=True)
+class Restore:
+    """Phase ``restore``: shrink the growth spread of the radii to zero in ``increments`` checks
+    (one increment per check, the protocol's ``restore_increments``); done when the radii are
+    back."""
+    increments: int
+    name = "restore"
+
+    def enter(self, run):
+        pass
+
+    def done(self, run, m):
         state = run.state
         gr = state.meta["growth"]
         gr["s"] = max(0.0, gr["s"] - 1.0 / self.increments)
@@ -480,7 +751,8 @@ class Grow:
 class Compact:
     """Phase ``compact``: the servo drives the pressure to the target under the light damping
     ``damping`` (set when the simulation is built); ends when the packing has jammed:
-    ``|p - p_t| < tol_p p_t`` (1e-2) and unbalanced ratio < ``jam_unbalanced``.
+    ``|p - p_t| < tol_p p_t`` and unbalanced ratio < ``jam_unbalanced`` (the protocol's
+    ``jam_p`` and ``jam_unbalanced``: :func:`phases` fills them in).
 
     Once the packing has stopped compacting (the solid fraction changed by less than
     ``still_tol`` (relative) between consecutive checks, ``still_checks`` times in a row), the
@@ -489,8 +761,8 @@ class Compact:
     packing; during the flow it would stop the flow, hence the gate.
     """
     damping: float
-    jam_unbalanced: float = 1e-3
-    tol_p: float = 1e-2
+    jam_unbalanced: float
+    tol_p: float
     still_tol: float = 3e-7
     still_checks: int = 5
     name = "compact"
@@ -527,14 +799,16 @@ class Equilibrate:
     tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
     fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`~dem.fire.Fire` at the
         start of the phase), on top of the damping.
+
+    The values are the protocol's (:func:`phases` fills them in); the phase has no defaults.
     """
     name: str
     law: object
     damping: float
-    tol_p: float = 1e-3
-    tol_unbalanced: float = 1e-5
-    tol_ke: float = 1e-8
-    fire: bool = False
+    tol_p: float
+    tol_unbalanced: float
+    tol_ke: float
+    fire: bool
 
     def enter(self, run):
         if run.sim.law is not self.law and run.sim.law.to_meta() != self.law.to_meta():
@@ -546,19 +820,74 @@ class Equilibrate:
         return run.criteria(m, self)
 
 
-class _Run:
-    """The state a pack run carries between its checks: simulation, target, last criteria,
-    phase history."""
+def phases(protocol):
+    """The named phases of ``protocol``, in order: [:class:`Grow`, :class:`Restore`] (with a
+    growth spread), [:class:`Compact`] (with a compaction damping), :class:`Equilibrate`
+    ``prep``, and ``test`` when the test friction differs."""
+    p = protocol
+    law_prep, law_test = p.laws()
+    out = [Grow(), Restore(p.restore_increments)] if p.growth_dispersity > 0 else []
+    if p.damping_compaction is not None:
+        out.append(Compact(p.damping_compaction, p.jam_unbalanced, p.jam_p,
+                           still_tol=3e-7 if p.fire else 0.0))
+    eq = dict(damping=p.damping, tol_p=p.tol_p, tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke,
+              fire=p.fire)
+    out.append(Equilibrate("prep", law_prep, **eq))
+    if law_test is not law_prep and p.mu != p.mu_prep:
+        out.append(Equilibrate("test", law_test, **eq))
+    return out
 
-    def __init__(self, sim, p_target, history):
-        self.sim = sim
-        self.state = sim.state
-        self.p_target = p_target
-        self.history = history
+
+def _new_run(protocol, threads, meta):
+    """A new run of ``protocol``: the gas (radii spread by the growth dispersity, if any), the
+    simulation with the servo, and the first phase entered."""
+    p = protocol
+    law_prep = p.laws()[0]
+    st = random_gas(p, spins=not p.frictionless)
+    if p.growth_dispersity > 0:
+        u = np.random.default_rng([p.seed, 1]).uniform(-1.0, 1.0, st.n)
+        st.meta["growth"] = {"r0": st.radius.tolist(), "u": u.tolist(), "g": p.growth_dispersity,
+                             "s": 1.0}
+        st.radius = st.radius * (1.0 + p.growth_dispersity * u)
+    if meta:
+        st.meta.update(meta)
+    st.meta["packing_protocol"] = p.as_dict()
+    sim = Simulation(st, law_prep, dt=p.dt_over_dtcrit * critical_dt(st, law_prep),
+                     damping=p.damping if p.damping_compaction is None else p.damping_compaction,
+                     check_every=0, threads=threads)
+    sim.control = PressureServo(p_target=p.p_target, max_rate=p.max_strain_per_step / sim.dt,
+                                alpha=p.alpha)
+    run = _Run(sim, p, phases(p), 0, [])
+    run.current.enter(run)
+    return run
+
+
+class _Run:
+    """A pack run between its checks: simulation, protocol, phases (``current`` is
+    ``phases[index]``; ``index == len(phases)``: done), history, last criteria, FIRE state."""
+
+    def __init__(self, sim, protocol, phase_list, index, history):
+        self.sim, self.state, self.protocol = sim, sim.state, protocol
+        self.p_target = protocol.p_target
+        self.phases, self.index, self.history = phase_list, index, history
         self.last = {}
         self.fire = None     # the FIRE mixing of the current phase (dem.fire.Fire) or None
         self.last_phi = None  # solid fraction at the last check (Compact's stillness gate)
         self.n_still = 0      # consecutive checks without compaction
+        self.n_checks = 0
+        sim.check_every = 0   # the instability guard runs at the checks (check)
+
+    @property
+    def done(self):
+        return self.index >= len(self.phases)
+
+    @property
+    def current(self):
+        return None if self.done else self.phases[self.index]
+
+    @property
+    def phase(self):
+        return "done" if self.done else self.current.name
 
     def advance(self, k):
         """``k`` time steps, with the FIRE mixing after each one if the phase has it."""
@@ -566,6 +895,36 @@ class _Run:
             self.sim.run(k)
         else:
             self.sim.run(k, callback=self.fire.update, every=1)
+
+    def check(self, verbose=False):
+        """A check (at a multiple of ``check_every``): guard, measure, the phase's stop
+        criterion (the next phase entered when it holds). Returns the measurements."""
+        self.sim._guard()
+        m = self.sim.measure()
+        self.n_checks += 1
+        self.last["ke_rel"] = None
+        st = self.state
+        if verbose and st.step % (10 * self.protocol.check_every) == 0:
+            print(f"[pack] step {st.step} phase {self.phase} phi {st.solid_fraction:.4f} "
+                  f"p/p0 {m['pressure'] / self.p_target:.5f} unb {m['unbalanced']:.3g} "
+                  f"Z {2 * m['n_contacts'] / st.n:.3f}", flush=True)
+        if self.current.done(self, m):
+            self.history.append({"phase": self.phase, "step": int(st.step)})
+            self.index += 1
+            if not self.done:
+                self.current.enter(self)
+        return m
+
+    def info(self, m, max_steps, checkpoint_step):
+        """The dict given to ``progress`` (see :func:`pack`)."""
+        if self.last["ke_rel"] is None and self.n_checks % 10 == 0:
+            self.ke_rel(m)
+        st = self.state
+        return {"step": int(st.step), "max_steps": int(max_steps), "phase": self.phase,
+                "phi": st.solid_fraction, "Z": 2.0 * m["n_contacts"] / st.n,
+                "rel_p_err": abs(m["pressure"] - self.p_target) / self.p_target,
+                "unbalanced": m["unbalanced"], "ke_rel": self.last["ke_rel"],
+                "checkpoint_step": checkpoint_step}
 
     def ke_rel(self, m):
         ke = _contact_kinetic_energy(self.state, self.sim.law)
@@ -583,289 +942,160 @@ class _Run:
             ok = self.ke_rel(m) < eq.tol_ke and ok
         return ok
 
+    def to_meta(self):
+        """What a checkpoint keeps of the run (beside the simulation)."""
+        return {"phase": self.phase, "history": self.history,
+                "protocol": self.protocol.as_dict(),
+                "fire": None if self.fire is None else self.fire.to_meta(),
+                "last_phi": self.last_phi, "n_still": self.n_still}
 
-def pack(n, *, p_over_kn=1e-4, pressure=None, kn=1.0, kt=None, mu=0.5, mu_prep=None, radius=0.5,
-         dispersity=0.0, rho=None, seed=0, phi0=0.2, gas_overlaps=True, damping=0.7,
-         damping_compaction=0.05, jam_unbalanced=1e-3, restitution=None, max_strain_per_step=2e-4,
-         alpha=0.5, dt_over_dtcrit=1.0, fire=True, tol_p=1e-3, tol_unbalanced=1e-5, tol_ke=1e-8,
-         max_steps=2_000_000, check_every=100, checkpoint=None, checkpoint_every=20000,
-         checkpoint_seconds=None, progress=None, verbose=False, frictionless=None,
-         growth_dispersity=0.0, restore_increments=50, meta=None, threads=1) -> PackingResult:
-    """Dense random packing of ``n`` disks at a target pressure (protocol in the module docstring).
+    def report(self, t_start, resumed):
+        """The :class:`PackReport` of the run as it stands (final values of the criteria)."""
+        sim, state, p = self.sim, self.state, self.protocol
+        m = sim.measure() if sim.steps_timed else sim.refresh()   # forces exist only after a step
+        self.criteria(m, self.phases[-1], force_ke=True)
+        last = self.last
+        net = network_from_state(state, sim.law)
+        try:
+            hx = hexatic_psi6(net)
+        except Exception:  # noqa: BLE001 - psi6 is informative only
+            hx = {"psi6": float("nan"), "psi6_local": float("nan")}
+        nc = net.n_contacts
+        compact_end = [h["step"] for h in self.history if h["phase"] == "compact"]
+        timing = sim.timing_report()
+        return PackReport(
+            n=state.n, seed=p.seed, converged=self.done, steps=int(state.step),
+            phase_steps=self.history, compaction_steps=compact_end[0] if compact_end else None,
+            wall_s=time.perf_counter() - t_start, resumed=resumed,
+            p_target=self.p_target, pressure=last["pressure"], rel_p_err=last["rel_p_err"],
+            p_over_kn=last["pressure"] / p.kn, unbalanced=last["unbalanced"],
+            unbalanced_max=last["unbalanced_max"], ke_rel=last["ke_rel"],
+            kinetic_energy=last["kinetic_energy"],
+            kinetic_energy_in_contact=last["kinetic_energy_in_contact"],
+            elastic_energy=last["elastic_energy"],
+            phi=state.solid_fraction, n_contacts=nc, Z=2.0 * nc / state.n,
+            sliding_fraction=(float(net.sliding.mean()) if nc and not p.frictionless
+                              else float("nan")),
+            dt=sim.dt, dt_over_dtcrit=sim.dt / sim.dt_crit, mu=p.mu, mu_prep=p.mu_prep,
+            kn=p.kn, kt=0.0 if p.frictionless else p.kt, tol_p=p.tol_p,
+            tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke, damping=p.damping,
+            damping_compaction=p.damping_compaction, damping_work=sim.damping_work,
+            psi6=hx["psi6"], psi6_local=hx["psi6_local"], timing=timing["table"],
+            particle_steps_per_s=timing["particle_steps_per_s"])
 
-    Units are any consistent set, 2D per unit thickness. The run is a sequence of named phases
-    (:class:`Grow`, :class:`Compact`, :class:`Equilibrate` "prep" and "test"), each with its own
-    parameters and stop criterion. ``n`` is checked against the available memory first
+
+class _Checkpoints:
+    """Atomic checkpoints of a run at ``path`` (None: none), every ``every`` steps and/or every
+    ``seconds`` of wall time, at checks only (after the guard passed); and the resume."""
+
+    def __init__(self, path, every, seconds):
+        self.path, self.every, self.seconds = path, every, seconds
+        self.step, self.t = None, time.perf_counter()   # the last one written (None: none yet)
+
+    def resume(self, protocol, threads):
+        """The run stored at ``path`` (None if there is none; temporaries of a killed write are
+        removed first), or ``(state, report)`` of a finished run. A checkpoint of another
+        protocol raises ``ValueError`` naming the fields that differ."""
+        if self.path is None:
+            return None
+        remove_stale_temporaries(self.path)
+        if not os.path.exists(os.fspath(self.path)):
+            return None
+        st0 = State.load(self.path)
+        pk = st0.meta["packing"]
+        stored = pk.get("protocol")
+        if stored is not None and stored != protocol.as_dict():
+            diff = sorted(k for k in stored if stored[k] != protocol.as_dict().get(k))
+            raise ValueError(f"checkpoint {os.fspath(self.path)} was made by another protocol "
+                             f"(fields {diff} differ): resume it with its own protocol "
+                             f"(PackingResult.load(...).protocol) or remove it")
+        self.step = st0.step
+        if pk["phase"] == "done" and pk.get("report"):   # a finished run: nothing to compute
+            return st0, PackReport.from_dict(dict(pk["report"], phase_steps=pk.get("history", []),
+                                                  resumed=True, already_converged=True))
+        ctl = PressureServo(**{k: v for k, v in st0.meta["sim"]["control"].items() if k != "kind"})
+        sim = Simulation.load(self.path, control=ctl, threads=threads)
+        ph = phases(protocol)
+        names = [q.name for q in ph] + ["done"]
+        run = _Run(sim, protocol, ph, names.index(pk["phase"]), pk.get("history", []))
+        run.fire = Fire.from_meta(pk["fire"]) if pk.get("fire") else None
+        run.last_phi, run.n_still = pk.get("last_phi"), pk.get("n_still", 0)
+        if run.phase == "test":
+            sim.set_law(run.current.law)
+        return run
+
+    def due(self, run):
+        if self.path is None or run.done:
+            return False
+        by_steps = self.every and run.state.step % self.every == 0
+        return bool(by_steps) or (self.seconds is not None and
+                                  time.perf_counter() - self.t >= self.seconds)
+
+    def save(self, run, report=None):
+        if self.path is None:
+            return
+        run.state.meta["packing"] = run.to_meta()
+        if report is not None:
+            run.state.meta["packing"]["report"] = {k: v for k, v in report.scalars().items()
+                                                   if k not in ("resumed", "already_converged")}
+        run.sim.save(self.path)
+        self.step, self.t = run.state.step, time.perf_counter()
+
+
+def pack(protocol, *, max_steps=2_000_000, checkpoint=None, checkpoint_every=20000,
+         checkpoint_seconds=None, progress=None, verbose=False, meta=None,
+         threads=1) -> PackingResult:
+    """The dense random packing made by ``protocol`` (a :class:`PackingProtocol`; the phases
+    in the module docstring). ``protocol.n`` is checked against the available memory first
     (:func:`check_memory`, ValueError).
 
-    Parameters
-    ----------
-    n : int
-        Number of disks.
-    p_over_kn : float
-        Target p/kn [-] (used if ``pressure`` is None).
-    pressure : float or None
-        Target pressure [N/m] (force per length, compression positive).
-    kn, kt : float
-        Contact stiffnesses [N/m]; ``kt=None`` means kt = kn.
-    mu, mu_prep : float
-        Test friction and preparation friction (default: mu) [-].
-    frictionless : bool or None
-        Force the specialised frictionless law (no spins, no history); default True when
-        mu == mu_prep == 0.
-    radius, dispersity, rho, seed, phi0 :
-        Radius [m], relative radius spread [-], areal density [kg/m^2], random seed, initial
-        solid fraction [-] (default 0.2): see :func:`random_gas`.
-    gas_overlaps : bool
-        True (default): independent uniform centres; the overlaps push the disks apart and
-        heat the gas, which works against crystallisation. False: a cold gas by random
-        sequential addition, without overlaps and at rest (``phi0`` < 0.45; with ``phi0=0.4``
-        it saves the first few thousand steps, but small packings of identical disks order
-        more often, see ``docs/dem.md``).
-    damping : float
-        Cundall local damping of the equilibrium phases, in [0, 1) (default 0.7).
-    damping_compaction : float or None
-        Local damping of the compaction phase, in [0, 1) (default 0.05); None: no separate
-        compaction phase (``damping`` throughout: the protocol before the compaction phase).
-    jam_unbalanced : float
-        Unbalanced force ratio (with ``|p - p_target| < 1e-2 p_target``) that ends the
-        compaction phase [-].
-    restitution : float or None
-        Optional viscous contact damping (coefficient of restitution, [-]).
-    max_strain_per_step : float
-        Cap on the isotropic strain per step of the servo [-].
-    alpha : float
-        Servo gain: fraction of the pressure error corrected per step, with the affine
-        stiffness [-].
-    dt_over_dtcrit : float
-        Time step over the engine's stable step ``dem.integrate.critical_dt``, in (0, 1]
-        (default 1; ``dt_crit`` is itself at least sqrt(2) below the leapfrog limit of the
-        stiffest possible contact set, see :mod:`dem.integrate`).
-    fire : bool
-        FIRE velocity mixing (:mod:`dem.fire`) in the equilibrium phases and, once the packing
-        has stopped compacting, in the compaction phase (:class:`Compact`), on top of the
-        damping (default True; False: damping alone, the earlier protocol).
-    tol_p, tol_unbalanced, tol_ke : float
-        Stop criteria [-] (module docstring).
-    max_steps : int
-        Cap on the total step count (the report then has ``converged = False``).
-    check_every : int
-        Steps between checks of the criteria and of the instability guard.
-    growth_dispersity : float
-        Relative radius spread used only during the first compression (radii
-        ``r_i (1 + g u_i)``, ``u_i`` uniform in [-1, 1], masses of the final disks), removed in
-        ``restore_increments`` steps of ``check_every`` steps once the target pressure is first
-        reached (within 5 %); 0 disables it.
-    checkpoint : path or None
-        Path of an npz checkpoint, written atomically every ``checkpoint_every`` time steps
-        and/or every ``checkpoint_seconds`` seconds of wall time, and at the end; resumed from
-        if it exists (the CLI's ``--checkpoint-every`` and ``--checkpoint-seconds`` have the
-        same units). Either trigger may be None. The final checkpoint of a converged run holds
-        its report: resuming it returns that report with ``already_converged=True``. Temporary
-        files of a killed checkpoint write are removed on resume.
-    progress : callable or None
-        ``progress(info)`` called at every check with a dict (``step``, ``max_steps``,
-        ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` (None when not
-        evaluated at this check), ``checkpoint_step``).
-    meta : dict or None
-        JSON-able dict merged into ``state.meta`` of a new run (it travels in every checkpoint;
-        a resumed run keeps the checkpoint's).
-    threads : int
-        Threads of the contact-force loop, in [1, 1024] (default 1; see
-        :class:`dem.integrate.Simulation`). With more than one, the run is reproducible for that
-        number of threads only (forces agree with one thread's to round-off), and a resumed run
-        continues bit for bit only with the same number.
+    The keywords are run options (how long and where it runs, not how the packing is made;
+    :func:`check_run_options`): ``max_steps`` cap on the total step count (then
+    ``report.converged`` is False); ``checkpoint`` path of an npz checkpoint, written
+    atomically every ``checkpoint_every`` steps and/or ``checkpoint_seconds`` [s] of wall time
+    (either None: off) and at the end, and resumed from if it exists (bit-exact; it must hold
+    the same protocol; a finished run's returns its stored report with
+    ``already_converged=True``); ``progress(info)`` called at every check (dict ``step``,
+    ``max_steps``, ``phase``, ``phi``, ``Z``, ``rel_p_err``, ``unbalanced``, ``ke_rel`` (None
+    when not evaluated), ``checkpoint_step``); ``verbose`` prints a line every tenth check;
+    ``meta`` JSON-able dict merged into ``state.meta`` of a new run; ``threads`` of the
+    contact-force loop, in [1, 1024] (reproducible for a given number of threads).
 
     An unstable run raises :class:`dem.runtime.InstabilityError` (``state`` = last good state);
     its ``checkpoint``/``checkpoint_step`` attributes name the last checkpoint written (None if
     none), which the error never overwrites.
     """
     t_start = time.perf_counter()
-    kt = kn if kt is None else kt
-    mu_prep = mu if mu_prep is None else mu_prep
-    p_target = float(pressure) if pressure is not None else float(p_over_kn) * kn
-    if not (p_target > 0 and np.isfinite(p_target)):
-        raise ValueError(f"target pressure must be > 0, got {p_target} (p_over_kn={p_over_kn}, "
-                         f"pressure={pressure})")
-    for name, val in (("mu", mu), ("mu_prep", mu_prep)):
-        if not (val >= 0):
-            raise ValueError(f"{name} must be >= 0, got {val}")
-    if damping_compaction is not None and not (0 <= damping_compaction < 1):
-        raise ValueError(f"damping_compaction must be in [0, 1) or None, got {damping_compaction}")
-    if not (0 < dt_over_dtcrit <= 1):
-        raise ValueError(f"dt_over_dtcrit must be in (0, 1], got {dt_over_dtcrit}")
-    if not (0 < jam_unbalanced < 1):
-        raise ValueError(f"jam_unbalanced must be in (0, 1), got {jam_unbalanced}")
-    if int(check_every) != check_every or check_every < 1:
-        raise ValueError(f"check_every must be an integer >= 1, got {check_every}")
-    if not (0 <= growth_dispersity < 0.5):
-        raise ValueError(f"growth_dispersity must be in [0, 0.5), got {growth_dispersity}")
-    for name, val in (("checkpoint_every", checkpoint_every), ("checkpoint_seconds", checkpoint_seconds)):
-        if val is not None and not (val >= 0 and math.isfinite(val)):
-            raise ValueError(f"{name} must be None or >= 0 ({'steps' if name == 'checkpoint_every' else 's'}), "
-                             f"got {val}")
-    check_memory(n)
-    check_every = int(check_every)
-    if frictionless is None:
-        frictionless = mu == 0 and mu_prep == 0
-    law_prep = Frictionless(kn=kn, restitution=restitution) if frictionless else \
-        LinearFriction(kn=kn, kt=kt, mu=mu_prep, restitution=restitution)
-    law_test = law_prep if frictionless else law_prep.with_friction(mu)
-    params = {"n": int(n), "p_target": p_target, "kn": kn, "kt": kt, "mu": mu, "mu_prep": mu_prep,
-              "seed": seed, "dispersity": dispersity, "phi0": phi0, "damping": damping,
-              "damping_compaction": damping_compaction, "tol_p": tol_p,
-              "tol_unbalanced": tol_unbalanced, "tol_ke": tol_ke, "check_every": check_every,
-              "gas_overlaps": bool(gas_overlaps), "dt_over_dtcrit": dt_over_dtcrit, "fire": bool(fire)}
-
-    # the named phases, in order (each with its own parameters and stop criterion)
-    phases = []
-    if growth_dispersity > 0:
-        phases.append(Grow(growth_dispersity, increments=restore_increments))
-    if damping_compaction is not None:
-        phases.append(Compact(damping_compaction, jam_unbalanced,
-                              still_tol=3e-7 if fire else 0.0))
-    eq = dict(damping=damping, tol_p=tol_p, tol_unbalanced=tol_unbalanced, tol_ke=tol_ke,
-              fire=bool(fire))
-    phases.append(Equilibrate("prep", law_prep, **eq))
-    if law_test is not law_prep and mu != mu_prep:
-        phases.append(Equilibrate("test", law_test, **eq))
-    by_name = {ph.name: ph for ph in phases}
-
-    resumed = checkpoint is not None and os.path.exists(os.fspath(checkpoint))
-    if checkpoint is not None:
-        remove_stale_temporaries(checkpoint)
-    if resumed:
-        st0 = State.load(checkpoint)
-        pk = st0.meta["packing"]
-        phase = pk["phase"]
-        if phase == "done" and pk.get("report"):   # a finished run: nothing to compute
-            rep = PackReport.from_dict(dict(pk["report"], phase_steps=pk.get("history", []),
-                                            resumed=True, already_converged=True))
-            return PackingResult(st0, law_test, rep)
-        ctl = PressureServo(**{k: v for k, v in st0.meta["sim"]["control"].items() if k != "kind"})
-        sim = Simulation.load(checkpoint, control=ctl, threads=threads)
-        history = pk.get("history", [])
-    else:
-        st = random_gas(n, radius=radius, dispersity=dispersity, phi0=phi0, rho=rho, seed=seed,
-                        spins=not frictionless, overlaps=gas_overlaps)
-        if growth_dispersity > 0:
-            u = np.random.default_rng([seed, 1]).uniform(-1.0, 1.0, st.n)
-            st.meta["growth"] = {"r0": st.radius.tolist(), "u": u.tolist(), "g": growth_dispersity, "s": 1.0}
-            st.radius = st.radius * (1.0 + growth_dispersity * u)
-        if meta:
-            st.meta.update(meta)
-        sim = Simulation(st, law_prep, dt=dt_over_dtcrit * critical_dt(st, law_prep),
-                         damping=damping if damping_compaction is None else damping_compaction,
-                         check_every=0, threads=threads)
-        ctl = PressureServo(p_target=p_target, max_rate=max_strain_per_step / sim.dt, alpha=alpha)
-        sim.control = ctl
-        phase = phases[0].name
-        history = []
-    sim.check_every = 0  # guard is done in the callback below (every check_every steps)
-    state = sim.state
-    run = _Run(sim, p_target, history)
-    if resumed:
-        run.fire = Fire.from_meta(pk["fire"]) if pk.get("fire") else None
-        run.last_phi, run.n_still = pk.get("last_phi"), pk.get("n_still", 0)
-    else:
-        by_name[phase].enter(run)
-    ck_state = {"step": state.step if resumed else None, "t": time.perf_counter()}
-    n_checks = [0]
-    order = [ph.name for ph in phases]
-
-    def next_phase(name):
-        if name == "grow":
-            return "restore"
-        nxt = order.index("grow" if name == "restore" else name) + 1
-        return order[nxt] if nxt < len(order) else "done"
-
-    def save_checkpoint(report=None):
-        state.meta["packing"] = {"phase": phase, "history": history, "params": params,
-                                 "fire": None if run.fire is None else run.fire.to_meta(),
-                                 "last_phi": run.last_phi, "n_still": run.n_still}
-        if report is not None:
-            state.meta["packing"]["report"] = {k: v for k, v in report.scalars().items()
-                                               if k not in ("resumed", "already_converged")}
-        sim.save(checkpoint)
-        ck_state["step"] = state.step
-        ck_state["t"] = time.perf_counter()
-
-    def callback(s):
-        nonlocal phase
-        s._guard()
-        m = s.measure()
-        n_checks[0] += 1
-        run.last["ke_rel"] = None
-        if verbose and state.step % (10 * check_every) == 0:
-            print(f"[pack] step {state.step} phase {phase} phi {state.solid_fraction:.4f} "
-                  f"p/p0 {m['pressure'] / p_target:.5f} unb {m['unbalanced']:.3g} "
-                  f"Z {2 * m['n_contacts'] / state.n:.3f}", flush=True)
-        ph = by_name["grow"] if phase == "restore" else by_name[phase]
-        finished = ph.restore(run) if phase == "restore" else ph.done(run, m)
-        if finished:
-            history.append({"phase": phase, "step": int(state.step)})
-            phase = next_phase(phase)
-            if phase in by_name:
-                by_name[phase].enter(run)
-        if progress is not None:
-            if run.last["ke_rel"] is None and n_checks[0] % 10 == 0:
-                run.ke_rel(m)
-            progress({"step": int(state.step), "max_steps": int(max_steps), "phase": phase,
-                      "phi": state.solid_fraction, "Z": 2.0 * m["n_contacts"] / state.n,
-                      "rel_p_err": abs(m["pressure"] - p_target) / p_target,
-                      "unbalanced": m["unbalanced"],
-                      "ke_rel": run.last["ke_rel"], "checkpoint_step": ck_state["step"]})
-        done = phase == "done"
-        if checkpoint is not None and not done:
-            by_steps = checkpoint_every and state.step % checkpoint_every == 0
-            by_time = checkpoint_seconds is not None and \
-                time.perf_counter() - ck_state["t"] >= checkpoint_seconds
-            if by_steps or by_time:
-                save_checkpoint()
-        return done
-
-    if resumed and phase == "test":
-        sim.set_law(law_test)
+    if not isinstance(protocol, PackingProtocol):
+        raise TypeError(f"pack takes a PackingProtocol (dem.packing.PackingProtocol(n=..., ...)), "
+                        f"got {type(protocol).__name__}")
+    max_steps, every, seconds, threads = check_run_options(
+        max_steps=max_steps, checkpoint_every=checkpoint_every,
+        checkpoint_seconds=checkpoint_seconds, threads=threads)
+    check_memory(protocol.n)
+    ck = _Checkpoints(checkpoint, every, seconds)
+    run = ck.resume(protocol, threads)
+    if isinstance(run, tuple):                                  # a finished run
+        return PackingResult(run[0], protocol.laws()[1], run[1], protocol)
+    resumed = run is not None
+    run = run or _new_run(protocol, threads, meta)
+    state, check_every = run.state, protocol.check_every
     try:
         # steps in chunks ending at absolute multiples of check_every: the checks (and therefore
         # the trajectory) do not depend on where a run was interrupted and resumed
-        while phase != "done" and state.step < max_steps:
-            k = min(check_every - state.step % check_every, max_steps - state.step)
-            run.advance(k)
-            if state.step % check_every == 0 and callback(sim):
-                break
+        while not run.done and state.step < max_steps:
+            run.advance(min(check_every - state.step % check_every, max_steps - state.step))
+            if state.step % check_every:
+                continue
+            m = run.check(verbose)
+            if progress is not None:
+                progress(run.info(m, max_steps, ck.step))
+            if ck.due(run):
+                ck.save(run)
     except InstabilityError as exc:
-        exc.checkpoint = os.fspath(checkpoint) if ck_state["step"] is not None else None
-        exc.checkpoint_step = ck_state["step"]
+        exc.checkpoint = None if ck.step is None else os.fspath(checkpoint)
+        exc.checkpoint_step = ck.step
         raise
-    m = sim.measure() if sim.steps_timed else sim.refresh()   # forces exist only after a step
-    run.criteria(m, phases[-1], force_ke=True)  # the final values of the three criteria
-    last = run.last
-    net = network_from_state(state, sim.law)
-    try:
-        hx = hexatic_psi6(net)
-    except Exception as exc:  # noqa: BLE001 - psi6 is informative only
-        hx = {"psi6": float("nan"), "psi6_local": float("nan")}
-    nc = net.n_contacts
-    compact_end = [h["step"] for h in history if h["phase"] == "compact"]
-    timing = sim.timing_report()
-    report = PackReport(
-        n=state.n, seed=seed, converged=phase == "done", steps=int(state.step),
-        phase_steps=history, compaction_steps=compact_end[0] if compact_end else None,
-        wall_s=time.perf_counter() - t_start, resumed=resumed,
-        p_target=p_target, pressure=last["pressure"], rel_p_err=last["rel_p_err"],
-        p_over_kn=last["pressure"] / kn, unbalanced=last["unbalanced"],
-        unbalanced_max=last["unbalanced_max"], ke_rel=last["ke_rel"],
-        kinetic_energy=last["kinetic_energy"],
-        kinetic_energy_in_contact=last["kinetic_energy_in_contact"], elastic_energy=last["elastic_energy"],
-        phi=state.solid_fraction, n_contacts=nc, Z=2.0 * nc / state.n,
-        sliding_fraction=float(net.sliding.mean()) if nc and not frictionless else float("nan"),
-        dt=sim.dt, dt_over_dtcrit=sim.dt / sim.dt_crit, mu=mu, mu_prep=mu_prep,
-        kn=kn, kt=0.0 if frictionless else kt, tol_p=tol_p, tol_unbalanced=tol_unbalanced,
-        tol_ke=tol_ke, damping=damping, damping_compaction=damping_compaction,
-        damping_work=sim.damping_work, psi6=hx["psi6"], psi6_local=hx["psi6_local"],
-        timing=timing["table"], particle_steps_per_s=timing["particle_steps_per_s"])
-    res = PackingResult(state, sim.law, report)
-    if checkpoint is not None:
-        save_checkpoint(report if phase == "done" else None)
+    res = PackingResult(state, run.sim.law, run.report(t_start, resumed), protocol)
+    ck.save(run, res.report if run.done else None)
     return res

@@ -6,7 +6,7 @@ Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (``--
 1e-4, mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic
 energy of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at
 mu_prep -> equilibrium at mu, each phase with its own stop criterion (the step at which each ended
-is printed). ``--case mu05``: ``pack(n, p_over_kn=1e-4, seed=seed)``, mu = mu_prep = 0.5 (the
+is printed). ``--case mu05``: ``PackingProtocol(n=n, seed=seed, mu=0.5, mu_prep=0.5)`` (the
 friction of ``in.prep``, and the case of issue 12 and ``studies.bench_throughput``), same
 criteria.
 
@@ -35,23 +35,23 @@ import tempfile
 import time
 
 from dem.measure import coordination
-from dem.packing import pack
+from dem.packing import PackingProtocol, pack
 
 PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
-#: the defaults of ``python -m dem pack``
-CLI_DEFAULTS = dict(p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.1, dispersity=0.0,
-                    tol_unbalanced=1e-5)
+#: the defaults of ``python -m dem pack``: the PackingProtocol's own (p/kn = 1e-4, kt = kn,
+#: mu = 0.488, mu_prep = 0.1, identical disks, tol_unbalanced = 1e-5)
+CLI_DEFAULTS = {}
 #: the protocol options before issue 12.3 (same stop criteria)
 OLD_PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
 
 #: ``--case``: the physics parameters of ours
-CASES = {"cli": CLI_DEFAULTS, "mu05": dict(p_over_kn=1e-4)}
+CASES = {"cli": CLI_DEFAULTS, "mu05": dict(p_over_kn=1e-4, mu=0.5, mu_prep=0.5)}
 
 
 def run_ours(n, seed, old=False, case="cli"):
     t0, c0 = time.perf_counter(), time.process_time()
-    r = pack(n, seed=seed, **CASES[case], **(OLD_PROTOCOL if old else {}))
+    r = pack(PackingProtocol(n=n, seed=seed, **CASES[case], **(OLD_PROTOCOL if old else {})))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rep = r.report
     c = coordination(r.to_network())      # after the timing: Z without rattlers

@@ -49,7 +49,7 @@ from dem.cell import StrainRate
 from dem.contact_laws import LammpsHookeHistory, LinearFriction
 from dem.integrate import Simulation
 from dem.lammps import lammps_available
-from dem.packing import pack
+from dem.packing import PackingProtocol, pack
 from dem.state import State
 
 INPUTS = Path(__file__).resolve().parent / "lammps_bench"
@@ -234,7 +234,7 @@ def main(argv=None):
     if not a.no_pack:
         npk = 1000 if a.quick else 10000
         t0 = time.perf_counter()
-        res = pack(npk, p_over_kn=1e-4, seed=0)
+        res = pack(PackingProtocol(n=npk, p_over_kn=1e-4, mu=0.5, mu_prep=0.5, seed=0))
         r = res.report
         print(f"\npack N={npk} p/kn=1e-4 mu=0.5 wall_s={time.perf_counter() - t0:.1f} steps={r['steps']} "
               f"converged={r['converged']} phi={r['phi']:.4f} Z={r['Z']:.3f} "

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import dem.packing
-from dem.packing import PackingResult, pack
+from dem.packing import PackingProtocol, PackingResult, pack
 from dem.probes import strain_probes
 from dem.stiffness import stiffness
 from microhom.closure import predict_closure
@@ -31,8 +31,8 @@ DEFAULTS = {"n": 1000, "p_over_kn": 1e-4, "kt_over_kn": 1.0, "mu": round(MU_26DE
             "dispersity": 0.0, "seed": 1}
 
 
-#: the packing protocol of the studies: the one before issue 12.3 (``dem.packing.pack`` options,
-#: bit-identical to it), under which the documented results were computed
+#: the packing protocol of the studies: the one before issue 12.3 (``dem.packing.PackingProtocol``
+#: fields, bit-identical to it), under which the documented results were computed
 PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
 
@@ -64,12 +64,13 @@ def get_packing(case: dict):
         res = PackingResult.load(final)
         return res, float(res.report.get("wall_time", 0.0)), False
     t0 = time.perf_counter()
-    res = pack(int(p["n"]), p_over_kn=p["p_over_kn"], kn=1.0, kt=p["kt_over_kn"], mu=p["mu"],
-               mu_prep=p["mu_prep"], dispersity=p["dispersity"], seed=int(p["seed"]),
-               frictionless=(p["kt_over_kn"] == 0 or (p["mu"] == 0 and p["mu_prep"] == 0)),
-               checkpoint=folder / f"{packing_key(case)}.partial.npz", **PROTOCOL)
+    # kt/kn = 0 or mu = mu_prep = 0: the protocol takes the frictionless law itself
+    proto = PackingProtocol(n=int(p["n"]), p_over_kn=p["p_over_kn"], kn=1.0,
+                            kt_over_kn=p["kt_over_kn"], mu=p["mu"], mu_prep=p["mu_prep"],
+                            dispersity=p["dispersity"], seed=int(p["seed"]), **PROTOCOL)
+    res = pack(proto, checkpoint=folder / f"{packing_key(case)}.partial.npz")
     wall = time.perf_counter() - t0
-    res.report["wall_time"] = wall
+    res.report = res.report.annotate(wall_time=wall)
     res.save(final)
     partial = folder / f"{packing_key(case)}.partial.npz"
     if partial.exists():

@@ -58,9 +58,9 @@ def test_oval_without_convention_warns_in_notes():
 
 @pytest.fixture(scope="module")
 def packing_npz(tmp_path_factory):
-    from dem.packing import pack
-    res = pack(150, p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05, dispersity=0.2, seed=3,
-               tol_unbalanced=1e-3, tol_ke=1e-6)
+    from dem.packing import PackingProtocol, pack
+    res = pack(PackingProtocol(n=150, p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05,
+                               dispersity=0.2, seed=3, tol_unbalanced=1e-3, tol_ke=1e-6))
     path = tmp_path_factory.mktemp("pk") / "packing.npz"
     res.save(path)
     return path, res

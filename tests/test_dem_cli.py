@@ -11,7 +11,7 @@ import pytest
 from dem import io as dio
 from dem.packing import PackingResult
 
-BASE = ["--n", "120", "--pressure", "1e-3", "--mu-prep", "0.1", "--mu", "0.49", "--seed", "2",
+BASE = ["--n", "120", "--p-over-kn", "1e-3", "--mu-prep", "0.1", "--mu", "0.49", "--seed", "2",
         "--no-progress"]
 
 
@@ -79,20 +79,30 @@ def test_resume_after_interruption_is_bit_exact(straight, tmp_path):
 
 
 @pytest.mark.parametrize("args, option, text", [
-    (["--n", "1"], "--n", ">= 2"),
-    (["--n", "50", "--pressure", "-1e-4"], "--pressure", "(0, 0.1]"),
+    (["--n", "1"], "--n", "an integer in [2, 1e9], got 1.0"),
+    (["--n", "50", "--p-over-kn", "-1e-4"], "--p-over-kn", "(0, 0.1]"),
     (["--n", "50", "--mu", "-0.1"], "--mu", "[0, 10]"),
     (["--n", "50", "--dispersity", "0.7"], "--dispersity", "[0, 0.5)"),
-    (["--n", "50", "--kt", "20"], "--kt", "[0, 10 kn]"),
+    (["--n", "50", "--kt-over-kn", "20"], "--kt-over-kn", "[0, 10]"),
     (["--n", "50", "--tol-unbalanced", "2"], "--tol-unbalanced", "(0, 1)"),
-    (["--n", "50", "--checkpoint-seconds", "0"], "--checkpoint-seconds", "> 0"),
+    (["--n", "50", "--damping-compaction", "1"], "--damping-compaction", "None or in [0, 1)"),
+    (["--n", "50", "--kn", "nan"], "--kn", "> 0 [N/m]"),
+    (["--n", "50", "--phi0", "0.5", "--no-gas-overlaps"], "--phi0", "(0, 0.45)"),
+    (["--n", "50", "--check-every", "2.5"], "--check-every", "an integer >= 1"),
+    (["--n", "50", "--checkpoint-seconds", "-1"], "--checkpoint-seconds", ">= 0 [s]"),
     (["--n", "50", "--checkpoint-every", "0"], "--checkpoint-every", ">= 1"),
     (["--n", "50", "--threads", "0"], "--threads", "[1, 1024]"),
-    (["--n", "50", "--pressure-pa", "100"], "--pressure-pa", "--kn"),
-    (["--n", "50", "--pressure-pa", "1e3", "--kn", "1e3"], "--pressure-pa", "(0, 0.1]"),
+    (["--n", "50", "--max-steps", "abc"], "--max-steps", "an integer >= 1"),
+    (["--n", "50", "--p-target", "100"], "--p-target", "--kn"),
+    (["--n", "50", "--p-target", "1e3", "--kn", "1e3"], "--p-target", "(0, 0.1]"),
+    (["--n", "50", "--p-target", "1", "--kn", "1e3", "--p-over-kn", "1e-3"], "--p-target",
+     "not both"),
     (["--n", "50", "--out", "x.txt"], "--out", ".npz"),
     (["--resume"], "--resume", "checkpoint"),
-    (["--n", "abc"], "--n", "invalid int"),
+    (["--n", "abc"], "--n", "an integer in [2, 1e9], got 'abc'"),
+    (["--n", "2.5"], "--n", "an integer in [2, 1e9], got 2.5"),
+    (["--n", "1e10"], "--n", "an integer in [2, 1e9], got 10000000000.0"),
+    (["--n", "1e9"], "--n", "allowed: n <="),     # in the protocol's range, beyond the memory
 ])
 def test_bad_input_exits_2_naming_the_option(tmp_path, args, option, text):
     p = run(*args, "--no-progress", cwd=tmp_path)
@@ -103,11 +113,14 @@ def test_bad_input_exits_2_naming_the_option(tmp_path, args, option, text):
 
 def test_absolute_units(tmp_path):
     out = tmp_path / "si.npz"
-    p = run("--n", "60", "--pressure-pa", "2e3", "--kn", "1e6", "--mu", "0", "--mu-prep", "0",
+    p = run("--n", "60", "--p-target", "2e3", "--kn", "1e6", "--mu", "0", "--mu-prep", "0",
             "--dispersity", "0.2", "--tol-unbalanced", "1e-3", "--no-progress", "--out", str(out))
     assert p.returncode == 0, p.stderr
     r = PackingResult.load(out).report
     assert r["p_over_kn"] == pytest.approx(2e-3, rel=1e-3) and r["kn"] == 1e6
+    assert r["p_target"] == pytest.approx(2e3, rel=1e-15)
+    proto = PackingResult.load(out).protocol
+    assert proto.kn == 1e6 and proto.p_over_kn == 2e3 / 1e6 and proto.dispersity == 0.2
 
 
 def test_help_explains_units():
@@ -115,8 +128,15 @@ def test_help_explains_units():
     assert p.returncode == 0
     text = " ".join(p.stdout.split())
     for s in ("p/kn", "[N/m]", "SECONDS", "--resume", "--checkpoint-every", "dimensionless",
-              "unbalanced force ratio", "exit codes", "force per length"):
+              "unbalanced force ratio", "exit codes", "force per length", "247 B per particle"):
         assert s in text, s
+    # one option per protocol field, with the protocol's own range text and default
+    from dem.packing import PackingProtocol
+    for name, (default, prm) in PackingProtocol.params().items():
+        opt = "--" + name.replace("_", "-")
+        assert opt in text, opt
+        if prm.kind != "bool":
+            assert prm.allowed_text() in text, (opt, prm.allowed_text())
 
 
 def test_unstable_run_exits_4_and_keeps_checkpoint(tmp_path, monkeypatch, capsys):

@@ -14,13 +14,13 @@ import dem.__main__ as cli
 import dem.plot
 from dem import runtime
 from dem.integrate import Simulation
-from dem.packing import BYTES_PER_PARTICLE, PackingResult, pack
+from dem.packing import BYTES_PER_PARTICLE, PackingProtocol, PackingResult, pack
 from dem.state import State
 
-BASE = ["--n", "40", "--pressure", "1e-3", "--mu", "0.3", "--mu-prep", "0.3", "--seed", "2",
+BASE = ["--n", "40", "--p-over-kn", "1e-3", "--mu", "0.3", "--mu-prep", "0.3", "--seed", "2",
         "--tol-unbalanced", "1e-3", "--no-progress"]
-PACK_KW = dict(p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=2, tol_unbalanced=1e-3,
-               tol_ke=1e-6, max_steps=200_000)
+PROTO = PackingProtocol(n=40, p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=2,
+                        tol_unbalanced=1e-3, tol_ke=1e-6)
 
 
 def _csv(path):
@@ -31,15 +31,18 @@ def _csv(path):
 def test_resume_after_a_finished_run_reports_its_real_criteria(tmp_path):
     """Row 1 (API): the final checkpoint of a converged run resumes to its own report."""
     ck = tmp_path / "ck.npz"
-    first = pack(40, checkpoint=ck, **PACK_KW)
+    first = pack(PROTO, checkpoint=ck)
     assert first.report["converged"] and ck.exists()
-    again = pack(40, checkpoint=ck, **PACK_KW)
+    again = pack(PROTO, checkpoint=ck)
     r0, r1 = first.report, again.report
     assert r1["already_converged"] and r1["resumed"] and r1["converged"]
     for k in ("steps", "pressure", "rel_p_err", "unbalanced", "ke_rel", "particle_steps_per_s", "Z"):
         assert r1[k] == r0[k], k
     assert 0 < r1["rel_p_err"] < 1e-3 and np.isfinite(r1["unbalanced"])
     assert np.array_equal(again.state.x, first.state.x)
+    # the checkpoint of another protocol is refused, naming the fields that differ
+    with pytest.raises(ValueError, match=r"another protocol \(fields \['mu'\] differ\)"):
+        pack(PROTO.replace(mu=0.2), checkpoint=ck)
 
 
 def test_kill_after_summary_then_resume(tmp_path, monkeypatch, capsys):
@@ -138,11 +141,13 @@ def test_full_disk_while_writing_outputs_then_resume(tmp_path, monkeypatch, caps
 
 def test_huge_n_is_refused_up_front(capsys):
     """Row 4: 1e9 disks need ~270 GB: refused before anything is allocated."""
-    assert cli.main(["pack", "--n", "1000000000", "--no-progress"]) == cli.EXIT_BAD_INPUT
-    err = capsys.readouterr().err
-    assert "--n" in err and f"{BYTES_PER_PARTICLE} B per particle" in err and "available" in err
+    for text in ("1000000000", "1e9"):
+        assert cli.main(["pack", "--n", text, "--no-progress"]) == cli.EXIT_BAD_INPUT
+        err = capsys.readouterr().err
+        assert "--n" in err and f"{BYTES_PER_PARTICLE} B per particle" in err and "available" in err
+        assert "allowed: n <=" in err
     with pytest.raises(ValueError, match="n = 1000000000"):
-        pack(10 ** 9)
+        pack(PackingProtocol(n=10 ** 9))
 
 
 _KILL_MID_WRITE = """
@@ -160,7 +165,7 @@ def test_orphan_temporaries_of_a_killed_write_are_removed_on_resume(tmp_path):
     """Row 11: a process killed during a checkpoint write leaves .tmp_<name>.*; resuming removes
     it (and only it)."""
     ck = tmp_path / "ck.npz"
-    pack(40, checkpoint=ck, **dict(PACK_KW, max_steps=1000))
+    pack(PROTO, checkpoint=ck, max_steps=1000)
     env = dict(os.environ, PYTHONPATH=os.getcwd())
     p = subprocess.run([sys.executable, "-c", _KILL_MID_WRITE, str(ck)], env=env)
     assert p.returncode == 9
@@ -168,7 +173,7 @@ def test_orphan_temporaries_of_a_killed_write_are_removed_on_resume(tmp_path):
     assert len(orphans) == 1
     other = tmp_path / ".tmp_other.npz.abc.npz"
     other.write_bytes(b"someone else's")
-    pack(40, checkpoint=ck, **dict(PACK_KW, max_steps=1100))
+    pack(PROTO, checkpoint=ck, max_steps=1100)
     assert not [f for f in os.listdir(tmp_path) if f.startswith(".tmp_ck.npz.")]
     assert other.exists()
     assert State.load(ck).step == 1100
@@ -184,7 +189,7 @@ def test_written_files_follow_the_umask(tmp_path, mask):
     """Row 16: packing and checkpoint files get 0666 less the umask (mkstemp gave 0600)."""
     old = os.umask(mask)
     try:
-        r = pack(30, **dict(PACK_KW, max_steps=200, checkpoint=tmp_path / "ck.npz"))
+        r = pack(PROTO.replace(n=30), max_steps=200, checkpoint=tmp_path / "ck.npz")
         r.save(tmp_path / "p.npz")
     finally:
         os.umask(old)

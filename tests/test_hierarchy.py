@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dem.packing import pack
+from dem.packing import PackingProtocol, pack
 from dem.stiffness import stiffness
 from microhom import lattices
 from microhom.hierarchy import (block_preconditioner, lowest_modes, isotropic_weights, moments,
@@ -34,7 +34,8 @@ def _diluted(nx=8, ny=8, z=4.4, kt=1.0, seed=0, jitter=0.15, poly=0.15, sliding=
 @pytest.fixture(scope="module")
 def packing():
     """A small frictional DEM packing (kt = 0.5 kn, p/kn = 1e-3) with its forces."""
-    return pack(150, p_over_kn=1e-3, kt=0.5, mu=0.5, mu_prep=0.1, dispersity=0.2, seed=3).to_network()
+    return pack(PackingProtocol(n=150, p_over_kn=1e-3, kt_over_kn=0.5, mu=0.5, mu_prep=0.1,
+                                dispersity=0.2, seed=3)).to_network()
 
 
 def _psd(A, tol):
@@ -428,8 +429,9 @@ def test_soft_mode_deflation_removes_the_plateau():
     Deflating the soft modes found by LOBPCG reaches the exact value, bounds intact."""
     # the packing of the protocol before issue 12.3 (its options pin it, bit for bit): this seed
     # has the near-mechanism the test needs
-    net = pack(300, p_over_kn=1e-5, kt=1.0, mu=0.4877, mu_prep=0.05, seed=2, damping_compaction=0.1,
-               dt_over_dtcrit=0.8, fire=False).to_network()
+    net = pack(PackingProtocol(n=300, p_over_kn=1e-5, kt_over_kn=1.0, mu=0.4877, mu_prep=0.05,
+                               seed=2, damping_compaction=0.1, dt_over_dtcrit=0.8,
+                               fire=False)).to_network()
     ex = stiffness(net)
     base = relaxation_hierarchy(net, tol=1e-9, max_order=8, spectral_bound="none", soft_modes=0)
     soft = relaxation_hierarchy(net, tol=1e-9, max_order=8, spectral_bound="none")   # "auto": 3

@@ -12,7 +12,7 @@ import pytest
 
 from dem.lammps import pack_lammps
 from dem.measure import contact_forces, stress
-from dem.packing import pack, random_gas
+from dem.packing import PackingProtocol, pack, random_gas
 from microhom.structural_sums import network_statistics
 
 # slow: the module's fixture prepares a LAMMPS packing (10-35 s on 2 cores); the LAMMPS
@@ -26,11 +26,11 @@ def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lammps")
     np_ = 2 if shutil.which("mpirun") else 1
     # dem.packing's default stop criteria (tol_p 1e-3, tol_unbalanced 1e-5, tol_ke 1e-8)
-    return pack_lammps(N, folder, np=np_, timeout=120, **PARAMS)
+    return pack_lammps(PROTO, folder, np=np_, timeout=120, max_steps=200_000)
 
 
 N = 300
-PARAMS = dict(p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05, dispersity=0.2, seed=1, max_steps=200_000)
+PROTO = PackingProtocol(n=N, p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05, dispersity=0.2, seed=1)
 
 
 def test_packing_reaches_target(run):
@@ -43,7 +43,7 @@ def test_packing_reaches_target(run):
         assert ph["ke_rel"] < 1e-8
     assert 0.80 < res["phi"] < 0.86 and 3.3 < res["Z"] < 4.2
     # the starting gas is dem.packing.random_gas with the same seed (same N, radii)
-    gas = random_gas(300, dispersity=0.2, seed=1)
+    gas = random_gas(PROTO)
     assert np.allclose(np.sort(run.config.radii), np.sort(gas.radius), rtol=1e-15)
 
 
@@ -99,7 +99,7 @@ def test_packing_matches_dem_packing(run):
     # (docs/scale_out.md): at N = 300, p/kn = 1e-3, seeds 1-3, the two engines differed by <= 0.0063
     # in phi and <= 0.08 in Z without rattlers, about the seed-to-seed scatter of either engine
     # (phi 0.826-0.839); the bounds below are about twice that.
-    ref = pack(N, **PARAMS)
+    ref = pack(PROTO, max_steps=200_000)
     assert ref.report["converged"]
     z_l = network_statistics(run.network).nc
     z_d = network_statistics(ref.to_network()).nc

@@ -10,20 +10,22 @@ import pytest
 from scipy.spatial import Delaunay
 
 import dem.__main__ as cli
+from dem import io as dio
 from dem import measure
 from dem.integrate import InstabilityError, Simulation
-from dem.packing import PackingResult, PackReport, hexatic_psi6, network_from_state, pack, random_gas
+from dem.packing import (PackingProtocol, PackingResult, PackReport, ProtocolError, hexatic_psi6,
+                         network_from_state, pack, random_gas)
 from dem.scenes import isotropic
 from dem.state import State
 from microhom import lattices
 
-PACK_KW = dict(p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3, tol_unbalanced=1e-4,
-               tol_ke=1e-6, max_steps=200_000)
+PROTO = PackingProtocol(n=60, p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3,
+                        tol_unbalanced=1e-4, tol_ke=1e-6)
 
 
 @pytest.fixture(scope="module")
 def small_packing():
-    return pack(120, **PACK_KW)
+    return pack(PROTO.replace(n=120), max_steps=200_000)
 
 
 def test_packing_meets_its_stop_criteria(small_packing):
@@ -61,8 +63,9 @@ def _psi6_delaunay(net):
 
 
 def test_random_gas_without_overlaps():
-    a = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
-    b = random_gas(400, seed=5, dispersity=0.3, phi0=0.44, overlaps=False)
+    cold = PackingProtocol(n=400, seed=5, dispersity=0.3, phi0=0.44, gas_overlaps=False)
+    a = random_gas(cold)
+    b = random_gas(cold)
     assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
     assert a.solid_fraction == pytest.approx(0.44)
     L = a.h[0, 0]
@@ -72,16 +75,15 @@ def test_random_gas_without_overlaps():
     gap = np.hypot(d[..., 0], d[..., 1]) - (a.radius[:, None] + a.radius[None, :])
     np.fill_diagonal(gap, np.inf)
     assert gap.min() >= 0
-    assert not np.array_equal(a.x, random_gas(400, seed=6, dispersity=0.3, phi0=0.44, overlaps=False).x)
+    assert not np.array_equal(a.x, random_gas(cold.replace(seed=6)).x)
     with pytest.raises(ValueError, match="phi0"):
-        random_gas(50, phi0=0.5, overlaps=False)
+        cold.replace(phi0=0.5)
 
 
 def test_old_protocol_options_reproduce_the_earlier_packing():
     """The options of the protocol before issue 12.3 give the packing that code gave, bit for
     bit (values recorded with the code of commit 890360b, before FIRE and dt = dt_crit)."""
-    kw = dict(PACK_KW, mu_prep=0.1, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
-    r = pack(60, **kw)
+    r = pack(PROTO.replace(mu_prep=0.1, damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False))
     assert r.report["phase_steps"] == [{"phase": "compact", "step": 5400},
                                        {"phase": "prep", "step": 5500},
                                        {"phase": "test", "step": 5600}]
@@ -91,15 +93,15 @@ def test_old_protocol_options_reproduce_the_earlier_packing():
 
 
 def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
-    kw = dict(PACK_KW, mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14, checkpoint_every=100)
-    straight = pack(60, **kw)
+    proto = PROTO.replace(mu_prep=0.1, tol_unbalanced=1e-9, tol_ke=1e-14)
+    straight = pack(proto, checkpoint_every=100)
     assert [h["phase"] for h in straight.report["phase_steps"]] == ["compact", "prep", "test"]
     stop = straight.report["phase_steps"][0]["step"] + 100          # inside prep (FIRE on)
     ck = tmp_path / "pack.npz"
-    pack(60, **dict(kw, max_steps=stop, checkpoint=ck))
+    pack(proto, checkpoint_every=100, max_steps=stop, checkpoint=ck)
     pk = State.load(ck).meta["packing"]
     assert pk["phase"] == "prep" and pk["fire"]["n_pos"] + pk["fire"]["n_quench"] > 0
-    resumed = pack(60, **dict(kw, checkpoint=ck))
+    resumed = pack(proto, checkpoint_every=100, checkpoint=ck)
     assert resumed.report["resumed"] and resumed.report["steps"] == straight.report["steps"]
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
         assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
@@ -115,7 +117,7 @@ def test_compaction_fire_gate_follows_the_solid_fraction():
 
     run = _Run.__new__(_Run)
     run.state, run.p_target, run.fire, run.last_phi, run.n_still = St(), 1.0, None, None, 0
-    ph = Compact(0.05, still_tol=1e-6, still_checks=3)
+    ph = Compact(0.05, 1e-3, 1e-2, still_tol=1e-6, still_checks=3)
     m = {"pressure": 2.0, "unbalanced": 1.0}              # far from done
     seen = []
     for phi in (0.8, 0.8, 0.8, 0.8, 0.8, 0.81, 0.81):
@@ -123,19 +125,19 @@ def test_compaction_fire_gate_follows_the_solid_fraction():
         assert not ph.done(run, m)
         seen.append((run.n_still, run.fire is not None))
     assert seen == [(0, False), (1, False), (2, False), (3, True), (4, True), (0, False), (1, False)]
-    assert Compact(0.05, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
+    assert Compact(0.05, 1e-3, 1e-2, still_tol=0.0).done(run, {"pressure": 1.0, "unbalanced": 1e-4})
 
 
 def test_resume_with_the_compaction_gate_counting_is_bit_exact(tmp_path):
     # N = 400, seed 0: the gate opens at step 11 800 (fifth still check), the checkpoint at
     # 11 500 is inside the count
-    kw = dict(p_over_kn=1e-4, mu=0.5, seed=0, checkpoint_every=100)
-    straight = pack(400, **kw)
+    proto = PackingProtocol(n=400, p_over_kn=1e-4, mu=0.5, mu_prep=0.5, seed=0)
+    straight = pack(proto, checkpoint_every=100)
     ck = tmp_path / "pack.npz"
-    pack(400, **dict(kw, max_steps=11500, checkpoint=ck))
+    pack(proto, checkpoint_every=100, max_steps=11500, checkpoint=ck)
     pk = State.load(ck).meta["packing"]
     assert pk["phase"] == "compact" and pk["n_still"] > 0 and pk["last_phi"] is not None
-    resumed = pack(400, **dict(kw, checkpoint=ck))
+    resumed = pack(proto, checkpoint_every=100, checkpoint=ck)
     assert resumed.report["steps"] == straight.report["steps"]
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
         assert np.array_equal(getattr(resumed.state, name), getattr(straight.state, name)), name
@@ -163,21 +165,19 @@ def test_network_handover_matches_pressure(small_packing):
 
 
 def test_same_seed_bit_identical_and_other_seed_differs():
-    kw = dict(PACK_KW, max_steps=3000)
-    a = pack(60, **kw)
-    b = pack(60, **kw)
-    c = pack(60, **dict(kw, seed=4))
+    a = pack(PROTO, max_steps=3000)
+    b = pack(PROTO, max_steps=3000)
+    c = pack(PROTO.replace(seed=4), max_steps=3000)
     for name in ("x", "v", "omega", "h", "nl_ft"):
         assert np.array_equal(getattr(a.state, name), getattr(b.state, name)), name
     assert not np.array_equal(a.state.x, c.state.x)
 
 
 def test_checkpoint_resume_is_bit_exact(tmp_path):
-    kw = dict(PACK_KW, max_steps=4000, checkpoint_every=1000)
-    straight = pack(60, **kw)
+    straight = pack(PROTO, max_steps=4000, checkpoint_every=1000)
     ck = tmp_path / "pack.npz"
-    pack(60, **dict(kw, max_steps=2000, checkpoint=ck))
-    resumed = pack(60, **dict(kw, checkpoint=ck))
+    pack(PROTO, max_steps=2000, checkpoint_every=1000, checkpoint=ck)
+    resumed = pack(PROTO, max_steps=4000, checkpoint_every=1000, checkpoint=ck)
     assert resumed.report["resumed"]
     assert resumed.state.step == straight.state.step == 4000
     for name in ("x", "v", "omega", "h", "L", "nl_ft"):
@@ -192,28 +192,33 @@ def test_result_save_load(tmp_path, small_packing):
     assert back.to_network().n_contacts == small_packing.to_network().n_contacts
 
 
-def test_pressure_given_in_pa():
-    r = pack(40, pressure=2e3, kn=1e6, mu=0.0, mu_prep=0.0, seed=1, tol_unbalanced=1e-3,
-             tol_ke=1e-4, max_steps=100_000).report
+def test_absolute_units():
+    proto = PackingProtocol(n=40, p_over_kn=2e3 / 1e6, kn=1e6, mu=0.0, mu_prep=0.0, seed=1,
+                            tol_unbalanced=1e-3, tol_ke=1e-4)
+    assert proto.p_target == pytest.approx(2e3, rel=1e-15) and proto.kt == 1e6
+    r = pack(proto, max_steps=100_000).report
     assert r["converged"] and r["p_over_kn"] == pytest.approx(2e-3, rel=1e-3)
+    assert r["pressure"] == pytest.approx(2e3, rel=1e-3) and r["p_target"] == proto.p_target
     assert math.isnan(r["sliding_fraction"]) and r["kt"] == 0.0
 
 
 def test_random_gas_seeded_and_bad_input():
-    a = random_gas(50, seed=9, dispersity=0.1)
-    b = random_gas(50, seed=9, dispersity=0.1)
+    a = random_gas(PackingProtocol(n=50, seed=9, dispersity=0.1))
+    b = random_gas(PackingProtocol(n=50, seed=9, dispersity=0.1))
     assert np.array_equal(a.x, b.x) and np.array_equal(a.radius, b.radius)
     assert a.solid_fraction == pytest.approx(0.2)
     with pytest.raises(ValueError, match="dispersity"):
-        random_gas(50, dispersity=0.7)
-    with pytest.raises(ValueError, match="target pressure"):
-        pack(50, p_over_kn=-1.0)
+        PackingProtocol(n=50, dispersity=0.7)
+    with pytest.raises(ValueError, match=r"p_over_kn must be in \(0, 0.1\], got -1.0"):
+        PackingProtocol(n=50, p_over_kn=-1.0)
+    with pytest.raises(TypeError, match="PackingProtocol"):
+        pack(50)
 
 
 def test_isotropic_scene_wiring():
     """The scene's servo brings a frictionless gas to the target pressure, and the pressure it
     reports is the Love-Weber pressure of the contact network computed independently."""
-    st = random_gas(80, seed=2, spins=False)
+    st = random_gas(PackingProtocol(n=80, seed=2), spins=False)
     sim = isotropic.simulation(st, p_target=1e-3, kn=1.0)  # frictionless: no spins, no history
     for _ in range(100):
         sim.run(500)
@@ -242,7 +247,7 @@ def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
     monkeypatch.setattr(Simulation, "run", poisoned)
     ck = tmp_path / "ck.npz"
     with pytest.raises(InstabilityError, match="NaN") as err:
-        pack(60, **dict(PACK_KW, checkpoint=ck, checkpoint_every=500))
+        pack(PROTO, max_steps=200_000, checkpoint=ck, checkpoint_every=500)
     e = err.value
     assert e.step == 1100 and e.state.step == 1000 and np.isfinite(e.state.v).all()
     assert e.checkpoint == str(ck) and e.checkpoint_step == 1000
@@ -252,8 +257,8 @@ def test_unstable_run_keeps_last_good_checkpoint(tmp_path, monkeypatch):
 def test_checkpoint_by_wall_time_and_progress(tmp_path):
     seen = []
     ck = tmp_path / "ck.npz"
-    r = pack(60, **dict(PACK_KW, max_steps=3000, checkpoint=ck, checkpoint_every=None,
-                        checkpoint_seconds=0.0), progress=seen.append)
+    r = pack(PROTO, max_steps=3000, checkpoint=ck, checkpoint_every=None, checkpoint_seconds=0.0,
+             progress=seen.append)
     assert [s["step"] for s in seen] == list(range(100, 3001, 100))
     assert all(s["checkpoint_step"] == s["step"] - 100 for s in seen[1:])  # saved at every check
     assert all(s["ke_rel"] is not None for s in seen[9::10])
@@ -266,10 +271,10 @@ def test_compaction_phase_then_equilibrium_damping(small_packing):
     assert phases == ["compact", "prep"]  # mu == mu_prep: no test phase
     assert r["compaction_steps"] == r["phase_steps"][0]["step"] < r["steps"]
     assert small_packing.state.meta["sim"]["damping"] == 0.7 == r["damping"]
-    old = pack(60, **dict(PACK_KW, damping_compaction=None, max_steps=2000))
+    old = pack(PROTO.replace(damping_compaction=None), max_steps=2000)
     assert old.report["compaction_steps"] is None
     with pytest.raises(ValueError, match="damping_compaction"):
-        pack(60, damping_compaction=1.0)
+        PROTO.replace(damping_compaction=1.0)
 
 
 # the npz meta and the summary CSV of `python -m dem pack` as they were before the report became
@@ -280,7 +285,7 @@ META_KEYS = ['source', 'note', 'timestep', 'n', 'seed', 'converged', 'steps', 'c
              'elastic_energy', 'phi', 'n_contacts', 'Z', 'sliding_fraction', 'dt', 'dt_over_dtcrit',
              'mu', 'mu_prep', 'kn', 'kt', 'tol_p', 'tol_unbalanced', 'tol_ke', 'damping',
              'damping_compaction', 'damping_work', 'psi6', 'psi6_local', 'timing',
-             'particle_steps_per_s', 'law']
+             'particle_steps_per_s', 'law', 'protocol']
 CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_per_s', 'n', 'seed',
             'p_target', 'pressure', 'p_over_kn', 'rel_p_err', 'tol_p', 'unbalanced',
             'unbalanced_max', 'tol_unbalanced', 'ke_rel', 'tol_ke', 'phi', 'Z', 'n_contacts',
@@ -291,7 +296,7 @@ CSV_KEYS = ['converged', 'steps', 'compaction_steps', 'wall_s', 'particle_steps_
 
 def test_cli_outputs_keep_their_schema(tmp_path):
     out = tmp_path / "p.npz"
-    assert cli.main(["pack", "--n", "40", "--pressure", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
+    assert cli.main(["pack", "--n", "40", "--p-over-kn", "1e-3", "--mu", "0.3", "--mu-prep", "0.1",
                      "--seed", "2", "--tol-unbalanced", "1e-3", "--no-progress",
                      "--out", str(out)]) == 0
     with np.load(out) as z:
@@ -309,19 +314,133 @@ def test_cli_outputs_keep_their_schema(tmp_path):
     assert json.loads(json.dumps(rep.as_dict()))["steps"] == rep.steps   # JSON-ready
     with pytest.raises(Exception):
         rep.steps = 0                                                    # frozen
+    with pytest.raises(TypeError):
+        rep["steps"] = 0                                                 # no item assignment
     with pytest.raises(TypeError, match="read-only"):
-        rep["steps"] = 0
-    rep["wall_time"] = 1.5                   # a caller's annotation travels with the packing
-    PackingResult(PackingResult.load(out).state, PackingResult.load(out).law, rep).save(out)
-    annotation = PackingResult.load(out).report["wall_time"]   # a caller's annotation, not a timing
-    assert annotation == 1.5
+        rep.annotate(steps=0)
+    noted = rep.annotate(wall_time=1.5)      # a caller's annotation travels with the packing
+    assert "wall_time" not in rep and noted["wall_time"] == 1.5
+    back = PackingResult.load(out)
+    PackingResult(back.state, back.law, noted, back.protocol).save(out)
+    again = PackingResult.load(out)
+    assert again.report["wall_time"] == 1.5  # a caller's annotation, not a timing
+    # the file says how it was made: the protocol, equal to the one the options gave
+    assert again.protocol == PackingProtocol(n=40, p_over_kn=1e-3, mu=0.3, mu_prep=0.1, seed=2,
+                                             tol_unbalanced=1e-3)
+    assert meta["protocol"] == again.protocol.as_dict()
+    assert dio.read(out).meta["protocol"] == again.protocol.as_dict()
 
 
 def test_pack_with_two_threads_converges_and_is_reproducible():
     """The multi-core force loop in a whole packing run: converged, the same bits twice with two
     threads, and the same packing as one thread's up to the round-off that grows over the run."""
-    runs = [pack(60, p_over_kn=1e-3, seed=3, threads=t) for t in (2, 2, 1)]
+    proto = PackingProtocol(n=60, p_over_kn=1e-3, mu=0.5, mu_prep=0.5, seed=3)
+    runs = [pack(proto, threads=t) for t in (2, 2, 1)]
     a, b, c = runs
     assert a.report["converged"] and b.report["converged"] and c.report["converged"]
     assert np.array_equal(a.state.x, b.state.x) and a.report["steps"] == b.report["steps"]
     assert abs(a.report["phi"] - c.report["phi"]) < 0.02
+
+
+# ---- the protocol object ----------------------------------------------------------------------
+#: one value just outside the allowed range of every field (a new field must be added here)
+BAD = {"n": 1, "seed": -1, "p_over_kn": 0.2, "kn": 0.0, "kt_over_kn": 10.5, "mu": -0.1,
+       "mu_prep": 11.0, "radius": 0.0, "dispersity": 0.5, "rho": 0.0, "phi0": 0.9,
+       "gas_overlaps": 1, "growth_dispersity": 0.5, "restore_increments": 0,
+       "damping_compaction": 1.0, "jam_p": 1.0, "jam_unbalanced": 0.0, "damping": -0.01,
+       "fire": "yes", "restitution": 0.0, "max_strain_per_step": 0.1, "alpha": 0.0,
+       "dt_over_dtcrit": 1.01, "tol_p": 0.0, "tol_unbalanced": 1.0, "tol_ke": 0.0,
+       "check_every": 0}
+
+
+def test_protocol_is_frozen_hashable_serialisable_data():
+    p = PackingProtocol(n=100, mu_prep=0.05, seed=3)
+    assert p == PackingProtocol(n=100, mu_prep=0.05, seed=3)
+    assert hash(p) == hash(PackingProtocol(n=100, mu_prep=0.05, seed=3))
+    assert len({p, p.replace(seed=3), p.replace(seed=4)}) == 2
+    assert PackingProtocol.from_json(p.to_json()) == p == PackingProtocol.from_dict(p.as_dict())
+    assert json.loads(p.to_json())["mu_prep"] == 0.05
+    with pytest.raises(Exception):
+        p.mu = 0.3                                        # frozen
+    corpus = [p.replace(seed=s) for s in range(3)]
+    assert [q.seed for q in corpus] == [0, 1, 2] and all(q.mu_prep == 0.05 for q in corpus)
+    with pytest.raises(ValueError, match="unknown packing protocol field.*'pressure'"):
+        PackingProtocol.from_dict({"n": 10, "pressure": 1.0})
+    # derived quantities, in N/m
+    q = PackingProtocol(n=10, p_over_kn=2e-3, kn=5e6, kt_over_kn=0.5)
+    assert q.p_target == 2e-3 * 5e6 and q.kt == 2.5e6
+    assert q.areal_density == pytest.approx(1 / (math.pi * 0.25), rel=1e-15)
+    assert PackingProtocol(n=10, kt_over_kn=0).frictionless
+    assert PackingProtocol(n=10, mu=0, mu_prep=0).frictionless
+    assert not PackingProtocol(n=10, mu=0).frictionless
+    # an integer given as a float is an integer; a fractional one is refused
+    assert PackingProtocol(n=1e3).n == 1000 and isinstance(PackingProtocol(n=1e3).n, int)
+
+
+def test_protocol_defaults_are_the_seed_papers_conditions():
+    p = PackingProtocol(n=10)
+    assert p.mu == round(math.tan(math.radians(26.0)), 3)       # friction angle 26 deg
+    assert (p.p_over_kn, p.kt_over_kn, p.kn, p.mu_prep, p.dispersity, p.radius) == \
+        (1e-4, 1.0, 1.0, 0.1, 0.0, 0.5)
+    assert (p.tol_p, p.tol_unbalanced, p.tol_ke, p.damping, p.damping_compaction, p.fire,
+            p.dt_over_dtcrit) == (1e-3, 1e-5, 1e-8, 0.7, 0.05, True, 1.0)
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_protocol_refuses_each_bad_field_naming_it_and_its_range(name):
+    from dem.packing import ProtocolError
+    prm = PackingProtocol.params()[name][1]
+    with pytest.raises(ProtocolError) as err:
+        PackingProtocol(**{"n": 10, name: BAD[name]})
+    assert err.value.field == name and str(err.value).startswith(f"{name} must be ")
+    assert (prm.allowed_text() in str(err.value)) or prm.kind == "bool"
+    if prm.kind != "bool":                                    # NaN and inf never pass
+        for v in (float("nan"), float("inf")):
+            with pytest.raises(ProtocolError, match=name):
+                PackingProtocol(**{"n": 10, name: v})
+    assert set(BAD) == set(PackingProtocol.params())
+
+
+def test_lammps_writer_maps_the_protocol(tmp_path):
+    """write_inputs takes the protocol's values (no defaults of its own): the same gas, the
+    contact law, the servo target, the criteria, the time step; the dashpot from the restitution
+    gives that restitution back (closed form of a linear spring-dashpot collision)."""
+    from dem import io as dio
+    from dem.contact_laws import LinearFriction
+    from dem.integrate import critical_dt
+    from dem.lammps import INPUT_NAME, write_inputs
+    proto = PackingProtocol(n=50, p_over_kn=2e-3, kn=3.0, kt_over_kn=0.5, mu=0.4, mu_prep=0.05,
+                            dispersity=0.1, seed=7, restitution=0.6, tol_p=2e-3, tol_ke=1e-7,
+                            check_every=50, dt_over_dtcrit=0.9, jam_p=0.02)
+    prm = write_inputs(tmp_path, proto)
+    text = (tmp_path / INPUT_NAME).read_text()
+    gas = random_gas(proto)
+    data = dio.read(tmp_path / "gas.data").sorted_by_id()
+    assert np.array_equal(data.positions, gas.x) and np.array_equal(data.radii, gas.radius)
+    assert prm["p_target"] == 6e-3 and prm["kt"] == 1.5 and prm["mu_prep"] == 0.05
+    assert prm["dt"] == 0.9 * critical_dt(gas, LinearFriction(kn=3.0, kt=1.5, mu=0.05))
+    assert f"pair_style      gran/hooke/history 3.0 1.5 {prm['gamma_n']!r} " in text
+    assert f"halt 50 v_conv" in text and "(v_perr<0.002)" in text and "(v_kerel<1e-07)" in text
+    assert "(v_perr<0.02)" in text                             # jam_p
+    assert json.loads(text.splitlines()[4][len("# protocol "):]) == proto.as_dict()
+    m_eff = 0.5 * gas.rho * math.pi * 0.5 ** 2
+    zeta = prm["gamma_n"] / (2 * math.sqrt(3.0 / m_eff))
+    assert math.exp(-math.pi * zeta / math.sqrt(1 - zeta ** 2)) == pytest.approx(0.6, rel=1e-12)
+    with pytest.raises(ValueError, match="growth_dispersity"):
+        write_inputs(tmp_path, proto.replace(growth_dispersity=0.1))
+
+
+def test_npz_schema_has_one_writer(tmp_path, small_packing):
+    """The packing file is dem.io.simple.write_npz's schema plus the state as extra arrays: the
+    configuration keys equal a plain write_npz of the same configuration, array for array."""
+    from dem.io.simple import write_npz
+    path = small_packing.save(tmp_path / "p.npz")
+    cfg = dio.read(path)
+    write_npz(tmp_path / "plain.npz", cfg)
+    with np.load(path) as z, np.load(tmp_path / "plain.npz") as plain:
+        for k in plain.files:
+            if k != "meta_json":
+                assert np.array_equal(z[k], plain[k]), k
+        assert set(z.files) - set(plain.files) == set(small_packing.state.arrays()) - {"ids"}
+    with pytest.raises(ValueError, match=r"clash with the npz schema's keys"):
+        write_npz(tmp_path / "x.npz", cfg, extra={"radii": np.zeros(3)})

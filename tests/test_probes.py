@@ -7,7 +7,7 @@ import sympy
 
 from dem.contact_laws import Frictionless, LinearFriction
 from dem.integrate import Simulation
-from dem.packing import network_from_state, pack
+from dem.packing import PackingProtocol, network_from_state, pack
 from dem.probes import ProbeResult, strain_probes, strain_response
 from dem.state import State
 from dem.stiffness import stiffness
@@ -89,7 +89,7 @@ def test_rigid_rotation_rotates_the_stress_of_a_lattice(w):
 
 
 def test_rigid_rotation_of_a_frictionless_packing():
-    res = pack(200, p_over_kn=1e-4, kn=1.0, mu=0.0, mu_prep=0.0, seed=5)
+    res = pack(PackingProtocol(n=200, p_over_kn=1e-4, kn=1.0, mu=0.0, mu_prep=0.0, seed=5))
     w = 1e-5
     r = strain_response(res.state, Frictionless(kn=1.0), np.array([[0.0, -w], [w, 0.0]]))
     p = -np.trace(r.stress0) / 2
@@ -103,7 +103,8 @@ def test_rigid_rotation_of_a_frictional_packing():
     rotation w of an overlapping frictional packing only rotates the stress (error O(w^2)). With
     the radii as arms (the default, as LAMMPS gran/*) the spins cannot cancel every tangential
     slip and the stress error is O(w * overlap / r) (0.08 w p here)."""
-    res = pack(200, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.5, mu_prep=0.02, seed=5)
+    res = pack(PackingProtocol(n=200, p_over_kn=1e-4, kn=1.0, kt_over_kn=1.0, mu=0.5, mu_prep=0.02,
+                               seed=5))
     assert not res.law.contact_arms
     w = 1e-5
     rot = np.array([[0.0, -w], [w, 0.0]])
@@ -135,7 +136,8 @@ def test_zero_amplitude_refused():
 
 
 def _packing_agreement(n, seed, rel):
-    res = pack(n, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.02, seed=seed)
+    res = pack(PackingProtocol(n=n, p_over_kn=1e-4, kn=1.0, kt_over_kn=1.0, mu=0.488, mu_prep=0.02,
+                               seed=seed))
     exact = stiffness(res.to_network(), prestress=True)
     probe = strain_probes(res.state, res.law)
     assert probe.converged
@@ -158,6 +160,7 @@ def test_probe_agrees_with_exact_on_4000_disks():  # ~35 s: the issue's criterio
 
 
 def test_large_probe_reports_contact_events():
-    res = pack(300, p_over_kn=1e-4, kn=1.0, kt=1.0, mu=0.488, mu_prep=0.02, seed=3)
+    res = pack(PackingProtocol(n=300, p_over_kn=1e-4, kn=1.0, kt_over_kn=1.0, mu=0.488, mu_prep=0.02,
+                               seed=3))
     big = strain_probes(res.state, res.law, amplitude=1e-5, tol_unbalanced=1e-8)
     assert big.contact_events > 0  # contacts open/close: the response is no longer the tangent

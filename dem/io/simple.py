@@ -18,6 +18,11 @@ key                    shape       meaning
 ``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
 =====================  ==========  =========================================================
 
+Other keys are ignored by :func:`read_npz`: a packing file of :mod:`dem.packing` keeps its
+bit-exact state there (``write_npz(..., extra=...)``), and its ``meta_json`` holds the packing
+report and the protocol that made it (``meta["protocol"]``, a
+``dem.packing.PackingProtocol.as_dict()``). :func:`write_npz` is the one writer of this schema.
+
 CSV schema (``format_version`` 1): optional ``#`` header lines ``key: value`` (``format_version``,
 ``cell_a: ax ay``, ``cell_b: bx by`` — both absent for an open packing —, ``origin: ox oy``,
 ``meta: {json}``), then a comma-separated table with a header row ``id,type,x,y,radius`` followed
@@ -47,6 +52,8 @@ __all__ = ["read_npz", "write_npz", "read_csv", "write_csv", "FORMAT_VERSION"]
 
 FORMAT_VERSION = 1
 _MAGIC = "microhom-configuration"
+_SCHEMA_KEYS = frozenset({"format", "format_version", "positions", "radii", "cell", "origin", "ids",
+                          "types", "velocities", "forces", "meta_json"})
 
 
 def _jsonable_meta(meta):
@@ -64,8 +71,15 @@ def _jsonable_meta(meta):
     return out
 
 
-def write_npz(path, config, *, compressed=False):
-    """Write ``config`` as an npz file (schema in the module docstring)."""
+def write_npz(path, config, *, compressed=False, extra=None):
+    """Write ``config`` as an npz file (schema in the module docstring): the one writer of the
+    schema.
+
+    ``path``: a path, or a binary file object (e.g. the temporary file of
+    :func:`dem.runtime.atomic_write`). ``extra``: further arrays {key: array} stored beside the
+    schema's keys (a ``dem.packing`` file stores its bit-exact state there); a key that is one of
+    the schema's, or starts with ``field:``, raises ``ValueError``; :func:`read_npz` ignores them.
+    """
     arrays = {"format": np.array(_MAGIC), "format_version": np.array(FORMAT_VERSION),
               "positions": config.positions, "radii": config.radii, "origin": config.origin,
               "ids": config.ids, "types": config.types,
@@ -78,8 +92,16 @@ def write_npz(path, config, *, compressed=False):
         arrays["forces"] = config.forces
     for name, v in config.fields.items():
         arrays[f"field:{name}"] = v
+    clash = sorted(k for k in (extra or {}) if k in _SCHEMA_KEYS or k.startswith("field:"))
+    if clash:
+        raise ValueError(f"extra arrays {clash} clash with the npz schema's keys {sorted(_SCHEMA_KEYS)}")
+    arrays = {**(extra or {}), **arrays}
+    save = np.savez_compressed if compressed else np.savez
+    if hasattr(path, "write"):
+        save(path, **arrays)
+        return
     with open(path, "wb") as f:  # a file object: numpy would otherwise append ".npz"
-        (np.savez_compressed if compressed else np.savez)(f, **arrays)
+        save(f, **arrays)
 
 
 def read_npz(path) -> Configuration:

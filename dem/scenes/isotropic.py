@@ -15,7 +15,7 @@ from __future__ import annotations
 from ..cell import PressureServo
 from ..contact_laws import Frictionless, LinearFriction
 from ..integrate import Simulation
-from ..packing import PackingResult, pack
+from ..packing import PackingProtocol, PackingResult, pack
 
 __all__ = ["NEEDS", "run", "simulation"]
 
@@ -23,9 +23,10 @@ NEEDS = {"periodic_cell": True, "cell_control": "PressureServo", "spins": "if mu
          "tangential_history": "if mu > 0", "bonds": False, "gravity": False}
 
 
-def run(n, **kw) -> PackingResult:
-    """Isotropic compression of ``n`` disks to the target pressure (see :func:`dem.packing.pack`)."""
-    return pack(n, **kw)
+def run(protocol: PackingProtocol, **run_options) -> PackingResult:
+    """Isotropic compression made by ``protocol`` (a :class:`dem.packing.PackingProtocol`) to its
+    target pressure; ``run_options`` as :func:`dem.packing.pack`'s."""
+    return pack(protocol, **run_options)
 
 
 def simulation(state, *, p_target, kn, kt=None, mu=0.0, restitution=None, damping=0.7,
