@@ -24,8 +24,8 @@ Viscous normal damping from a restitution coefficient ``e`` in (0, 1]: damping r
 collision is then exactly ``e`` and the contact lasts ``pi / (omega0 sqrt(1 - zeta^2))``,
 ``omega0 = sqrt(kn / m_eff)``.
 
-Laws (frozen dataclasses; ``models`` is the tuple (normal, damping, tangential, rolling) of
-sub-models the pair loop is compiled for):
+Laws (frozen dataclasses; ``models`` is the :class:`~dem.contact_models.Models` bundle
+(normal, damping, tangential, rolling) of sub-models the pair loop is compiled for):
 
 * :class:`Frictionless` — linear normal spring, no history, no spins.
 * :class:`LinearFriction` — linear normal spring kn, tangential spring kt, Coulomb mu, spins.
@@ -68,7 +68,7 @@ class _Composed:
     """What every law derives from its sub-models ``self.models``."""
 
     def _compose(self, normal, damping, tangential, rolling=cm.NoRolling()):
-        models = (normal, damping, tangential, rolling)
+        models = cm.Models(normal, damping, tangential, rolling)
         for m in models:
             m.check()
         parity = tuple(tangential.PARITY) + tuple(rolling.PARITY)

@@ -70,8 +70,11 @@ warnings.filterwarnings("ignore", message=r"variable '.*' is not in scope", cate
 
 __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassGamma",
            "NoTangential", "LinearHistory", "Mindlin", "LammpsHistory", "NoRolling",
-           "RollingResistance", "Kick", "NO_KICK", "Cell", "pair_forces", "pair_forces_chunked", "pair_forces_serial", "pair_forces_span", "pair_forces_threaded", "vectorises", "compact_list", "make_pair_constants",
-           "kick_range", "kick_all", "SUBMODELS"]
+           "RollingResistance", "Contact", "Load", "Slots", "Tangential", "Rolling", "Bodies", "Forces",
+           "Pairs", "Models", "PairInput", "PairForce", "Cell", "Kick", "NO_KICK", "bodies_of", "cell_of",
+           "pair_forces", "pair_forces_chunked", "pair_forces_serial", "pair_forces_span",
+           "pair_forces_threaded", "vectorises", "compact_list", "make_pair_constants", "kick_range",
+           "kick_all", "SUBMODELS"]
 
 
 def _check(name, value, low, *, low_open=False, high=math.inf):
@@ -106,6 +109,7 @@ tangential_force = _hook("tangential_force")
 rolling_torque = _hook("rolling_torque")
 force_magnitude = _hook("force_magnitude")
 history_slots = _hook("history_slots")
+tangential_slots = _hook("tangential_slots")
 torque_terms = _hook("torque_terms")
 
 
@@ -344,12 +348,77 @@ def damping_ratio(e) -> float:
 
 
 # --------------------------------------------------------------------------------------------------
+# what the tangential and rolling hooks read and return: named bundles of scalars, built per pair
+# inside the loop (numba inlines the hooks, LLVM then keeps the fields in registers: no tuple is
+# stored), so that a hook reads ``c.nx`` or ``load.fn`` as a LAMMPS GRANULAR sub-model reads its
+# model's ``nx`` and ``Fnormal``, and adding a quantity is one field, not ten signatures.
+#
+# Arrays a kernel writes are never put in a bundle built inside a kernel (the history ``hist``
+# goes beside ``Slots``, not in it): numba's dead-code elimination, which runs when an overload
+# is inlined, drops a store into an array it cannot trace back to an argument, and a tuple built
+# in the function hides that trace (numba 0.68: ``ir_utils.find_potential_aliases`` follows
+# getattr and getitem of arguments, not tuple construction). Array bundles are built in Python or
+# in thin entry functions and reach the loops as arguments.
+# --------------------------------------------------------------------------------------------------
+class Contact(NamedTuple):
+    """A pair's kinematics as the tangential and rolling hooks read them (one pair, scalars).
+    Lengths [m], velocities [m/s], spins [1/s]; frame of :mod:`dem.contact_laws`."""
+    lx: float    #: branch ``l = x_j + h s - x_i``
+    ly: float
+    d: float     #: ``|l|``
+    nx: float    #: unit normal ``n = l / |l|``, from i to j
+    ny: float
+    ri: float    #: radii
+    rj: float
+    dvx: float   #: ``v_j - v_i + L l`` (fluctuation velocities plus the cell's affine field)
+    dvy: float
+    vn: float    #: its normal component ``dv . n``
+    wi: float    #: spins
+    wj: float
+
+
+class Load(NamedTuple):
+    """The normal stage's results that the tangential and rolling hooks read: ``fn`` the normal
+    force on j along n [N/m] (dashpot included, > 0 repulsive), ``kn`` the normal tangent stiffness
+    [N/m], ``ct`` the tangential dashpot coefficient [N s/m^2] (0 if the damping has none)."""
+    fn: float
+    kn: float
+    ct: float
+
+
+class Slots(NamedTuple):
+    """Where a sub-model's contact history lives in the flat history array ``hist`` (passed
+    beside it): slot k of the pair at ``hist[q + k * hs]`` (``hs`` 1 in the pair-by-pair layout,
+    ``CHUNK`` in a chunk's slot-by-slot one)."""
+    q: int
+    hs: int
+
+
+class Tangential(NamedTuple):
+    """What ``tangential_force`` returns: the tangential force on j ``(fx, fy)`` [N/m], its elastic
+    energy ``U`` [J/m], the torque terms ``mi``, ``mj`` [N] (the torques on i and j are ``-mi`` and
+    ``-mj``) and ``ok`` (False if a ``fast`` call skipped a rare branch: then the results are
+    not valid)."""
+    fx: float
+    fy: float
+    U: float
+    mi: float
+    mj: float
+    ok: bool
+
+
+class Rolling(NamedTuple):
+    """What ``rolling_torque`` returns: its elastic energy ``U`` [J/m] and the torque ``m`` [N] on
+    j (``-m`` on i)."""
+    U: float
+    m: float
+
+
+# --------------------------------------------------------------------------------------------------
 # tangential models.
-#   tangential_force(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj,
-#                    fn, kn, ct, dt, fast) -> (ftx, fty, elastic energy, mi, mj, ok)
+#   tangential_force(model, damping, c: Contact, load: Load, hist, slots: Slots, dt, fast) -> Tangential
 #   the torques of the tangential force on i and j are -mi and -mj (the loop subtracts them, in
-#   this order); the pair's history slots are ``hist[q]``, ``hist[q + hs]``, ... (the tangential
-#   model's first). The
+#   this order); the pair's history slots are ``slots`` (the tangential model's first). The
 #   loop calls it for every pair of the list, in contact or not (it keeps the results of the
 #   pairs in contact only and zeroes the others' history), so it must not branch on the contact.
 #   ``fast`` (a compile-time constant): the vectorised loop's call, where a model may skip a rare
@@ -380,9 +449,9 @@ class NoTangential(NamedTuple):
 
 
 @_implements(tangential_force, NoTangential)
-def _notang(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
-    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
-        return 0.0, 0.0, 0.0, 0.0, 0.0, True
+def _notang(model, damping, c, load, hist, slots, dt, fast):
+    def impl(model, damping, c, load, hist, slots, dt, fast):
+        return Tangential(0.0, 0.0, 0.0, 0.0, 0.0, True)
     return impl
 
 
@@ -464,31 +533,34 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     return fs, fs
 
 
-def _scalar_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt, fast):
+def _scalar_tangential(model, damping, c, load, hist, slots, dt, fast):
     tdamp = bool(_cls(damping).TANGENTIAL)
     mindlin = _cls(model) is Mindlin
 
-    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
-        tx = -ny
-        ty = nx
+    def impl(model, damping, c, load, hist, slots, dt, fast):
+        tx = -c.ny
+        ty = c.nx
+        ri = c.ri
+        rj = c.rj
         ai = ri
         aj = rj
         if model.contact_arms:
-            s = d / (ri + rj)
+            s = c.d / (ri + rj)
             ai = s * ri
             aj = s * rj
-        vt = dvx * tx + dvy * ty - (wi * ai + wj * aj)
+        vt = c.dvx * tx + c.dvy * ty - (c.wi * ai + c.wj * aj)
         if mindlin:
-            kt = model.kt_ratio * kn
+            kt = model.kt_ratio * load.kn
         else:
             kt = model.kt
+        fn = load.fn
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu * fc
-        fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, ct, vt, tdamp)
+        q = slots.q
+        fs, ftot = _coulomb_scalar(hist[q] - kt * vt * dt, lim, load.ct, vt, tdamp)
         hist[q] = fs
         U = 0.5 * fs * fs / kt if kt > 0.0 else 0.0
-        return ftot * tx, ftot * ty, U, ai * ftot, aj * ftot, True
+        return Tangential(ftot * tx, ftot * ty, U, ai * ftot, aj * ftot, True)
     return impl
 
 
@@ -523,20 +595,27 @@ class LammpsHistory(NamedTuple):
 
 
 @_implements(tangential_force, LammpsHistory)
-def _lammps_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn,
-                       kn, ct, dt, fast):
+def _lammps_tangential(model, damping, c, load, hist, slots, dt, fast):
     # Written in this project's frame (branch l = x_j - x_i, relative velocity of j w.r.t. i): every
     # quantity is the negative of LAMMPS's (del = x_i - x_j, v_i - v_j), the pair's history slots
     # hold minus LAMMPS's shear. The operations are LAMMPS's with the unit normal n = del / r in
     # place of del and 1/r^2 (fewer divisions), the slip test |fs| > mu |fn| on squares and
     # |shear| != 0 as |shear|^2 != 0: round-off is all that changes
     # (tests/test_lammps_equivalence.py bounds it by LAMMPS' own newton on/off round-off).
-    def impl(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny, ri, rj, wi, wj, fn, kn, ct, dt, fast):
+    def impl(model, damping, c, load, hist, slots, dt, fast):
         kt = model.kt
+        nx = c.nx
+        ny = c.ny
+        vn = c.vn
+        ri = c.ri
+        rj = c.rj
+        ct = load.ct
+        q = slots.q
+        hs = slots.hs
         # LAMMPS: vn = del (v . del) / r^2, vtr = vt - del x (r_i w_i + r_j w_j) z / r
-        vt1 = dvx - nx * vn
-        vt2 = dvy - ny * vn
-        ws = ri * wi + rj * wj
+        vt1 = c.dvx - nx * vn
+        vt2 = c.dvy - ny * vn
+        ws = ri * c.wi + rj * c.wj
         vtr1 = vt1 + ny * ws
         vtr2 = vt2 - nx * ws
         s1 = hist[q]
@@ -552,7 +631,7 @@ def _lammps_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx,
         fs1 = -(kt * s1 + ct * vtr1)
         fs2 = -(kt * s2 + ct * vtr2)
         fs2sum = fs1 * fs1 + fs2 * fs2
-        lim = model.mu * abs(fn)
+        lim = model.mu * abs(load.fn)
         ok = True
         if fast:
             # the vectorised loop: a sliding contact is flagged and recomputed by the exact path
@@ -573,7 +652,7 @@ def _lammps_tangential(model, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx,
         hist[q] = s1
         hist[q + hs] = s2
         tor = nx * fs2 - ny * fs1
-        return fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ri * tor, rj * tor, ok
+        return Tangential(fs1, fs2, 0.5 * kt * (s1 * s1 + s2 * s2), ri * tor, rj * tor, ok)
     return impl
 
 
@@ -592,10 +671,21 @@ def _history_slots(model, rolling):
 _implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_history_slots)
 
 
+def _tangential_slots(model):
+    n = int(_cls(model).HISTORY)
+
+    def impl(model):
+        return n
+    return impl
+
+
+_implements(tangential_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_tangential_slots)
+
+
 # --------------------------------------------------------------------------------------------------
-# rolling resistance: rolling_torque(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt) -> (U, m)
-#   its slots are ``hist[q + h0 hs]``, ... (h0: the number of tangential slots); returns its elastic energy and the torque m on
-#   j (-m on i), which the loop applies after the tangential torques.
+# rolling resistance: rolling_torque(model, c: Contact, load: Load, hist, slots: Slots, dt) -> Rolling
+#   its slots are ``slots`` of ``hist`` (after the tangential model's); returns its elastic energy and the
+#   torque m on j (-m on i), which the loop applies after the tangential torques.
 # --------------------------------------------------------------------------------------------------
 class NoRolling(NamedTuple):
     """No rolling resistance."""
@@ -613,9 +703,9 @@ class NoRolling(NamedTuple):
 
 
 @_implements(rolling_torque, NoRolling)
-def _noroll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
-    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
-        return 0.0, 0.0
+def _noroll(model, c, load, hist, slots, dt):
+    def impl(model, c, load, hist, slots, dt):
+        return Rolling(0.0, 0.0)
     return impl
 
 
@@ -642,20 +732,136 @@ class RollingResistance(NamedTuple):
 
 
 @_implements(rolling_torque, RollingResistance)
-def _roll(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
-    def impl(model, hist, q, hs, h0, ri, rj, wi, wj, fn, kn, dt):
-        q = q + h0 * hs
+def _roll(model, c, load, hist, slots, dt):
+    def impl(model, c, load, hist, slots, dt):
+        q = slots.q
+        ri = c.ri
+        rj = c.rj
+        fn = load.fn
         reff = ri * rj / (ri + rj)
-        kr = model.kr_ratio * kn * reff * reff
+        kr = model.kr_ratio * load.kn * reff * reff
         fc = fn if fn > 0.0 else 0.0
         lim = model.mu_r * reff * fc
-        m = hist[q] - kr * (wj - wi) * dt
+        m = hist[q] - kr * (c.wj - c.wi) * dt
         if abs(m) > lim:
             m = lim if m > 0.0 else -lim
         hist[q] = m
         U = 0.5 * m * m / kr if kr > 0.0 else 0.0
-        return U, m
+        return Rolling(U, m)
     return impl
+
+
+# --------------------------------------------------------------------------------------------------
+# the bundles of the loops: what the pair loop and the kick read and write
+# --------------------------------------------------------------------------------------------------
+class Bodies(NamedTuple):
+    """The particle arrays of the pair loop and the kick (a view of :class:`dem.state.State`).
+    Inside the loops ``x``, ``v`` and ``x_ref`` are flat (2N,) views."""
+    x: np.ndarray        #: (N, 2) positions [m]
+    v: np.ndarray        #: (N, 2) fluctuation velocities [m/s] (the total is ``v + L x``)
+    omega: np.ndarray    #: (N,) spins [1/s], or empty without spins
+    theta: np.ndarray    #: (N,) rotations, or empty
+    radius: np.ndarray   #: (N,) [m]
+    mass: np.ndarray     #: (N,) [kg/m]
+    inertia: np.ndarray  #: (N,) [kg m], or empty
+    x_ref: np.ndarray    #: (N, 2) positions at the last list build (the rebuild test)
+
+
+class Forces(NamedTuple):
+    """What the pair loop writes: ``f`` (N, 2) contact forces [N/m], ``torque`` (N,) [N] (empty
+    without spins), ``out`` (8,) the tallies (:mod:`dem.contact_laws`), ``acc`` (5,) the sums of
+    :func:`kick_range` of a fused kick. Inside the loops ``f`` is a flat (2N,) view."""
+    f: np.ndarray
+    torque: np.ndarray
+    out: np.ndarray
+    acc: np.ndarray
+
+
+class Pairs(NamedTuple):
+    """The Verlet list as the pair loop reads it (:func:`compact_list`: ``pi``, ``jc`` (P,) int32,
+    ordered by i, ``j > i``), with the contact history ``hist`` (P * H,) flat (H slots per pair,
+    the tangential model's then the rolling model's) and the damping model's per-pair constants
+    ``pc`` (P * NPC,)."""
+    pi: np.ndarray
+    jc: np.ndarray
+    hist: np.ndarray
+    pc: np.ndarray
+
+
+class Models(NamedTuple):
+    """The four sub-models of a law (``law.models``), the types the pair loop is compiled for."""
+    normal: tuple
+    damping: tuple
+    tangential: tuple
+    rolling: tuple
+
+
+class PairInput(NamedTuple):
+    """What the loops gather for a pair before the law: branch ``(lx, ly)`` and ``d2 = |l|^2``,
+    radii, ``v_j - v_i`` (fluctuation velocities) and spins."""
+    lx: float
+    ly: float
+    d2: float
+    ri: float
+    rj: float
+    vx: float
+    vy: float
+    wi: float
+    wj: float
+
+
+class PairForce(NamedTuple):
+    """The law's result on a pair (``_law``): the force on j ``(fx, fy)`` [N/m]; the torque terms
+    ``mi``, ``mj``, ``mr`` [N] (torques ``-mi - mr`` on i and ``-mj + mr`` on j, subtracted and
+    added in this order); the elastic energies ``Un``, ``Ut``, ``Ur`` [J/m]; the normal force
+    ``fn`` and tangent stiffness ``kn``; ``ok`` False if a ``fast`` call skipped a rare branch."""
+    fx: float
+    fy: float
+    mi: float
+    mj: float
+    mr: float
+    Un: float
+    Ut: float
+    Ur: float
+    fn: float
+    kn: float
+    ok: bool
+
+
+class Layout(NamedTuple):
+    """Compile-time constants of a law: spins, tangential torques, rolling torques, history slots."""
+    spin: bool
+    tq_t: bool
+    tq_r: bool
+    nh: int
+
+
+class Cell(NamedTuple):
+    """Velocity gradient L and shape matrix h of the cell, by entries."""
+    L00: float
+    L01: float
+    L10: float
+    L11: float
+    h00: float
+    h01: float
+    h10: float
+    h11: float
+
+
+def bodies_of(state, spin):
+    """The :class:`Bodies` of a :class:`dem.state.State` (spins, rotations, inertias empty unless
+    ``spin``)."""
+    e = _EMPTY
+    return Bodies(state.x, state.v, state.omega if spin else e, state.theta if spin else e, state.radius,
+                  state.mass, state.inertia if spin else e, state.x_ref)
+
+
+def cell_of(h, L):
+    """The :class:`Cell` of shape matrix ``h`` and velocity gradient ``L`` ((2, 2) arrays)."""
+    return Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1])
+
+
+_EMPTY = np.zeros(0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -712,10 +918,12 @@ def _kick_dof(F, vo, m, dtk, dt, damping):
 
 
 @njit(cache=True, inline="always")
-def _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, terms, kb):
+def _kick_block(b0, b1, fb, fo, kick, spins, terms, kb):
     """The updates of particles b0..b1-1 of :func:`kick_range` (no reduction: vectorised), the
     squared non-affine displacements into ``kb`` and, if ``terms`` (a constant where inlined),
     the kinetic-energy and damping-work terms."""
+    xf, vf, rf, mass = fb.x, fb.v, fb.x_ref, fb.mass
+    ff = fo.f
     dtk = kick.dtk
     dt = kick.dt
     damping = kick.damping
@@ -747,6 +955,7 @@ def _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kic
             kb[_KWX + q] = wx
             kb[_KWY + q] = wy
     if spins:
+        omega, theta, inertia, torque = fb.omega, fb.theta, fb.inertia, fo.torque
         for k in range(b0, b1):
             q = k - b0
             wn, er, wr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping)
@@ -758,9 +967,9 @@ def _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kic
 
 
 @njit(cache=True, error_model="numpy")
-def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb):
-    """Kick and drift particles lo..hi-1 (flat (2N,) views of x, v, f, x_ref), then their spins if
-    ``omega`` is not empty:
+def kick_range(lo, hi, fb, fo, kick, sums, kb):
+    """Kick and drift particles lo..hi-1 (``fb``: :class:`Bodies` with flat (2N,) x, v, x_ref;
+    ``fo``: :class:`Forces` with a flat f), then their spins if ``fb.omega`` is not empty:
 
     * ``v += dtk (F + F_damp) / m``, ``x += dt (v + L x)`` with the Cundall damping
       ``F_damp,c = -damping |F_c| sign(v_c)`` per component;
@@ -779,16 +988,16 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
     d2m, ke, wd, ker, wdr = sums
     damping = kick.damping
     tally = kick.tally
-    spins = omega.shape[0] > 0
+    spins = fb.omega.shape[0] > 0
     terms = tally or damping > 0.0
     a = np.uint64(lo)
     z = np.uint64(hi)
     for b0 in range(a, z, np.uint64(KICK_CHUNK)):
         b1 = min(z, b0 + np.uint64(KICK_CHUNK))
         if terms:
-            _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, True, kb)
+            _kick_block(b0, b1, fb, fo, kick, spins, True, kb)
         else:
-            _kick_block(b0, b1, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, spins, False, kb)
+            _kick_block(b0, b1, fb, fo, kick, spins, False, kb)
         for q in range(b1 - b0):
             d2 = kb[_KD2 + q]
             if d2 > d2m:
@@ -807,25 +1016,23 @@ def kick_range(lo, hi, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick
     return d2m, ke, wd, ker, wdr
 
 
+@njit(cache=True, inline="always")
+def _flat(bodies, forces):
+    """The bundles with flat (2N,) views of x, v, x_ref and f."""
+    b = bodies
+    fb = Bodies(b.x.reshape(-1), b.v.reshape(-1), b.omega, b.theta, b.radius, b.mass, b.inertia,
+                b.x_ref.reshape(-1))
+    return fb, Forces(forces.f.reshape(-1), forces.torque, forces.out, forces.acc)
+
+
 @njit(cache=True)
-def kick_all(x, v, f, x_ref, mass, omega, theta, torque, inertia, kick):
-    """:func:`kick_range` over every particle: x, v, f, x_ref (N, 2), omega, theta, torque,
-    inertia (N,) or empty. Returns its five sums. (In this module, next to :func:`kick_range`:
-    numba's disk cache of a function is invalidated by changes to its own file only.)"""
-    return kick_range(0, x.shape[0], x.reshape(-1), v.reshape(-1), f.reshape(-1), x_ref.reshape(-1), mass, omega,
-                      theta, torque, inertia, kick, (0.0, 0.0, 0.0, 0.0, 0.0), np.empty(KICK_SCRATCH))
-
-
-class Cell(NamedTuple):
-    """Velocity gradient L and shape matrix h of the cell, by entries."""
-    L00: float
-    L01: float
-    L10: float
-    L11: float
-    h00: float
-    h01: float
-    h10: float
-    h11: float
+def kick_all(bodies, forces, kick):
+    """:func:`kick_range` over every particle of ``bodies`` (:class:`Bodies`) with the forces and
+    torques of ``forces`` (:class:`Forces`). Returns its five sums. (In this module, next to
+    :func:`kick_range`: numba's disk cache of a function is invalidated by changes to its own
+    file only.) Bundles may come as plain tuples in field order (numba types those faster)."""
+    fb, fo = _flat(Bodies(*bodies), Forces(*forces))
+    return kick_range(0, fb.mass.shape[0], fb, fo, kick, (0.0, 0.0, 0.0, 0.0, 0.0), np.empty(KICK_SCRATCH))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -915,43 +1122,49 @@ def _slot0(p, nh, hs):
 
 
 @njit(cache=True, inline="always")
-def _law(p, q, hs, lx, ly, d2, ri, rj, dvx0, dvy0, wi, wj, hist, pc, L00, L01, L10, L11, normal, damping,
-         tangential, rolling, hroll, dt, fast):
-    """The contact law on pair p (pair constants ``pc[p]``, history slots ``hist[q + k hs]``), given its
-    branch, ``|l|^2``, radii, ``v_j - v_i`` and spins. Returns (fx, fy, mi, mj, mr, Un, Ut, Ur,
-    fn, kn, ok): the force on j, the torque terms (the torques are ``-mi - mr`` on i and
-    ``-mj + mr`` on j, subtracted and added in this order), the elastic energies, the normal
-    force, the normal tangent stiffness, and False if ``fast`` skipped a rare branch of the
-    tangential model (the results are then not valid; see ``tangential_force``)."""
-    rs = ri + rj
-    d = math.sqrt(d2)
+def _law(g, hist, slots, pc, p, cell, models, dt, fast):
+    """The contact law on a pair (:class:`PairInput` ``g``; per-pair constants ``pc[p]``; history
+    :class:`Slots` of ``hist``, the tangential model's first), with the cell's ``L``. Returns a
+    :class:`PairForce`; with ``fast`` (a compile-time constant) a tangential model may skip a rare
+    branch and flag it (``ok`` False; see ``tangential_force``)."""
+    lx = g.lx
+    ly = g.ly
+    rs = g.ri + g.rj
+    d = math.sqrt(g.d2)
     nx = lx / d
     ny = ly / d
     delta = rs - d
-    dvx = dvx0 + L00 * lx + L01 * ly
-    dvy = dvy0 + L10 * lx + L11 * ly
+    dvx = g.vx + cell.L00 * lx + cell.L01 * ly
+    dvy = g.vy + cell.L10 * lx + cell.L11 * ly
+    normal, damping, tangential, rolling = models
     fn, kn, Un = normal_force(normal, delta)
     vn = dvx * nx + dvy * ny
     fn, ct = normal_damping(damping, normal, pc, p, kn, fn, vn)
-    ftx, fty, Ut, mi, mj, ok = tangential_force(tangential, damping, hist, q, hs, dvx, dvy, vn, lx, ly, d, nx, ny,
-                                                ri, rj, wi, wj, fn, kn, ct, dt, fast)
-    Ur, mr = rolling_torque(rolling, hist, q, hs, hroll, ri, rj, wi, wj, fn, kn, dt)
-    fx = fn * nx + ftx
-    fy = fn * ny + fty
-    return fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok
+    c = Contact(lx, ly, d, nx, ny, g.ri, g.rj, dvx, dvy, vn, g.wi, g.wj)
+    load = Load(fn, kn, ct)
+    t = tangential_force(tangential, damping, c, load, hist, slots, dt, fast)
+    r = rolling_torque(rolling, c, load, hist, Slots(slots.q + tangential_slots(tangential) * slots.hs, slots.hs),
+                       dt)
+    fx = fn * nx + t.fx
+    fy = fn * ny + t.fy
+    return PairForce(fx, fy, t.mi, t.mj, r.m, Un, t.U, r.U, fn, kn, t.ok)
 
 
 @njit(cache=True, inline="always")
-def _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque):
-    """Add a pair's force (fx, fy on j, the opposite on i) and torques to the particles."""
+def _apply(i, j, fx, fy, mi, mj, mr, lay, ff, torque):
+    """Add a pair's force (fx, fy on j, the opposite on i) and torques (:class:`PairForce`'s
+    terms) to the particles' flat (2N,) forces ``ff`` and torques, as :class:`Layout` ``lay``
+    says."""
     one = np.uint64(1)
-    if spin:
+    i2 = i + i
+    j2 = j + j
+    if lay.spin:
         ti = torque[i]
         tj = torque[j]
-        if tq_t:
+        if lay.tq_t:
             ti -= mi
             tj -= mj
-        if tq_r:
+        if lay.tq_r:
             tj += mr
             ti -= mr
         torque[i] = ti
@@ -963,10 +1176,11 @@ def _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque):
 
 
 @njit(cache=True, inline="always")
-def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
+def _gather(p0, m, pairs, fb, off, spin, ij, buf):
     """Pass 1 of a chunk: the branches, radii, ``v_j - v_i`` and spins of pairs p0..p0+m-1,
     gathered into contiguous rows of ``buf`` (and i, j into ``ij``)."""
     one = np.uint64(1)
+    pi, jc, xf, vf, radius, omega = pairs.pi, pairs.jc, fb.x, fb.v, fb.radius, fb.omega
     for q in range(m):
         i, j, i2, j2, lx, ly = _branch(p0 + q, pi, jc, xf, off)
         buf[_LX + q] = lx
@@ -983,31 +1197,38 @@ def _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf):
 
 
 @njit(cache=True, inline="always")
-def _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally):
-    """Pair p's results of ``_law`` into its rows of the chunk's scratch (the tally terms only
-    if ``tally``)."""
-    buf[_FX + p] = fx
-    buf[_FY + p] = fy
-    buf[_MI + p] = mi
-    buf[_MJ + p] = mj
-    buf[_MR + p] = mr
+def _store(buf, p, r, d2, tangential, tally):
+    """Pair p's :class:`PairForce` ``r`` into its rows of the chunk's scratch (the tally terms
+    only if ``tally``)."""
+    buf[_FX + p] = r.fx
+    buf[_FY + p] = r.fy
+    buf[_MI + p] = r.mi
+    buf[_MJ + p] = r.mj
+    buf[_MR + p] = r.mr
     if tally:
-        buf[_UN + p] = Un
-        buf[_UT + p] = Ut
-        buf[_UR + p] = Ur
-        buf[_FM + p] = force_magnitude(tangential, fn, fx, fy)
-        buf[_KD + p] = kn * d2
+        buf[_UN + p] = r.Un
+        buf[_UT + p] = r.Ut
+        buf[_UR + p] = r.Ur
+        buf[_FM + p] = force_magnitude(tangential, r.fn, r.fx, r.fy)
+        buf[_KD + p] = r.kn * d2
 
 
 @njit(cache=True, inline="always")
-def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
-                    tally, buf):
+def _gathered(buf, p, lx, ly, d2):
+    """Pair p's :class:`PairInput` from the chunk's rows."""
+    return PairInput(lx, ly, d2, buf[_RI + p], buf[_RJ + p], buf[_VX + p], buf[_VY + p], buf[_WI + p],
+                     buf[_WJ + p])
+
+
+@njit(cache=True, inline="always")
+def _contact_forces(m, hist, hs, pc, cell, models, dt, tally, buf):
     """Pass 2 of a chunk of m pairs (``hist``: the chunk's history, slot k of pair p at
     ``hist[_slot0(p, nh, hs) + k hs]``; ``pc``: the chunk's pair constants): the contact law on
     every pair, without a branch on the contact, so that the compiler vectorises it. The pairs
     not in contact get zero history and a zero ``_TOUCH`` row (pass 3 skips them). ``tally`` (a
     constant where this is inlined) also stores the energy, force-magnitude and stiffness terms.
     A pair whose tangential model skipped a rare branch (``ok`` False) is marked 2 in ``_TOUCH``."""
+    nh = history_slots(models.tangential, models.rolling)
     for p in range(m):
         lx = buf[_LX + p]
         ly = buf[_LY + p]
@@ -1016,50 +1237,44 @@ def _contact_forces(m, hist, hs, pc, nh, L00, L01, L10, L11, normal, damping, ta
         rs = ri + rj
         d2 = lx * lx + ly * ly
         touch = d2 < rs * rs
-        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, ok = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, ri, rj, buf[_VX + p],
-                                                          buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist, pc, L00,
-                                                          L01, L10, L11, normal, damping, tangential, rolling,
-                                                          hroll, dt, True)
+        r = _law(_gathered(buf, p, lx, ly, d2), hist, Slots(_slot0(p, nh, hs), hs), pc, p, cell, models, dt, True)
         for k in range(nh):
             h = _slot0(p, nh, hs) + k * hs
             hist[h] = hist[h] if touch else 0.0
-        _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally)
-        buf[_TOUCH + p] = (1.0 if ok else 2.0) if touch else 0.0
+        _store(buf, p, r, d2, models.tangential, tally)
+        buf[_TOUCH + p] = (1.0 if r.ok else 2.0) if touch else 0.0
 
 
 @njit(cache=True, inline="always")
-def _exact(p, nh, hist, hs, hbak, pc, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt, tally, buf):
+def _exact(p, hist, hs, hbak, pc, cell, models, dt, tally, buf):
     """Pass 3's exact path for pair p of a chunk marked 2 by pass 2: its history back from
     ``hbak`` (the chunk's history before pass 2), the law evaluated with ``fast = False`` (the
     serial loop's operations), its rows of ``buf`` overwritten."""
+    nh = history_slots(models.tangential, models.rolling)
     for k in range(nh):
         h = _slot0(p, nh, hs) + k * hs
         hist[h] = hbak[h]
     lx = buf[_LX + p]
     ly = buf[_LY + p]
     d2 = lx * lx + ly * ly
-    fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, _slot0(p, nh, hs), hs, lx, ly, d2, buf[_RI + p], buf[_RJ + p],
-                                                     buf[_VX + p], buf[_VY + p], buf[_WI + p], buf[_WJ + p], hist,
-                                                     pc, L00, L01, L10, L11, normal, damping, tangential, rolling,
-                                                     hroll, dt, False)
-    _store(buf, p, fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, d2, tangential, tally)
+    r = _law(_gathered(buf, p, lx, ly, d2), hist, Slots(_slot0(p, nh, hs), hs), pc, p, cell, models, dt, False)
+    _store(buf, p, r, d2, models.tangential, tally)
 
 
 @njit(cache=True, inline="always")
-def _begin(cell, x, v, f, torque, x_ref):
-    """Clear the forces and torques; the image offsets and flat views of x, v, f, x_ref."""
-    f[:, :] = 0.0
-    torque[:] = 0.0
-    return (_image_offsets(cell.h00, cell.h01, cell.h10, cell.h11), x.reshape(-1), v.reshape(-1), f.reshape(-1),
-            x_ref.reshape(-1))
+def _begin(cell, forces):
+    """Clear the forces and torques; the image offsets."""
+    forces.f[:, :] = 0.0
+    forces.torque[:] = 0.0
+    return _image_offsets(cell.h00, cell.h01, cell.h10, cell.h11)
 
 
 @njit(cache=True, inline="always")
-def _layout(tangential, rolling):
-    """(spins?, tangential torques?, rolling torques?, history slots per pair): compile-time
-    constants of the law (spins exactly when some sub-model exerts a torque)."""
-    tq_t, tq_r = torque_terms(tangential, rolling)
-    return tq_t or tq_r, tq_t, tq_r, history_slots(tangential, rolling)
+def _layout(models):
+    """The :class:`Layout` of a law: compile-time constants (spins exactly when some sub-model
+    exerts a torque)."""
+    tq_t, tq_r = torque_terms(models.tangential, models.rolling)
+    return Layout(tq_t or tq_r, tq_t, tq_r, history_slots(models.tangential, models.rolling))
 
 
 @njit(cache=True, inline="always")
@@ -1074,38 +1289,43 @@ def _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, fm, kd):
 
 
 @njit(cache=True, inline="always")
-def _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t):
-    """A fused kick's last particles (from ``done``) and its sums into ``acc``; the tallies into
-    ``out[:8]``."""
-    if fused:
-        sums = kick_range(done, np.uint64(mass.shape[0]), xf, vf, ff, rf, mass, omega, theta, torque, inertia,
-                          kick, sums, kb)
+def _end(done, fb, fo, forces, kick, sums, kb, tally, t):
+    """A fused kick's last particles (from ``done``; ``fb``, ``fo`` the flat bundles) and its sums
+    into ``forces.acc``; the tallies ``t`` into ``forces.out[:8]``."""
+    if kick.fused:
+        sums = kick_range(done, np.uint64(fb.mass.shape[0]), fb, fo, kick, sums, kb)
         for k in range(5):
-            acc[k] = sums[k]
+            forces.acc[k] = sums[k]
     if tally:
         for k in range(8):
-            out[k] = t[k]
+            forces.out[k] = t[k]
 
 
 _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of one step.
 
-    x, v (N, 2); omega, theta, inertia (N,) or empty; pi, jc (P,) the Verlet list
-    (:func:`compact_list`: pairs ordered by i, j > i);
-    hist (P * H,) the history, flat (H = tangential + rolling slots); pc (P * NPC,) per-pair constants;
-    hroll: first history slot of the rolling model; dt: the history increment step (0: history
-    not advanced). Fills f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
+    bodies: :class:`Bodies` (x, v (N, 2); omega, theta, inertia (N,) or empty); pairs:
+    :class:`Pairs` (the list, its history and per-pair constants); cell: :class:`Cell`; models:
+    :class:`Models` (the law's four sub-models); kick: :class:`Kick`; dt: the history increment
+    step (0: history not advanced); tally: whether to fill ``out``. Fills ``forces``
+    (:class:`Forces`): f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
-    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`.
+    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`. The array bundles may also be plain
+    tuples in field order: numba types a plain tuple of arrays in C, a NamedTuple through Python
+    (about 0.4 us per array per call), so :func:`pair_forces` passes them as plain tuples.
 """
 
 
-@njit(cache=True, inline="always")
-def _chunked(p_lo, p_hi, x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal, damping,
-             tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
-    """The chunked loop over pairs p_lo..p_hi-1 (a fused kick needs the whole list)."""
-    L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
-    spin, tq_t, tq_r, nh = _layout(tangential, rolling)
+@njit(cache=True, error_model="numpy", nogil=True)
+def _chunked(p_lo, p_hi, bodies, pairs, cell, models, kick, dt, tally, forces):
+    """The chunked loop over pairs p_lo..p_hi-1 (a fused kick needs the whole list); the bundles
+    are :class:`Bodies`, :class:`Pairs` and :class:`Forces` (arguments: see the note on arrays
+    in bundles above)."""
+    off = _begin(cell, forces)
+    fb, fo = _flat(bodies, forces)  # read here, written only inside kick_range
+    ff, torque = forces.f.reshape(-1), forces.torque
+    lay = _layout(models)
+    nh = lay.nh
+    hist, pc, pi = pairs.hist, pairs.pc, pairs.pi
     t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
     fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
     kb = np.empty(KICK_SCRATCH)
@@ -1114,11 +1334,11 @@ def _chunked(p_lo, p_hi, x, v, omega, theta, radius, mass, inertia, x_ref, pi, j
     hb = np.zeros(max(nh, 1) * CHUNK)
     hbak = np.empty(max(nh, 1) * CHUNK)
     hstride = CHUNK if nh > 1 else 1
-    npair = jc.shape[0]
+    npair = pairs.jc.shape[0]
     npc = pc.shape[0] // npair if npair > 0 else 0
     for p0 in range(p_lo, p_hi, CHUNK):
         m = min(CHUNK, p_hi - p0)
-        _gather(p0, m, pi, jc, xf, vf, omega, radius, off, spin, ij, buf)
+        _gather(p0, m, pairs, fb, off, lay.spin, ij, buf)
         if nh > 1:
             # more than one slot: the chunk's history slot by slot (unit stride for the compiler)
             for k in range(nh):
@@ -1130,23 +1350,17 @@ def _chunked(p_lo, p_hi, x, v, omega, theta, radius, mass, inertia, x_ref, pi, j
         hbak[:hc.shape[0]] = hc
         pcs = pc[npc * p0:npc * (p0 + m)]
         if tally:
-            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
-                            hroll, dt, True, buf)
+            _contact_forces(m, hc, hstride, pcs, cell, models, dt, True, buf)
         else:
-            _contact_forces(m, hc, hstride, pcs, nh, L00, L01, L10, L11, normal, damping, tangential, rolling,
-                            hroll, dt, False, buf)
+            _contact_forces(m, hc, hstride, pcs, cell, models, dt, False, buf)
         for q in range(m):
             if buf[_TOUCH + q] == 0.0:
                 continue
             if buf[_TOUCH + q] == 2.0:
-                _exact(q, nh, hc, hstride, hbak, pcs, L00, L01, L10, L11, normal, damping, tangential, rolling, hroll, dt,
-                       tally, buf)
-            i = ij[q]
-            j = ij[CHUNK + q]
+                _exact(q, hc, hstride, hbak, pcs, cell, models, dt, tally, buf)
             fx = buf[_FX + q]
             fy = buf[_FY + q]
-            _apply(i, j, i + i, j + j, fx, fy, buf[_MI + q], buf[_MJ + q], buf[_MR + q], spin, tq_t, tq_r, ff,
-                   torque)
+            _apply(ij[q], ij[CHUNK + q], fx, fy, buf[_MI + q], buf[_MJ + q], buf[_MR + q], lay, ff, torque)
             if tally:
                 t = _tally_add(t, buf[_UN + q], buf[_UT + q], buf[_UR + q], fx, fy, buf[_LX + q], buf[_LY + q],
                                buf[_FM + q], buf[_KD + q])
@@ -1158,33 +1372,31 @@ def _chunked(p_lo, p_hi, x, v, omega, theta, radius, mass, inertia, x_ref, pi, j
             # particles below the next pair's i have all their forces (pairs are ordered by i, j > i)
             nxt = np.uint64(np.uint32(pi[p0 + m])) if p0 + m < npair else done
             if nxt >= done + block:
-                sums = kick_range(done, nxt, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb)
+                sums = kick_range(done, nxt, fb, fo, kick, sums, kb)
                 done = nxt
-    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t)
+    _end(done, fb, fo, forces, kick, sums, kb, tally, t)
 
 
 @njit(cache=True, error_model="numpy")
-def pair_forces_chunked(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-                        damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
-    _chunked(0, jc.shape[0], x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-             damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc)
+def pair_forces_chunked(bodies, pairs, cell, models, kick, dt, tally, forces):
+    pl = Pairs(*pairs)
+    _chunked(0, pl.jc.shape[0], Bodies(*bodies), pl, cell, models, kick, dt, tally, Forces(*forces))
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def pair_forces_span(p_lo, p_hi, x, v, omega, radius, pi, jc, hist, pc, cell, normal, damping, tangential, rolling,
-                     hroll, dt, tally, f, torque, out):
-    """The forces of pairs p_lo..p_hi-1 alone, into their own ``f``, ``torque`` and ``out`` (the
-    chunked loop, no kick). Releases the GIL: :func:`pair_forces_threaded` runs one per thread."""
-    e = np.empty(0)
-    _chunked(p_lo, p_hi, x, v, omega, e, radius, e, e, x, pi, jc, hist, pc, cell, normal, damping, tangential,
-             rolling, hroll, NO_KICK, dt, tally, f, torque, out, e)
+def pair_forces_span(p_lo, p_hi, bodies, pairs, cell, models, dt, tally, forces):
+    """The forces of pairs p_lo..p_hi-1 alone, into their own ``forces`` (the chunked loop, no
+    kick). Releases the GIL: :func:`pair_forces_threaded` runs one per thread."""
+    _chunked(p_lo, p_hi, Bodies(*bodies), Pairs(*pairs), cell, models, NO_KICK, dt, tally, Forces(*forces))
 
 
 @njit(cache=True, nogil=True)
-def _sum_parts(F, T, O, lo, hi, f, torque, out, spin, tally):
-    """Add the other threads' parts F (threads - 1, N, 2), T, O (in thread order) to the first
-    thread's f, torque (particles lo..hi-1) and out (the tallies, when ``lo == 0``)."""
-    ff = f.reshape(-1)
+def _sum_parts(parts, lo, hi, forces, spin, tally):
+    """Add the other threads' parts (:class:`Forces` of (threads - 1, N, 2), (threads - 1, N) and
+    (threads - 1, 8) arrays, in thread order) to the first thread's ``forces`` (particles lo..hi-1,
+    and the tallies when ``lo == 0``)."""
+    F, T, O = parts.f, parts.torque, parts.out
+    ff = forces.f.reshape(-1)
     for t in range(F.shape[0]):
         Ft = F[t].reshape(-1)
         for k in range(2 * lo, 2 * hi):
@@ -1192,10 +1404,10 @@ def _sum_parts(F, T, O, lo, hi, f, torque, out, spin, tally):
         if spin:
             Tt = T[t]
             for k in range(lo, hi):
-                torque[k] += Tt[k]
+                forces.torque[k] += Tt[k]
         if tally and lo == 0:
             for q in range(8):
-                out[q] += O[t, q]
+                forces.out[q] += O[t, q]
 
 
 pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
@@ -1210,11 +1422,15 @@ pair_forces_chunked.__doc__ = _PAIR_FORCES_DOC + """
 
 
 @njit(cache=True, error_model="numpy")
-def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-                       damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc):
-    L00, L01, L10, L11 = cell.L00, cell.L01, cell.L10, cell.L11
-    off, xf, vf, ff, rf = _begin(cell, x, v, f, torque, x_ref)
-    spin, tq_t, tq_r, nh = _layout(tangential, rolling)
+def _serial(bodies, pairs, cell, models, kick, dt, tally, forces):
+    """The serial loop (bundles as arguments: see the note on arrays in bundles above)."""
+    off = _begin(cell, forces)
+    fb, fo = _flat(bodies, forces)  # read here, written only inside kick_range
+    ff, torque = forces.f.reshape(-1), forces.torque
+    pi, jc, hist, pc = pairs.pi, pairs.jc, pairs.hist, pairs.pc
+    lay = _layout(models)
+    spin, nh = lay.spin, lay.nh
+    xf, vf, omega, radius = fb.x, fb.v, fb.omega, fb.radius
     t = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the tallies, see _tally_add
     fused, sums, done, block = kick.fused, (0.0, 0.0, 0.0, 0.0, 0.0), np.uint64(0), np.uint64(KICK_BLOCK)
     kb = np.empty(KICK_SCRATCH)
@@ -1223,7 +1439,7 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
         i, j, i2, j2, lx, ly = _branch(p, pi, jc, xf, off)
         if fused and i >= done + block:
             # particles below i have all their forces (pairs are ordered by i, j > i)
-            sums = kick_range(done, i, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb)
+            sums = kick_range(done, i, fb, fo, kick, sums, kb)
             done = i
         ri = radius[i]
         rj = radius[j]
@@ -1238,14 +1454,18 @@ def pair_forces_serial(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc,
         if spin:
             wi = omega[i]
             wj = omega[j]
-        fx, fy, mi, mj, mr, Un, Ut, Ur, fn, kn, _ = _law(p, nh * p, 1, lx, ly, d2, ri, rj, vf[j2] - vf[i2],
-                                                         vf[j2 + one] - vf[i2 + one], wi, wj, hist, pc, L00, L01,
-                                                         L10, L11, normal, damping, tangential, rolling, hroll, dt,
-                                                         False)
-        _apply(i, j, i2, j2, fx, fy, mi, mj, mr, spin, tq_t, tq_r, ff, torque)
+        r = _law(PairInput(lx, ly, d2, ri, rj, vf[j2] - vf[i2], vf[j2 + one] - vf[i2 + one], wi, wj), hist,
+                 Slots(nh * p, 1), pc, p, cell, models, dt, False)
+        _apply(i, j, r.fx, r.fy, r.mi, r.mj, r.mr, lay, ff, torque)
         if tally:
-            t = _tally_add(t, Un, Ut, Ur, fx, fy, lx, ly, force_magnitude(tangential, fn, fx, fy), kn * d2)
-    _end(fused, done, xf, vf, ff, rf, mass, omega, theta, torque, inertia, kick, sums, kb, acc, tally, out, t)
+            t = _tally_add(t, r.Un, r.Ut, r.Ur, r.fx, r.fy, lx, ly, force_magnitude(models.tangential, r.fn, r.fx, r.fy),
+                           r.kn * d2)
+    _end(done, fb, fo, forces, kick, sums, kb, tally, t)
+
+
+@njit(cache=True, error_model="numpy")
+def pair_forces_serial(bodies, pairs, cell, models, kick, dt, tally, forces):
+    _serial(Bodies(*bodies), Pairs(*pairs), cell, models, kick, dt, tally, Forces(*forces))
 
 
 pair_forces_serial.__doc__ = _PAIR_FORCES_DOC + """
@@ -1273,42 +1493,41 @@ class _Threads:
                     self.pool.shutdown()
                 self.pool = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="dem-pairs")
                 self.workers = threads - 1
-            self.F = np.zeros((threads - 1, n, 2))
-            self.T = np.zeros((threads - 1, n if spin else 0))
-            self.O = np.zeros((threads - 1, 8))
+            self.parts = Forces(np.zeros((threads - 1, n, 2)), np.zeros((threads - 1, n if spin else 0)),
+                                np.zeros((threads - 1, 8)), np.zeros((threads - 1, 5)))
             self.key = key
-        return self.pool, self.F, self.T, self.O
+        return self.pool, self.parts
 
 
 _THREADS = _Threads()
 
 
-def pair_forces_threaded(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-                         damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc, threads):
-    n = x.shape[0]
-    spin = omega.shape[0] > 0
-    pool, F, T, O = _THREADS.get(threads, n, spin)
-    npair = jc.shape[0]
+def pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads):
+    n = bodies.x.shape[0]
+    spin = bodies.omega.shape[0] > 0
+    pool, parts = _THREADS.get(threads, n, spin)
+    npair = pairs.jc.shape[0]
     # contiguous ranges of pairs, cut at chunk boundaries: the same cut for the same list
     cuts = [min(npair, CHUNK * int(round(k * npair / (threads * CHUNK)))) for k in range(threads + 1)]
     cuts[-1] = npair
-    common = (x, v, omega, radius, pi, jc, hist, pc, cell, normal, damping, tangential, rolling, hroll, dt, tally)
-    # the first range into f, torque and out themselves, the others into their own buffers
-    jobs = [pool.submit(pair_forces_span, cuts[k], cuts[k + 1], *common, F[k - 1], T[k - 1], O[k - 1])
+    common = (tuple(bodies), tuple(pairs), cell, models, dt, tally)
+    # the first range into forces itself, the others into their own buffers
+    jobs = [pool.submit(pair_forces_span, cuts[k], cuts[k + 1], *common,
+                        tuple(Forces(*(a[k - 1] for a in parts))))
             for k in range(1, threads)]
-    pair_forces_span(cuts[0], cuts[1], *common, f, torque, out)
+    pair_forces_span(cuts[0], cuts[1], *common, tuple(forces))
     for job in jobs:
         job.result()
-    _sum_parts(F, T, O, 0, n, f, torque, out, spin, tally)
+    _sum_parts(parts, 0, n, forces, spin, tally)
     if kick.fused:
-        acc[:] = kick_all(x, v, f, x_ref, mass, omega, theta, torque, inertia, kick)
+        forces.acc[:] = kick_all(tuple(bodies), tuple(forces), kick)
 
 
 pair_forces_threaded.__doc__ = _PAIR_FORCES_DOC + """
     Multi-core mode (``threads`` >= 2): the list is cut into ``threads`` contiguous ranges of
     pairs (at chunk boundaries); each thread runs the chunked loop on its range into its own force,
     torque and tally buffers (:func:`pair_forces_span`, which releases the GIL; the first range
-    into ``f``, ``torque`` and ``out``), and the others' parts are added particle by particle, in
+    into ``forces`` itself), and the others' parts are added particle by particle, in
     thread order. The contact history and every pair's force are
     those of the one-thread loops; the particles' sums are ordered differently (by thread, then by
     pair), so forces agree with the one-thread loops to round-off, not bit for bit, and a run is
@@ -1326,15 +1545,12 @@ def vectorises(models) -> bool:
     return all(getattr(type(m), "VECTOR", False) for m in models)
 
 
-def pair_forces(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal, damping,
-                tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc, threads=1):
+def pair_forces(bodies, pairs, cell, models, kick, dt, tally, forces, threads=1):
     if threads > 1:
-        pair_forces_threaded(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal,
-                             damping, tangential, rolling, hroll, kick, dt, tally, f, torque, out, acc, threads)
+        pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads)
         return
-    loop = pair_forces_chunked if vectorises((normal, damping, tangential, rolling)) else pair_forces_serial
-    loop(x, v, omega, theta, radius, mass, inertia, x_ref, pi, jc, hist, pc, cell, normal, damping, tangential,
-         rolling, hroll, kick, dt, tally, f, torque, out, acc)
+    loop = pair_forces_chunked if vectorises(models) else pair_forces_serial
+    loop(tuple(bodies), tuple(pairs), cell, models, kick, dt, tally, tuple(forces))
 
 
 pair_forces.__doc__ = _PAIR_FORCES_DOC + """
@@ -1360,4 +1576,3 @@ def make_pair_constants(damping, normal, mass, pi, pj, npc):
 SUBMODELS = {c.__name__: c for c in (Hooke, Hertz, NoDamping, Viscous, ViscousTangential, MassGamma,
                                      NoTangential, LinearHistory, Mindlin, LammpsHistory, NoRolling,
                                      RollingResistance)}
-

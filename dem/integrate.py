@@ -240,15 +240,10 @@ class Simulation:
         if self._list32_of is not st.nl_i:
             self._list32 = _compact(st)
             self._list32_of = st.nl_i
-        e = self._empty
-        spin = law.needs_spin
-        normal, damping, tangential, rolling = law.models
-        cm.pair_forces(st.x, st.v, st.omega if spin else e, st.theta if spin else e, st.radius, st.mass,
-                       st.inertia if spin else e, st.x_ref, *self._list32,
-                       st.nl_ft.reshape(-1) if law.needs_history else e, self._pc,
-                       cm.Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1]),
-                       normal, damping, tangential, rolling, tangential.HISTORY, kick, dt_history, tally,
-                       self.f, self.torque, self.out, self.acc, threads=self.threads)
+        pi32, jc = self._list32
+        pairs = cm.Pairs(pi32, jc, st.nl_ft.reshape(-1) if law.needs_history else self._empty, self._pc)
+        cm.pair_forces(cm.bodies_of(st, law.needs_spin), pairs, cm.cell_of(h, L), law.models, kick, dt_history,
+                       tally, cm.Forces(self.f, self.torque, self.out, self.acc), threads=self.threads)
 
     def compute_forces(self):
         """Contact forces at the current positions (advances the tangential history: call it only
@@ -301,11 +296,9 @@ class Simulation:
             L = st.L
             hn, Fd = self._deformation(L, dt)
             t3 = _time.perf_counter()
-            e = self._empty
-            spin = self.law.needs_spin
-            acc[:] = cm.kick_all(st.x, st.v, self.f, st.x_ref, st.mass, st.omega if spin else e,
-                               st.theta if spin else e, self.torque, st.inertia if spin else e,
-                               cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally))
+            acc[:] = cm.kick_all(tuple(cm.bodies_of(st, self.law.needs_spin)),
+                                 (self.f, self.torque, self.out, self.acc),
+                                 cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally))
             t4 = _time.perf_counter()
         d2, ke, wd = acc[0], acc[1], acc[2]
         if self.law.needs_spin:

@@ -294,3 +294,55 @@ def test_threads_refused_with_the_range(bad):
     st = ref.initial_state(True)
     with pytest.raises(ValueError, match=r"threads must be an integer in \[1, 1024\]"):
         Simulation(st, STRATEGY_LAWS["linear"](), threads=bad)
+
+
+def _kernel_functions():
+    """Every function of dem.contact_models that numba compiles: jitted functions (their Python
+    source) and the hooks' implementations (the typers registered with ``_implements``)."""
+    import inspect
+    from numba.core.registry import CPUDispatcher
+    for name, obj in vars(cm).items():
+        if isinstance(obj, CPUDispatcher):
+            yield name, obj.py_func
+        elif inspect.isfunction(obj) and obj.__module__ == cm.__name__ and name.startswith("_") and \
+                "impl" in obj.__code__.co_varnames:
+            yield name, obj
+
+
+def test_kernels_take_named_bundles_not_long_argument_lists():
+    """Issue 23.2: no kernel of the pair loop or the kick takes more than 10 arguments (the hooks
+    read Contact, Load and Slots bundles; the loops Bodies, Pairs, Models and Forces). The check
+    sees the hooks (22 positional scalars before) and the loops (up to 27)."""
+    import inspect
+    seen = dict(_kernel_functions())
+    assert {"_law", "_chunked", "_serial", "kick_range", "_scalar_tangential", "_lammps_tangential",
+            "_roll"} <= set(seen)
+    long = {name: len(inspect.signature(f).parameters) for name, f in seen.items()
+            if len(inspect.signature(f).parameters) > 10}
+    assert long == {}
+
+
+def test_law_of_one_pair_through_the_bundles_closed_form():
+    """The law evaluated on one pair through its bundles (PairInput in, PairForce out, history
+    beside its Slots): Hooke with a tangential spring, sliding velocity below the Coulomb cap.
+    fn = kn delta, ft = -kt vt dt with vt = dv.t - (w_i r_i + w_j r_j), torques -r ft."""
+    from numba import njit
+
+    @njit
+    def one_pair(g, hist, cell, models, dt):
+        return cm._law(g, hist, cm.Slots(0, 1), np.zeros(0), 0, cell, models, dt, False)
+
+    kn, kt, ri, rj, d = 1e4, 7e3, 0.4, 0.6, 0.98
+    vy, wi, wj, dt = 0.03, 0.2, -0.1, 1e-3
+    law = LinearFriction(kn=kn, kt=kt, mu=10.0)
+    hist = np.zeros(1)
+    cell = cm.Cell(0.0, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 5.0)
+    r = one_pair(cm.PairInput(d, 0.0, d * d, ri, rj, 0.0, vy, wi, wj), hist, cell, law.models, dt)
+    assert isinstance(r, cm.PairForce)
+    vt = vy - (wi * ri + wj * rj)               # t = (0, 1) for n = (1, 0)
+    ft = -kt * vt * dt
+    assert r.fn == pytest.approx(kn * (ri + rj - d), rel=1e-13)
+    assert r.fx == pytest.approx(r.fn, rel=1e-13) and r.fy == pytest.approx(ft, rel=1e-13)
+    assert hist[0] == pytest.approx(ft, rel=1e-13)          # written through the history beside Slots
+    assert (r.mi, r.mj) == pytest.approx((ri * ft, rj * ft), rel=1e-13)
+    assert r.Ut == pytest.approx(0.5 * ft * ft / kt, rel=1e-13) and r.ok
