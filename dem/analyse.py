@@ -167,6 +167,8 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     notes = []
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
+    if not path.is_dir():
+        io.check_regular_file(path)   # the reading rule: no FIFO, device or oversized file
     if format is None:
         if path.is_dir():
             format = "lammps-run"

@@ -291,3 +291,81 @@ def test_open_packing_sections_say_why(tmp_path, capsys):
     r = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"bare {c}"))
     assert r["network"]["periodic"] is False and r["coordination"]["z_all"] > 0
     assert "error" in r["stiffness"] and r["stiffness"]["error"]
+
+
+# ---- the reading rule (issue 27 (a)): no FIFO, no device, nothing larger than the memory ------
+
+def _dem_analyse(path, timeout=120):
+    return subprocess.run([sys.executable, "-m", "dem", "analyse", str(path), "--no-exact",
+                           "--no-hierarchy"], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_fifo_refused_by_name_without_blocking(tmp_path):
+    """A FIFO blocked 'dem analyse' for ever: refused by name (the timeout makes a hang a
+    failure, not a stuck suite); nothing writes to the FIFO, so any read would block."""
+    fifo = tmp_path / "packing.dump"
+    os.mkfifo(fifo)
+    p = _dem_analyse(fifo, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert str(fifo) in p.stderr and "FIFO" in p.stderr and "Traceback" not in p.stderr
+    with pytest.raises(FormatError, match="FIFO"):
+        io.read(fifo)   # in-process too (the check comes before any open())
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="needs /dev/zero")
+@pytest.mark.parametrize("name", ["zero.dump", "zero.npz", "zero.data", "D0001"])
+def test_dev_zero_symlink_refused(tmp_path, name):
+    """A symlink to /dev/zero took 21 GB in 45 s: now a character device, refused by name."""
+    link = tmp_path / name
+    link.symlink_to("/dev/zero")
+    p = _dem_analyse(link, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert str(link) in p.stderr and "character device" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+    with pytest.raises(FormatError, match="character device"):
+        io.read(link)
+
+
+def test_file_larger_than_memory_refused_before_reading(tmp_path, monkeypatch):
+    """A regular file larger than the reading limit is refused from its size, naming it."""
+    from dem.io import _core
+    p = good_file(tmp_path, "dump")
+    size = p.stat().st_size
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * (size - 1))
+    with pytest.raises(io.FileTooLarge, match=str(p)) as err:
+        io.read(p)
+    assert err.value.size == size and err.value.limit == size - 1
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * size)
+    assert io.read(p).n_particles == 16     # exactly at the limit: read
+
+
+def test_gzip_bomb_stopped_at_the_limit(tmp_path, monkeypatch):
+    """A small .gz inflating beyond the limit is stopped while inflating (never fully held)."""
+    from dem.io import _core
+    p = tmp_path / "bomb.dump.gz"
+    with gzip.open(p, "wb") as f:
+        f.write(b"ITEM: TIMESTEP\n0\n" + b" " * (40 << 20))
+    assert p.stat().st_size < 1 << 20
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * (20 << 20))
+    with pytest.raises(io.FileTooLarge, match="gunzipped") as err:
+        io.read(p)
+    assert err.value.limit == 20 << 20 and err.value.size <= (20 << 20) + (1 << 24)
+
+
+def test_available_memory_is_plausible():
+    """Second method: the free physical pages never exceed the total; MemAvailable is positive
+    and below the machine's physical memory."""
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert 0 < io.available_memory() <= total
+
+
+def test_garbage_checkpoint_message(tmp_path):
+    """A garbage checkpoint gave numpy's 'allow_pickle=' text: now the file and the cause."""
+    from dem.state import State
+    bad = tmp_path / "run.checkpoint.npz"
+    bad.write_bytes(b"not a zip" * 50)
+    with pytest.raises(FormatError) as err:
+        State.load(bad)
+    clean(str(err.value), bad)
+    assert "allow_pickle" not in str(err.value)
