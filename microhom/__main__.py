@@ -17,11 +17,14 @@ pipe was closed (``| head``): silent, as Unix tools are.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import sys
 
 import numpy as np
 
+from .limits import MEMORY_FRACTION, available_memory
 from .moduli import predict_moduli
 
 EXIT_OK, EXIT_MACHINE, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_BROKEN_PIPE = 0, 1, 2, 3, 141
@@ -87,43 +90,51 @@ def build_parser():
     return ap
 
 
+#: Bytes one output row of ``predict`` takes at its peak (the broadcast inputs, the prediction's
+#: arrays, the pandas table, the records and the JSON text), measured as the peak resident size
+#: of ``predict --json`` with 1e5 rows less that with one row: 5.1 kB (see
+#: ``tests/test_messages.py::test_predict_row_memory_estimate``); the guard keeps a margin of 1.6.
+BYTES_PER_ROW = 8000
+
+
 def _grid(args):
-    cols = {"kn": args.kn, "kt": args.kt if args.kt is not None else [None], "nc": args.nc, "phi": args.phi,
-            "r": args.r}
+    """The option values broadcast over every combination: dict name -> flat array (or None),
+    checked against the memory *before* anything of that size is allocated."""
+    cols = {"kn": args.kn, "kt": args.kt, "nc": args.nc, "phi": args.phi, "r": args.r}
     if args.rho is not None:
         cols["rho"] = args.rho
     else:
         cols["alpha"] = args.alpha if args.alpha is not None else [SEED_CASE["alpha"]]
     defaults = all(getattr(args, k) == [SEED_CASE[k]] for k in ("nc", "phi")) and args.nbar is None
-    cols["nbar"] = args.nbar if args.nbar is not None else ([SEED_CASE["nbar"]] if defaults else [None])
-    names = list(cols)
-    mesh = np.meshgrid(*[np.arange(len(cols[n])) for n in names], indexing="ij")
-    rows = []
-    for idx in zip(*(m.ravel() for m in mesh)):
-        row = {n: cols[n][i] for n, i in zip(names, idx)}
-        if row["kt"] is None:
-            row["kt"] = row["kn"]
-        rows.append(row)
-    return rows
+    cols["nbar"] = args.nbar if args.nbar is not None else ([SEED_CASE["nbar"]] if defaults else None)
+    given = {k: v for k, v in cols.items() if v is not None}
+    count = math.prod(len(v) for v in given.values())
+    need, allowed = count * BYTES_PER_ROW, int(MEMORY_FRACTION * available_memory())
+    if need > allowed:
+        sizes = " x ".join(f"{len(v)} (--{k})" for k, v in given.items() if len(v) > 1)
+        raise ValueError(f"{sizes} = {count:,} combinations would take about {need / 1e9:.3g} GB, "
+                         f"more than the {allowed / 1e9:.3g} GB allowed ({MEMORY_FRACTION:g} of the "
+                         f"memory available): give fewer values per option")
+    names = list(given)
+    mesh = np.meshgrid(*[np.asarray(given[n], dtype=np.float64) for n in names], indexing="ij")
+    out = {n: m.ravel() for n, m in zip(names, mesh)}
+    if "kt" not in out:
+        out["kt"] = out["kn"]
+    return out
 
 
 def cmd_predict(args):
-    import pandas as pd
+    from .results import to_plain
 
-    rows = _grid(args)
-    frames = []
-    for row in rows:
-        kw = {k: v for k, v in row.items() if v is not None}
-        p = predict_moduli(max_correction=args.max_correction, warn=False, **kw)
-        f = p.to_frame()
-        for k in ("r", "phi", "nc", "kt", "kn"):
-            f.insert(0, k, row[k])
-        frames.append(f)
-    df = pd.concat(frames, ignore_index=True)
-    if args.json:
-        print(df.to_json(orient="records", indent=1))
+    grid = _grid(args)
+    p = predict_moduli(max_correction=args.max_correction, warn=False, **grid)
+    df = p.to_frame()
+    for k in ("r", "phi", "nc", "kt", "kn"):
+        df.insert(0, k, grid[k])
+    if args.json:   # every float at full precision (repr: round-trips), NaN and inf as null
+        print(json.dumps(to_plain(df.to_dict("records")), indent=1, allow_nan=False))
     elif args.csv:
-        print(df.to_csv(index=False), end="")
+        print(df.to_csv(index=False, float_format=None), end="")
     else:
         for i, r in df.iterrows():
             print(f"case {i}: kn = {r.kn:.4g} N/m, kt = {r.kt:.4g} N/m, Nc = {r.nc:.4g}, phi = {r.phi:.4g}, "

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from microhom.limits import available_memory
 from microhom.network import from_overlaps
 
 __all__ = ["Configuration", "FormatError", "FileTooLarge", "KN_CONVENTIONS", "available_memory",
@@ -435,36 +436,6 @@ def _bytes(n) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.3g} {unit}"
         n /= 1000.0
     return f"{n} B"  # not reached
-
-
-def available_memory() -> int:
-    """Bytes of memory this process may still allocate: ``MemAvailable`` of ``/proc/meminfo``,
-    lowered to the cgroup's ``memory.max - memory.current`` when a container sets a limit; the
-    free physical pages (``os.sysconf``) where ``/proc`` is missing; 2**62 when nothing tells."""
-    avail = None
-    try:
-        with open("/proc/meminfo", "rb") as f:
-            for line in f:
-                if line.startswith(b"MemAvailable:"):
-                    avail = int(line.split()[1]) * 1024
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    if avail is None:
-        try:
-            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        except (ValueError, OSError, AttributeError):
-            avail = 2 ** 62
-    try:
-        with open("/sys/fs/cgroup/memory.max", "rb") as f:
-            cap = f.read().strip()
-        with open("/sys/fs/cgroup/memory.current", "rb") as f:
-            used = int(f.read().strip())
-        if cap != b"max":
-            avail = min(avail, max(int(cap) - used, 0))
-    except (OSError, ValueError):
-        pass
-    return int(avail)
 
 
 def read_limit() -> int:
