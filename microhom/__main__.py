@@ -9,25 +9,25 @@ Examples::
 Measuring a packing file moved to the DEM package, where its engine lives:
 ``python -m dem analyse FILE`` (this package never imports ``dem``, lazily included).
 
-Exit codes: 0 every result valid; 3 at least one result flagged outside the theory's range (the
+Exit codes (the convention of :mod:`microhom.cli`, shared with ``python -m dem`` and the
+studies): 0 every result valid; 3 at least one result flagged outside the theory's range (the
 table, JSON and CSV say which and why); 2 bad input (the message names the option and its
-range); 1 the machine's state (the output cannot be written, e.g. a full disk); 141 the output
-pipe was closed (``| head``): silent, as Unix tools are.
+range, including more combinations than the memory holds); 1 the machine's state (the output
+cannot be written, e.g. a full disk); 130 interrupted; 141 the output pipe was closed
+(``| head``): silent, as Unix tools are.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import os
 import sys
 
 import numpy as np
 
+from .cli import EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_OK, run_cli  # the codes shared by every CLI
 from .limits import MEMORY_FRACTION, available_memory
 from .moduli import predict_moduli
-
-EXIT_OK, EXIT_MACHINE, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_BROKEN_PIPE = 0, 1, 2, 3, 141
 
 #: library wording -> the command line's own flags (the messages are shared with the Python API)
 _CLI_WORDS = (("Pass nbar explicitly", "Give --nbar"), ("pass nbar", "give --nbar"),
@@ -51,7 +51,7 @@ def build_parser():
         description="Micromechanical homogenisation of dense random disk packings. (To measure a "
                     "packing file: python -m dem analyse FILE.)",
         epilog="exit codes: 0 valid, 3 a result flagged outside the theory's range, 2 bad input, "
-               "1 output cannot be written (full disk), 141 output pipe closed")
+               "1 output cannot be written (full disk), 130 interrupted, 141 output pipe closed")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser(
         "predict", help="mean-field and fluctuation-corrected 2D bulk and shear moduli",
@@ -60,8 +60,8 @@ def build_parser():
                     "broadcast (one row per combination). Defaults: the seed paper's case.",
         epilog="exit codes: 0 every result valid, 3 at least one flagged outside the theory's range "
                "(in either direction: a correction that softens or stiffens by more than "
-               "--max-correction), 2 bad input, 1 output cannot be written (full disk), 141 output "
-               "pipe closed (silent)",
+               "--max-correction; overflow, underflow, kt/kn > 10), 2 bad input, 1 output cannot "
+               "be written (full disk), 130 interrupted, 141 output pipe closed (silent)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--kn", nargs="+", type=_floats("kn"), default=[SEED_CASE["kn"]],
                    help="normal contact stiffness [N/m], > 0 (2D: force per unit thickness per unit overlap)")
@@ -162,20 +162,15 @@ def main(argv=None):
               + " ".join(argv[1:]), file=sys.stderr)
         return EXIT_BAD_INPUT
     args = build_parser().parse_args(argv)
-    try:
-        return cmd_predict(args)
-    except BrokenPipeError:  # '| head' closed the pipe: silent, as Unix tools are
+
+    def run(_):
         try:
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        except (OSError, ValueError):
-            pass
-        return EXIT_BROKEN_PIPE
-    except ValueError as exc:
-        print(f"error: {_cli_words(str(exc))}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:  # the machine's state, e.g. a full disk under a redirected output
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_MACHINE
+            return cmd_predict(args)
+        except ValueError as exc:
+            print(f"error: {_cli_words(str(exc))}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    # closed pipe 141, full disk or unwritable output 1, Ctrl-C 130 (microhom.cli)
+    return run_cli(run)
 
 
 if __name__ == "__main__":

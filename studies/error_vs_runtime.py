@@ -35,7 +35,7 @@ from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, get_packing
-from studies.common import out_dir, write_table
+from studies.common import cli_out_dir, write_table
 
 
 def _row(method, param, K, G, ref, t_method, t_pack, **extra):
@@ -52,7 +52,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     n_ref = args.n_ref or (300 if args.quick else 2000)
     sizes = [100, 200] if args.quick else [250, 500, 1000]
-    out = out_dir(args.out)
+    out = cli_out_dir(args.out)  # checked before computing (one line and exit 1 otherwise)
 
     case = {**DEFAULTS, "n": n_ref, "seed": 1}
     res, t_pack, _ = get_packing(case)
@@ -167,4 +167,6 @@ def _plot(df, path):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -63,4 +63,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -188,12 +188,16 @@ def test_cli_out_dir_refuses_before_computing(tmp_path, capsys, monkeypatch):
 # above therefore use a path under a regular file, which nobody can create.
 
 
-def test_kuhn_out_unwritable_exits_73_at_once(tmp_path):
-    """studies.kuhn --out in an impossible folder: one line, exit 73, before any packing."""
+@pytest.mark.parametrize("study", ["kuhn", "sweep", "error_vs_runtime", "closure_fit",
+                                   "mine_bumps", "bench_theory"])
+def test_study_out_unwritable_exits_1_at_once(tmp_path, study):
+    """--out in an impossible folder: one line, exit 1 (the machine's state, the same code as
+    dem and microhom give; the studies said 73 and sweep, error_vs_runtime, closure_fit and
+    mine_bumps printed 10-13 lines of traceback), before anything is computed."""
     bad = unwritable_dirs(tmp_path)[0]
-    p = subprocess.run([sys.executable, "-m", "studies.kuhn", "--quick", "--out", str(bad)],
+    p = subprocess.run([sys.executable, "-m", f"studies.{study}", "--quick", "--out", str(bad)],
                        capture_output=True, text=True, timeout=120)
-    assert p.returncode == EXIT_NO_OUTPUT, p.stderr
+    assert p.returncode == EXIT_NO_OUTPUT == 1, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and str(bad) in p.stderr
     assert "Traceback" not in p.stderr and p.stdout == ""
 
@@ -369,3 +373,64 @@ def test_garbage_checkpoint_message(tmp_path):
         State.load(bad)
     clean(str(err.value), bad)
     assert "allow_pickle" not in str(err.value)
+
+
+# ---- one command-line convention (issue 27 (c)) ----------------------------------------------
+
+def test_run_cli_codes(capsys):
+    """The shared wrapper: Ctrl-C -> 130 with what was kept, a full disk -> 1 naming the path,
+    no traceback either way; an int return passes through, None is 0."""
+    import errno
+
+    from microhom import cli
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    def full(argv):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "/out/table.csv")
+
+    assert cli.run_cli(interrupted, partial=lambda: "kept: /out") == cli.EXIT_INTERRUPTED == 130
+    assert capsys.readouterr().err == "interrupted; kept: /out\n"
+    assert cli.run_cli(full) == cli.EXIT_MACHINE == 1
+    assert capsys.readouterr().err == "error: /out/table.csv: No space left on device\n"
+    assert cli.run_cli(lambda argv: 3) == 3 and cli.run_cli(lambda argv: None) == 0
+
+
+def test_exit_codes_are_documented():
+    """Every code of microhom.cli is in the docs' table, and the CLIs use the same numbers."""
+    from dem import __main__ as dem_cli
+    from microhom import __main__ as mh_cli
+    from microhom import cli
+
+    docs = (Path(__file__).parents[1] / "docs" / "index.md").read_text()
+    for code in cli.EXIT_CODES:
+        assert f"| {code} |" in docs, code
+    assert (dem_cli.EXIT_MACHINE, dem_cli.EXIT_BAD_INPUT, dem_cli.EXIT_INTERRUPTED) == (1, 2, 130)
+    assert (mh_cli.EXIT_BAD_INPUT, mh_cli.EXIT_FLAGGED) == (2, 3)
+
+
+def test_sweep_ctrl_c_exits_130_and_keeps_finished_cases(tmp_path):
+    """Ctrl-C in a sweep gave a 33-38-line KeyboardInterrupt: now one line, exit 130, and the
+    cases finished before it stay in sweep.csv (a re-run resumes from them)."""
+    import signal
+    import time
+
+    out = tmp_path / "sweep"
+    p = subprocess.Popen([sys.executable, "-m", "studies.sweep", "--quick", "--scheduler", "serial",
+                          "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    csv = out / "sweep.csv"
+    t0 = time.monotonic()
+    while not csv.exists() and p.poll() is None and time.monotonic() - t0 < 300:
+        time.sleep(0.05)
+    assert csv.exists() and p.poll() is None, "the sweep ended before its first case was written"
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr
+    assert "interrupted; the finished results" in stderr
+    assert str(out) in stderr
+    import pandas as pd
+    done = pd.read_csv(csv)
+    assert len(done) >= 1 and (done.status == "ok").all()
