@@ -48,6 +48,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh, splu
 
 from microhom.kinematics import affine_tensor, assemble, stress0
+from microhom.network import ContactNetwork
 from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
                               prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
@@ -555,7 +556,7 @@ def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
 
 # ---- main entry ------------------------------------------------------------------------------
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
-              max_refine=50, count="auto", ordering="auto") -> StiffnessResult:
+              max_refine=50, count="auto", ordering="auto", spin_arm="contact") -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
     The named steps, each usable on its own: ``_normalise`` (input check, exact scaling),
@@ -575,13 +576,23 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     count : how zero (floppy) modes are counted: ``"auto"``, ``"pivots"`` or ``"rescale"`` (see
         :func:`count_modes`; ``"rescale"`` is forced on ill-conditioned networks).
     ordering : CHOLMOD fill-reducing ordering on the particle graph (:func:`particle_ordering`).
-    rtol : target relative residual of the relaxation solve.
+    rtol : target relative residual of the relaxation solve, in (0, 1).
+    spin_arm : ``"contact"`` (default: spins turn the contact point, arms ``|c| r_i/(r_i+r_j)``)
+        or ``"radius"`` (arms ``r_i``, LAMMPS's ``gran/*`` kinematics); see
+        :mod:`microhom.kinematics`. They agree on touching disks.
 
     Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
     "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
     lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
+                        f"from_overlaps or PackingResult.to_network()), got {type(network).__name__}")
+    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
+        raise ValueError(f"rtol must be a relative residual in (0, 1), got {rtol!r}")
+    if not (isinstance(max_refine, (int, np.integer)) and max_refine >= 1):
+        raise ValueError(f"max_refine must be an integer >= 1, got {max_refine!r}")
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if ordering not in ORDERINGS:
@@ -591,7 +602,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
-    asm = assemble(net, prestress=prestress, min_contacts=min_contacts)
+    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     c_aff = affine_stiffness(net, prestress=prestress)
     sigma0 = stress0(net) if prestress else None
     t_asm = time.perf_counter() - t0

@@ -24,6 +24,7 @@ import numpy as np
 from .hierarchy import relaxation_hierarchy
 from .limits import as_float_array, check_broadcast
 from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
+from .network import ContactNetwork
 from .structural_sums import network_statistics
 
 #: kt/kn above which a prediction is flagged (bit 128): the DEM of this project packs with kt in
@@ -293,6 +294,9 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
       ladder: its cheapest rigorous bound; without pre-stress, as the theory): the prediction is
       then provably too stiff.
     """
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
+                        f"microhom.network.from_overlaps), got {type(network).__name__}")
     st = network_statistics(network, min_contacts=min_contacts)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
     if key is None:

@@ -96,7 +96,7 @@ def test_hierarchy_and_closure_sections(packing_npz):
     and the statistics-only closure with its stated error."""
     from dem.stiffness import stiffness
     from microhom.closure import predict_closure
-    from microhom.hierarchy import relaxation_hierarchy
+    from microhom.hierarchy import DEFAULT_TOL, relaxation_hierarchy
     from microhom.structural_sums import network_statistics
 
     path, res = packing_npz
@@ -111,7 +111,7 @@ def test_hierarchy_and_closure_sections(packing_npz):
         assert h[f"{m}_lower"] is None or h[f"{m}_lower"] <= exact * (1 + 1e-10)
         assert abs(h[m] - exact) <= max(h[f"{m}_error"], 1e-9 * exact)
         assert r["comparison"][f"{m}_hierarchy_over_exact"] == pytest.approx(h[m] / exact, rel=1e-12)
-    lib = relaxation_hierarchy(net, prestress=True, tol=1e-3, max_order=16)
+    lib = relaxation_hierarchy(net, prestress=True, tol=DEFAULT_TOL, max_order=16)
     assert h["G_upper"] == pytest.approx(lib.G.upper, rel=1e-10) and h["order"] == lib.order
     st = network_statistics(net)
     cl = predict_closure(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=c["kt_over_kn"],

@@ -434,3 +434,56 @@ def test_sweep_ctrl_c_exits_130_and_keeps_finished_cases(tmp_path):
     import pandas as pd
     done = pd.read_csv(csv)
     assert len(done) >= 1 and (done.status == "ok").all()
+
+
+def test_io_write_full_disk_names_path_and_leaves_no_file(tmp_path, monkeypatch):
+    """io.write on a full disk did not name the path and left a 0-byte file: now the error names
+    it and neither the file nor a temporary is left (an existing file is kept as it was)."""
+    import errno
+
+    def full_writer(path, config, **kw):
+        with open(path, "w") as f:
+            f.write("half a file")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setitem(io.FORMATS, "csv", (io.FORMATS["csv"][0], full_writer))
+    target = tmp_path / "out.csv"
+    with pytest.raises(OSError) as err:
+        io.write(target, lattice())
+    assert err.value.filename == str(target) and err.value.errno == errno.ENOSPC
+    assert str(target) in str(err.value) and "No space left" in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+    target.write_text("the old file")
+    with pytest.raises(OSError):
+        io.write(target, lattice())
+    assert target.read_text() == "the old file" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_analyse_frame_out_of_range_in_the_cli_numbering(tmp_path, capsys):
+    """'analyse --frame 99' said 'frame 98 requested': now the option as typed and its range."""
+    p = tmp_path / "one.dump"
+    io.write(p, lattice())
+    assert dem_main(["analyse", str(p), "--frame", "99", "--no-exact", "--no-hierarchy"]) == 2
+    err = capsys.readouterr().err
+    assert "--frame 99" in err and "[1, 1]" in err and "98" not in err
+
+
+def test_lammps_law_damping_set_or_refused():
+    """LammpsHookeHistory under Simulation's default damping (0.7) left LAMMPS silently: the
+    default is now 0 for it (the same state as an explicit damping=0 after a few steps, bit for
+    bit), and a non-zero damping is refused naming the law."""
+    from dem.contact_laws import LammpsHookeHistory, LinearFriction
+    from dem.integrate import Simulation
+    from dem.packing import random_gas
+
+    law = LammpsHookeHistory(kn=1e3, kt=1e3, gamma_n=5.0, mu=0.5)
+    st = random_gas(40, phi0=0.7, seed=1)
+    a = Simulation(st.copy(), law, startup="lammps")
+    b = Simulation(st.copy(), law, startup="lammps", damping=0.0)
+    assert a.damping == 0.0
+    a.run(20)
+    b.run(20)
+    assert np.array_equal(a.state.v, b.state.v) and np.array_equal(a.state.x, b.state.x)
+    with pytest.raises(ValueError, match="LammpsHookeHistory.*LAMMPS has no Cundall"):
+        Simulation(st.copy(), law, damping=0.7)
+    assert Simulation(st.copy(), LinearFriction(kn=1e3, kt=1e3, mu=0.5)).damping == 0.7

@@ -101,4 +101,28 @@ def write(path, config, format=None, **kwargs):
             config = Configuration.from_network(config)
         else:
             raise TypeError(f"expected a Configuration or ContactNetwork, got {type(config)!r}")
-    return FORMATS[fmt][1](path, config, **kwargs)
+    if kwargs.get("append"):      # appending to a dump: in place (an existing file is extended)
+        return FORMATS[fmt][1](path, config, **kwargs)
+    return _write_atomic(path, lambda tmp: FORMATS[fmt][1](tmp, config, **kwargs))
+
+
+def _write_atomic(path, write):
+    """``write(tmp)`` into a temporary file beside ``path`` (same name ending, so that writers
+    choosing by extension choose the same), then renamed onto ``path``: a full disk or a killed
+    run leaves the old file (or none), never a truncated one. An ``OSError`` is re-raised naming
+    ``path`` and the system's reason, with the temporary file removed."""
+    path = os.fspath(path)
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    try:
+        out = write(tmp)
+        os.replace(tmp, path)
+        return out
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), path) from None   # names path
+    finally:
+        if os.path.exists(tmp):
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
