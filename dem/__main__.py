@@ -127,7 +127,7 @@ def _parser():
             "  python -m dem pack --n 4000 --pressure 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 \\\n"
             "      --out packing.npz"))
     a = p.add_argument
-    a("--n", type=int, default=None, metavar="N",
+    a("--n", type=cli.whole_number, default=None, metavar="N",
       help="number of disks, an integer >= 2 (required unless --resume)")
     a("--pressure", type=float, default=None, metavar="P_OVER_KN",
       help="target pressure as p/kn, dimensionless, in (0, 0.1] (default 1e-4); p = -tr(sigma)/2 "
@@ -148,8 +148,8 @@ def _parser():
     a("--dispersity", type=float, default=None,
       help="radii uniform in r (1 +- dispersity), dimensionless, in [0, 0.5) (default 0: identical "
            "disks of diameter 1)")
-    a("--seed", type=int, default=None, help="random seed, an integer >= 0 (default 0)")
-    a("--max-steps", type=int, default=2_000_000, metavar="STEPS",
+    a("--seed", type=cli.whole_number, default=None, help="random seed, an integer >= 0 (default 0)")
+    a("--max-steps", type=cli.whole_number, default=2_000_000, metavar="STEPS",
       help="cap on the total number of time steps, an integer >= 1 (default 2e6); a run that "
            "reaches it without converging exits with code 3")
     a("--tol-unbalanced", type=float, default=None, metavar="TOL",
@@ -166,10 +166,10 @@ def _parser():
     a("--checkpoint-seconds", type=float, default=5.0, metavar="SECONDS",
       help="wall-clock seconds between atomic checkpoints, > 0 (default 5); the API's "
            "checkpoint_seconds")
-    a("--checkpoint-every", type=int, default=None, metavar="STEPS",
+    a("--checkpoint-every", type=cli.whole_number, default=None, metavar="STEPS",
       help="also write a checkpoint every STEPS time steps, an integer >= 1 (default: by time "
            "only); the API's checkpoint_every")
-    a("--threads", type=int, default=1, metavar="N",
+    a("--threads", type=cli.whole_number, default=1, metavar="N",
       help="threads of the contact-force loop, an integer in [1, 1024] (default 1; with more, the "
            "run is reproducible for that number of threads, forces agree with one thread's to "
            "round-off; docs/dem.md, multi-core mode)")

@@ -13,6 +13,8 @@ import csv
 import io as _io
 import json
 
+from microhom.cli import whole_number
+
 from . import analyse as dan
 
 __all__ = ["add_parser", "run"]
@@ -61,9 +63,9 @@ def add_parser(sub):
     a.add_argument("--prestress", action="store_true",
                    help="exact stiffness with the pre-stress terms (normal forces from the file, "
                         "else kn*overlap)")
-    a.add_argument("--min-contacts", type=int, default=None,
+    a.add_argument("--min-contacts", type=whole_number, default=None,
                    help="rattler threshold; default 2 for frictional, 3 for frictionless particles")
-    a.add_argument("--frame", type=int, default=-1,
+    a.add_argument("--frame", type=whole_number, default=-1,
                    help="frame of a LAMMPS dump: 1 = first, -1 = last (the notes say which was "
                         "read)")
     a.add_argument("--radius", type=float, default=None,

@@ -29,7 +29,7 @@ import sys
 
 __all__ = ["EXIT_OK", "EXIT_MACHINE", "EXIT_BAD_INPUT", "EXIT_FLAGGED", "EXIT_UNSTABLE",
            "EXIT_INTERRUPTED", "EXIT_BROKEN_PIPE", "EXIT_CODES", "run_cli", "silence_stdout",
-           "os_error_line"]
+           "os_error_line", "whole_number"]
 
 EXIT_OK, EXIT_MACHINE, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_UNSTABLE = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 130, 141
@@ -93,3 +93,22 @@ def run_cli(main, argv=None, *, partial=None) -> int:
             silence_stdout()    # stdout itself failed (e.g. /dev/full): do not fail again at exit
         print(os_error_line(exc), file=sys.stderr)
         return EXIT_MACHINE
+
+
+def whole_number(text) -> int:
+    """argparse ``type=`` for integer options that also accepts ``1e9`` or ``4000.0`` (a whole
+    number written as a float), so that the option's range check, not "invalid int value",
+    answers a large value; ``1.5``, ``inf`` and words are refused as not whole numbers."""
+    import argparse
+
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if not (v == v and abs(v) != float("inf") and v == int(v)):
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}")
+    return int(v)

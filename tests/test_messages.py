@@ -144,3 +144,112 @@ def test_predict_row_memory_estimate():
                    "--r", *[str(0.01 * i) for i in range(10)], "--nbar", "5"])
     per_row = (big - base) / 1e5
     assert 0 < per_row < BYTES_PER_ROW, per_row
+
+
+# ---- the message walk (issue 27 (d)) -------------------------------------------------------
+# The campaign's bad inputs (and more) through the public API: each must raise a clean error
+# type whose message names the parameter (or file, particle) and is not a bare library text.
+
+#: texts of numpy, scipy, pandas and Python internals that must never reach a user alone
+BARE_LIBRARY_TEXTS = (
+    "Singular matrix", "zero-size array", "could not convert string to float",
+    "operands could not be broadcast", "allow_pickle", "np.float64(", "has no attribute",
+    "not subscriptable", "unsupported operand", "invalid literal for int", "is out of bounds",
+    "setting an array element with a sequence", "Cannot load file", "truth value of an array",
+    "return arrays must be of ArrayType", "Index(...) must be called", "object of type",
+    "float() argument must be",
+)
+CLEAN_TYPES = (ValueError, TypeError, MemoryError, FileNotFoundError)
+
+
+def _walk_cases():
+    from dem.stiffness import stiffness
+    from microhom import lattices
+    from microhom.closure import predict_closure
+    from microhom.hierarchy import relaxation_hierarchy
+    from microhom.moduli import predict_from_network
+    from microhom.network import from_overlaps
+
+    p2 = np.array([[0.5, 0.5], [1.5, 0.5]])
+    r2 = np.array([0.55, 0.55])
+    box = np.eye(2) * 4
+    net = lattices.triangular(4, 4)
+    pm = dict(SEED)
+    yield "from_overlaps singular cell", lambda: from_overlaps(p2, r2, np.zeros((2, 2))), "cell"
+    yield "from_overlaps 3x3 cell", lambda: from_overlaps(p2, r2, np.eye(3)), "cell"
+    yield "from_overlaps empty", lambda: from_overlaps(np.zeros((0, 2)), np.zeros(0), box), \
+        "positions"
+    yield "from_overlaps coincident", lambda: from_overlaps(
+        np.array([[1.0, 1.0], [1.0, 1.0]]), 0.5, box), "particles 0 and 1"
+    yield "from_overlaps negative radius", lambda: from_overlaps(p2, [-1.0, 0.5], box), \
+        "particle 0"
+    yield "from_overlaps text radius", lambda: from_overlaps(p2, "x", box), "radii"
+    yield "from_overlaps positions shape", lambda: from_overlaps(np.zeros((3, 3)), 0.5, box), \
+        "positions"
+    yield "from_overlaps NaN kn", lambda: from_overlaps(p2, r2, box, kn=np.nan), "kn"
+    yield "stiffness(None)", lambda: stiffness(None), "network"
+    yield "stiffness rtol=-1", lambda: stiffness(net, rtol=-1), "rtol"
+    yield "stiffness max_refine=0", lambda: stiffness(net, max_refine=0), "max_refine"
+    yield "stiffness spin_arm", lambda: stiffness(net, spin_arm="centre"), "spin_arm"
+    yield "predict_from_network(None)", lambda: predict_from_network(None), "network"
+    yield "relaxation_hierarchy(None)", lambda: relaxation_hierarchy(None), "network"
+    yield "relaxation_hierarchy tol", lambda: relaxation_hierarchy(net, tol=-1), "tol"
+    yield "predict_moduli kn='1e8'", lambda: predict_moduli(**{**pm, "kn": "1e8"}), "kn"
+    yield "predict_moduli kn='x'", lambda: predict_moduli(**{**pm, "kn": "x"}), "kn"
+    yield "predict_moduli kn=None", lambda: predict_moduli(**{**pm, "kn": None}), "kn"
+    yield "predict_moduli ragged", lambda: predict_moduli(**{**pm, "nc": [[1, 2], [3]]}), "nc"
+    yield "predict_moduli complex", lambda: predict_moduli(**{**pm, "r": 1j}), "r"
+    yield "predict_moduli shapes", lambda: predict_moduli(
+        **{**pm, "kn": [1.0, 2.0], "nc": [3.0, 4.0, 5.0]}), "nc (3,)"
+    yield "predict_moduli phi", lambda: predict_moduli(**{**pm, "phi": 1.2}), "phi"
+    yield "predict_moduli alpha and rho", lambda: predict_moduli(**{**pm, "rho": 0.5}), "rho"
+    yield "predict_closure phi=1.2", lambda: predict_closure(nc=4.1, r=0.05, phi=1.2), "phi"
+    yield "predict_closure nc='x'", lambda: predict_closure(nc="x", r=0.05), "nc"
+    yield "predict_closure r=None", lambda: predict_closure(nc=4.1, r=None), "r"
+
+
+@pytest.mark.parametrize("case", list(_walk_cases()), ids=lambda c: c[0])
+def test_message_walk(case):
+    name, call, must_name = case
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            call()
+        except CLEAN_TYPES as exc:
+            msg = str(exc)
+        else:
+            pytest.fail(f"{name}: no error")
+    for bare in BARE_LIBRARY_TEXTS:
+        assert bare not in msg, f"{name}: bare library text {bare!r} in {msg!r}"
+    assert must_name in msg, f"{name}: the message does not name {must_name!r}: {msg!r}"
+
+
+def test_walk_catches_a_bare_message():
+    """The walk can fail: numpy's own message for the singular cell is caught by its list."""
+    with pytest.raises(np.linalg.LinAlgError) as err:
+        np.linalg.solve(np.zeros((2, 2)), np.ones(2))
+    assert any(b in str(err.value) for b in BARE_LIBRARY_TEXTS)
+
+
+def test_closure_flags_overlap_inflated_phi():
+    """predict_closure(phi=1.008) raised with np.float64(...) in the text, where
+    predict_from_network flags the same overlap-inflated phi: now flagged (bit 8), with the
+    moduli computed as for phi <= 1 (the mean field scales with phi)."""
+    from microhom.closure import predict_closure
+    p = predict_closure(nc=4.1, r=0.05, phi=1.008, kt_over_kn=1.0)
+    q = predict_closure(nc=4.1, r=0.05, phi=0.9, kt_over_kn=1.0)
+    assert not bool(p.valid) and int(p.flags) & 8 and "phi above 1" in str(p.reason)
+    assert float(p.K) / float(q.K) == pytest.approx(1.008 / 0.9, rel=1e-14)
+    assert bool(q.valid)
+
+
+def test_meshio_prints_nothing_on_stdout(tmp_path, capfd):
+    """meshio printed "Error: Couldn't read file..." on stdout before the clean error."""
+    pytest.importorskip("meshio")
+    from dem import io
+    bad = tmp_path / "bad.vtu"
+    bad.write_bytes(b"<VTKFile garbage")
+    with pytest.raises(io.FormatError, match="bad.vtu"):
+        io.read(bad)
+    out, _ = capfd.readouterr()
+    assert out == ""
