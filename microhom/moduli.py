@@ -251,12 +251,18 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     big = np.maximum(drop_K, drop_G)
     size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
     flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
+    # overflow: K = K_mf (1 - drop_K) is inf or NaN whenever K_mf is, so K and G tell it all
+    flags = flags | np.where(np.isfinite(K) & np.isfinite(G), 0, 32)
+    # underflow, per element only when a cheap global check finds a subnormal somewhere (a
+    # subnormal input has lost its digits already; kt = 0 is exact, not subnormal)
     tiny = np.finfo(np.float64).tiny
-    for m in (K_mf, G_mf, K, G):
-        flags = flags | np.where(np.isfinite(m), 0, 32)
-    for m in (K_mf, G_mf, K, G, kn, kt):   # a subnormal input has lost its digits already
-        flags = flags | np.where((m != 0) & (np.abs(m) < tiny), 64, 0)
-    flags = flags | np.where(ratio > KT_OVER_KN_MAX, 128, 0)
+    arrays = (K_mf, G_mf, K, G, kn, kt)
+    sub = [(m != 0) & (np.abs(m) < tiny) for m in arrays]
+    if any(np.any(b) for b in sub):
+        for b in sub:
+            flags = flags | np.where(b, 64, 0)
+    if np.size(ratio) and np.max(ratio) > KT_OVER_KN_MAX:
+        flags = flags | np.where(ratio > KT_OVER_KN_MAX, 128, 0)
     flags = np.asarray(flags).astype(np.int16)
     valid = flags == 0
     if warn and not np.all(valid):

@@ -24,6 +24,7 @@ from microhom.cli import EXIT_MACHINE, run_cli
 #: as ``python -m dem`` and ``python -m microhom`` give (it was sysexits' 73 before issue 27)
 EXIT_NO_OUTPUT = EXIT_MACHINE
 _last_out = [None]  # the --out folder of the running study (for the Ctrl-C message)
+_under_cli = [False]  # True while run_study runs a main() (report_to tees only then)
 _CACHE_ENV = "MICROHOM_CACHE"
 _cache_set_here = [None]  # the value this module put in MICROHOM_CACHE, if any
 
@@ -73,7 +74,18 @@ def run_study(main, argv=None) -> int:
         where = _last_out[0]
         return (f"the finished results and cached packings are kept under {where}; the same "
                 "command resumes from them" if where is not None else None)
-    return run_cli(main, argv, partial=kept)
+    _under_cli[0] = True
+    old = sys.stdout
+    try:
+        return run_cli(main, argv, partial=kept)
+    finally:
+        _under_cli[0] = False
+        if sys.stdout is not old:   # a report_to tee: flushed and undone
+            try:
+                sys.stdout.flush()
+            except OSError:
+                pass
+            sys.stdout = old
 
 
 def add_out(ap, name: str):
@@ -109,6 +121,35 @@ def tee(folder, name="report.txt"):
             yield path
         finally:
             sys.stdout = old
+
+
+def report_to(folder, name="report.txt"):
+    """Under :func:`run_study` (the command line), copy what the study prints to ``folder/name``
+    as well, until the study ends (benchmarks whose result is the figures they print); returns
+    the report's path. A ``main()`` called from Python (the tests) prints as usual: None."""
+    if not _under_cli[0]:
+        return None
+    path = Path(folder) / name
+    fh = open(path, "w")
+    old = sys.stdout
+
+    class _Tee:
+        encoding = getattr(old, "encoding", "utf-8")
+
+        def write(self, text):
+            old.write(text)
+            fh.write(text)
+            return len(text)
+
+        def flush(self):
+            old.flush()
+            fh.flush()
+
+        def isatty(self):
+            return False
+
+    sys.stdout = _Tee()
+    return path
 
 
 @contextmanager
