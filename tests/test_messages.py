@@ -253,3 +253,37 @@ def test_meshio_prints_nothing_on_stdout(tmp_path, capfd):
         io.read(bad)
     out, _ = capfd.readouterr()
     assert out == ""
+
+
+_D0001 = str(__import__("pathlib").Path(__file__).parent / "data" / "D0001")
+
+
+@pytest.mark.parametrize("cli, argv, must_name", [
+    ("microhom", ["predict", "--kn", "x"], "kn"),
+    ("microhom", ["predict", "--nc", "0"], "nc"),
+    ("microhom", ["predict", "--kn", "1e400"], "kn"),
+    ("microhom", ["predict", "--phi", "0.5"], "--nbar"),
+    ("dem", ["analyse", _D0001, "--kn", "-1"], "--kn"),
+    ("dem", ["analyse", "/nonexistent/packing.dump"], "/nonexistent/packing.dump"),
+    ("dem", ["analyse", _D0001, "--hierarchy-tol", "2"], "--hierarchy-tol"),
+    ("dem", ["analyse", _D0001, "--frame", "0"], "--frame"),
+    ("dem", ["analyse", _D0001, "--spin-arm", "centre"], "--spin-arm"),
+    ("dem", ["pack", "--n", "1e9", "--out", "/nonexistent/x.npz"], "--n"),
+    ("dem", ["pack", "--n", "1.5"], "--n"),
+])
+def test_cli_message_walk(cli, argv, must_name, capsys):
+    """The two command lines on bad options: exit 2, one line naming the option, no library
+    text, no traceback (argparse's own usage errors also exit 2 and name the option)."""
+    if cli == "microhom":
+        from microhom.__main__ import main
+    else:
+        from dem.__main__ import main
+    try:
+        rc = main(argv)
+    except SystemExit as exc:      # argparse: usage line + one error line
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert must_name in err and "Traceback" not in err, err
+    for bare in BARE_LIBRARY_TEXTS:
+        assert bare not in err, err
