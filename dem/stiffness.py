@@ -208,7 +208,9 @@ def _normalise(network, prestress):
     kn = network.kn
     s = float(2.0 ** np.round(np.log2(kn.max())))
     if not np.isfinite(s) or s == 0:
-        raise ValueError(f"kn must be finite and > 0 within the double range, got max {kn.max()!r}")
+        raise ValueError(f"kn must be in (0, 2^1023.5 = 1.27e308] N/m so that its power-of-two "
+                         f"scale exists; got max kn = {float(kn.max()):.6g} (rescale the "
+                         "stiffnesses: the moduli are proportional to kn)")
     kt = network.effective_kt
     ks = np.concatenate([kn, kt[kt > 0]])
     ratio = float(ks.max() / ks.min())
@@ -644,14 +646,21 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     for msg in flags:   # a floppy direction is a property of the network, flagged but not warned
         if not msg.startswith("floppy"):
             warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    c_rel, c_aff = c_rel * s, c_aff * s
+    # moduli of the scaled tensors, then scaled back: no overflow inside the isotropic sums
+    (K_, G_), (Ka, Ga) = isotropic_moduli(c_rel), isotropic_moduli(c_aff)
+    with np.errstate(over="ignore", invalid="ignore"):
+        c_rel, c_aff = c_rel * s, c_aff * s
+        K_, G_, Ka, Ga = K_ * s, G_ * s, Ka * s, Ga * s
+    if not all(np.all(np.isfinite(v)) for v in (c_rel, c_aff, K_, G_, Ka, Ga)):   # past 1.8e308
+        msg = (f"overflow: the tensor exceeds the float64 range once scaled back by kn's scale "
+               f"{s:.3g}; rescale the stiffnesses (the moduli are proportional to kn)")
+        flags.append(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
     N = net.n_particles
     full = np.zeros((3 * N + 1, 3))
     full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
     u_f = np.stack([full[0:2 * N, b].reshape(N, 2) for b in range(3)])
     w_f = np.stack([full[2 * N:3 * N, b] for b in range(3)])
-    K_, G_ = isotropic_moduli(c_rel)
-    Ka, Ga = isotropic_moduli(c_aff)
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
         n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),

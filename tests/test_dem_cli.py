@@ -92,7 +92,7 @@ def test_resume_after_interruption_is_bit_exact(straight, tmp_path):
     (["--n", "50", "--pressure-pa", "1e3", "--kn", "1e3"], "--pressure-pa", "(0, 0.1]"),
     (["--n", "50", "--out", "x.txt"], "--out", ".npz"),
     (["--resume"], "--resume", "checkpoint"),
-    (["--n", "abc"], "--n", "invalid int"),
+    (["--n", "abc"], "--n", "must be a whole number"),
 ])
 def test_bad_input_exits_2_naming_the_option(tmp_path, args, option, text):
     p = run(*args, "--no-progress", cwd=tmp_path)

@@ -287,3 +287,25 @@ def test_cli_message_walk(cli, argv, must_name, capsys):
     assert must_name in err and "Traceback" not in err, err
     for bare in BARE_LIBRARY_TEXTS:
         assert bare not in err, err
+
+
+def test_stiffness_near_float64_top():
+    """stiffness gave K = inf with only numpy's overflow warning: the moduli of a triangular
+    lattice are kn sqrt(3)/2 (closed form), also at kn = 1e308; a tensor entry past the float64
+    range is flagged with the reason; a kn without a power-of-two scale is refused by name."""
+    from dem.stiffness import stiffness
+    from microhom import lattices
+
+    exact = np.sqrt(3.0) / 2.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = stiffness(lattices.triangular(4, 4, kn=1e308, kt=1e308))
+    assert r.ok and r.K == pytest.approx(exact * 1e308, rel=1e-13) and r.G == pytest.approx(
+        exact * 1e308, rel=1e-13)
+    with pytest.warns(RuntimeWarning, match="overflow"):
+        r = stiffness(lattices.triangular(4, 4, kn=1.2e308, kt=1.2e308))
+    assert not r.ok and any(f.startswith("overflow") for f in r.flags)
+    assert r.K == pytest.approx(exact * 1.2e308, rel=1e-13)      # the moduli themselves fit
+    with pytest.raises(ValueError, match="kn must be in") as err:
+        stiffness(lattices.triangular(4, 4, kn=1.5e308, kt=1.5e308))
+    assert "np.float64" not in str(err.value)
