@@ -31,7 +31,7 @@ from .structural_sums import network_statistics
 #: [0, 10 kn] (``python -m dem pack --kt``), beyond it the theory has no check.
 KT_OVER_KN_MAX = 10.0
 
-__all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
+__all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi", "KT_OVER_KN_MAX",
            "PHI_MAX", "PHI_MIN_NBAR"]
 
 _REASONS = (
