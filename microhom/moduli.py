@@ -27,8 +27,8 @@ from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
 from .network import ContactNetwork
 from .structural_sums import network_statistics
 
-#: kt/kn above which a prediction is flagged (bit 128): the DEM of this project packs with kt in
-#: [0, 10 kn] (``python -m dem pack --kt``), beyond it the theory has no check.
+#: Above this kt/kn a prediction is flagged with bit 128. The DEM of this project packs with kt
+#: in [0, 10 kn] (``python -m dem pack --kt``); beyond that the theory has no check.
 KT_OVER_KN_MAX = 10.0
 
 __all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi", "KT_OVER_KN_MAX",
