@@ -53,6 +53,8 @@ import time
 
 from tqdm import tqdm
 
+from microhom import cli
+
 from . import analyse_cli
 from . import io as dio
 from . import measure
@@ -63,8 +65,10 @@ from .packing import (BYTES_PER_PARTICLE, PackingProtocol, ProtocolError, check_
 from .runtime import remove_stale_temporaries
 from .state import State
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
-EXIT_MACHINE, EXIT_BROKEN_PIPE = 1, 141
+# the codes shared by every command line (microhom.cli): "not converged" is the "flagged" code
+EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = (
+    cli.EXIT_OK, cli.EXIT_BAD_INPUT, cli.EXIT_FLAGGED, cli.EXIT_UNSTABLE, cli.EXIT_INTERRUPTED)
+EXIT_MACHINE, EXIT_BROKEN_PIPE = cli.EXIT_MACHINE, cli.EXIT_BROKEN_PIPE
 
 class BadInput(ValueError):
     """A command-line value outside its allowed range (exit code 2)."""
@@ -492,8 +496,8 @@ def main(argv=None) -> int:
     except (BadInput, FormatError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except MemoryError:
-        print("error: out of memory (try a smaller input)", file=sys.stderr)
+    except MemoryError as exc:   # also dem.io.FileTooLarge, which names the file and the limit
+        print(f"error: {exc or 'out of memory (try a smaller input)'}", file=sys.stderr)
         return EXIT_MACHINE
     except OSError as exc:  # permissions, full disk, read-only folder: the machine's state
         print(f"error: {exc}", file=sys.stderr)

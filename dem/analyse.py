@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from microhom.closure import predict_closure
-from microhom.hierarchy import relaxation_hierarchy
+from microhom.hierarchy import DEFAULT_TOL, relaxation_hierarchy
 from microhom.moduli import predict_from_network
 from microhom.results import Result
 from microhom.structural_sums import network_statistics
@@ -167,6 +167,8 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     notes = []
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
+    if not path.is_dir():
+        io.check_regular_file(path)   # the reading rule: no FIFO, device or oversized file
     if format is None:
         if path.is_dir():
             format = "lammps-run"
@@ -177,6 +179,7 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     if format not in FORMATS:
         raise ValueError(f"unknown format {format!r}; known: {list(FORMATS)}")
     forces = None
+    file_arm = "radius" if format.startswith("lammps") else "contact"
     if format == "packing":
         try:
             res = PackingResult.load(path)
@@ -234,7 +237,7 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     info = {"source": str(path), "format": format, "forces": forces, "notes": notes,
             "kn": float(np.mean(net.kn)) if net.n_contacts else float("nan"),
             "kt": float(np.mean(net.kt)) if net.n_contacts else float("nan"),
-            "branch_length": branch_length}
+            "branch_length": branch_length, "spin_arm": file_arm}
     return net, info
 
 
@@ -313,17 +316,17 @@ def _closure(net, structural):
             "valid": bool(p.valid), "reason": str(p.reason), "kt_over_kn": kt, "dispersity": disp}
 
 
-def _hierarchy(net, prestress, min_contacts):
+def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
     t0 = time.perf_counter()
-    h = relaxation_hierarchy(net, prestress=prestress, tol=1e-3, max_order=16, min_contacts=min_contacts)
+    h = relaxation_hierarchy(net, prestress=prestress, tol=tol, max_order=16, min_contacts=min_contacts)
     return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
             "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
             "order": h.order, "converged": h.converged, "unstable": h.unstable,
             "reasons": list(h.reasons), "time_s": time.perf_counter() - t0}
 
 
-def _stiffness(net, prestress, min_contacts):
-    r = stiffness(net, prestress=prestress, min_contacts=min_contacts)
+def _stiffness(net, prestress, min_contacts, spin_arm="contact"):
+    r = stiffness(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     return {"K": r.K, "G": r.G, "K_affine": r.K_affine, "G_affine": r.G_affine,
             "C_mandel": np.asarray(r.C_mandel).tolist(), "prestress": r.prestress,
             "n_rattlers": r.n_rattlers, "n_floppy": r.n_floppy, "n_unstable": r.n_unstable,
@@ -331,7 +334,7 @@ def _stiffness(net, prestress, min_contacts):
 
 
 def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
-            hierarchy=True) -> AnalysisResult:
+            hierarchy=True, spin_arm="contact", hierarchy_tol=DEFAULT_TOL) -> AnalysisResult:
     """All measurements and predictions of one network (see the module docstring).
 
     Parameters
@@ -350,6 +353,13 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
         Compute the exact stiffness (one sparse factorisation).
     hierarchy : bool
         Compute the relaxation hierarchy (periodic networks only).
+    spin_arm : ``"contact"`` or ``"radius"``
+        Spin kinematics of the exact stiffness (:mod:`microhom.kinematics`): the distance to the
+        contact point (default, the theory's) or the radius (LAMMPS ``gran/*``, the disk engine's
+        default law). :func:`analyse_file` matches it to the file's code.
+    hierarchy_tol : float
+        Target relative width of the hierarchy's interval, in (0, 1); default
+        :data:`microhom.hierarchy.DEFAULT_TOL` (the library's own default).
 
     Returns
     -------
@@ -385,13 +395,13 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     elif net.cell is None:
         hier = {"error": "open packing: the hierarchy estimates the stiffness of a periodic cell"}
     else:
-        hier = _section(_hierarchy, snet, prestress, min_contacts)
+        hier = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol)
     if not exact:
         stiff = {"error": "not computed"}
     elif not jammed:
         stiff = {"error": NOT_JAMMED}
     else:
-        stiff = _section(_stiffness, snet, prestress, min_contacts)
+        stiff = _section(_stiffness, snet, prestress, min_contacts, spin_arm)
     if not jammed:
         notes.append(NOT_JAMMED)
     if net.n_particles and net.radii.max() > DISPERSITY_NOTE * net.radii.min():
@@ -417,16 +427,36 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
 
 def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
                  branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
-                 radius=None, exact=True, hierarchy=True) -> AnalysisResult:
+                 radius=None, exact=True, hierarchy=True, spin_arm=None,
+                 hierarchy_tol=DEFAULT_TOL) -> AnalysisResult:
     """:func:`load_network` then :func:`analyse`; the result's ``file`` section says what was read
-    and how long it took, its notes start with the assumptions made while reading."""
+    and how long it took, its notes start with the assumptions made while reading.
+
+    ``spin_arm=None`` (default) matches the exact stiffness's spin kinematics to the file's code:
+    ``"radius"`` for LAMMPS files and run folders (``gran/*`` turns spins about the radius),
+    ``"contact"`` otherwise (the kinematics of the theory and of the hierarchy, whose bounds hold
+    for it; ``dem.packing`` files too, although the engine's default law turns spins about the
+    radius); the notes say which was used. Give ``"contact"`` or ``"radius"`` to choose."""
     t0 = time.perf_counter()
     net, info = load_network(path, format, kn=kn, kt=kt, kt_ratio=kt_ratio,
                              kn_convention=kn_convention, branch_length=branch_length,
                              frame=frame, radius=radius)
     t1 = time.perf_counter()
+    file_arm = info["spin_arm"]
+    if spin_arm is None:
+        spin_arm = file_arm
+        why = "matched to the file's code" if file_arm == "radius" else "the exact solver's default"
+    else:
+        why = "as asked" + ("" if spin_arm == file_arm else f"; the file's code uses {file_arm!r}")
+    info["spin_arm"] = spin_arm
+    if exact:
+        info["notes"].append(
+            f"spin arms of the exact stiffness: {spin_arm!r} ({why}; "
+            + ("the radius r_i, as LAMMPS gran/*" if spin_arm == "radius" else
+               "the distance to the contact point |c| r_i/(r_i + r_j)")
+            + "; --spin-arm contact|radius chooses; the theory and the hierarchy use contact arms)")
     res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact,
-                  hierarchy=hierarchy)
+                  hierarchy=hierarchy, spin_arm=spin_arm, hierarchy_tol=hierarchy_tol)
     notes = info.pop("notes") + res.notes
     return replace(res, file={**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1},
                    notes=notes)

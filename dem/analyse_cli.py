@@ -13,6 +13,8 @@ import csv
 import io as _io
 import json
 
+from microhom.cli import whole_number
+
 from . import analyse as dan
 
 __all__ = ["add_parser", "run"]
@@ -61,9 +63,9 @@ def add_parser(sub):
     a.add_argument("--prestress", action="store_true",
                    help="exact stiffness with the pre-stress terms (normal forces from the file, "
                         "else kn*overlap)")
-    a.add_argument("--min-contacts", type=int, default=None,
+    a.add_argument("--min-contacts", type=whole_number, default=None,
                    help="rattler threshold; default 2 for frictional, 3 for frictionless particles")
-    a.add_argument("--frame", type=int, default=-1,
+    a.add_argument("--frame", type=whole_number, default=-1,
                    help="frame of a LAMMPS dump: 1 = first, -1 = last (the notes say which was "
                         "read)")
     a.add_argument("--radius", type=float, default=None,
@@ -71,6 +73,15 @@ def add_parser(sub):
                         "column")
     a.add_argument("--no-exact", action="store_true",
                    help="skip the exact stiffness (one sparse factorisation)")
+    a.add_argument("--spin-arm", choices=("contact", "radius"), default=None,
+                   help="spin kinematics of the exact stiffness: 'radius' (the radius r_i, as "
+                        "LAMMPS gran/* and the disk engine's default law) or 'contact' (the "
+                        "distance to the contact point |c| r_i/(r_i + r_j), the theory's); "
+                        "default: matched to the file's code (LAMMPS files 'radius', other files "
+                        "'contact'); the notes say which")
+    a.add_argument("--hierarchy-tol", type=float, default=dan.DEFAULT_TOL, metavar="TOL",
+                   help="target relative width of the hierarchy's interval, in (0, 1) (the "
+                        "library's default, microhom.hierarchy.DEFAULT_TOL)")
     a.add_argument("--no-hierarchy", action="store_true",
                    help="skip the relaxation hierarchy (moduli with a rigorous upper bound and a "
                         "stated error, microhom.hierarchy)")
@@ -95,6 +106,9 @@ def _check(args):
             raise ValueError(f"{opt} must be finite and {rng}, got {v!r}")
     if args.min_contacts is not None and args.min_contacts < 1:
         raise ValueError(f"--min-contacts must be an integer >= 1, got {args.min_contacts}")
+    tol = args.hierarchy_tol
+    if not (tol == tol and 0 < tol < 1):
+        raise ValueError(f"--hierarchy-tol must be a relative width in (0, 1), got {tol!r}")
     if args.frame == 0:
         raise ValueError("--frame counts from 1 (first) or from -1 (last); 0 is not a frame")
 
@@ -104,11 +118,21 @@ def run(args, stdout) -> int:
     turns them into one line and an exit code)."""
     _check(args)
     frame = args.frame - 1 if args.frame > 0 else args.frame
-    res = dan.analyse_file(args.file, args.format, kn=args.kn, kt=args.kt, kt_ratio=args.kt_ratio,
-                           kn_convention=args.kn_convention, branch_length=args.branch_length,
-                           alpha=args.alpha, prestress=args.prestress,
-                           min_contacts=args.min_contacts, frame=frame, radius=args.radius,
-                           exact=not args.no_exact, hierarchy=not args.no_hierarchy)
+    try:
+        res = dan.analyse_file(args.file, args.format, kn=args.kn, kt=args.kt,
+                               kt_ratio=args.kt_ratio, kn_convention=args.kn_convention,
+                               branch_length=args.branch_length, alpha=args.alpha,
+                               prestress=args.prestress, min_contacts=args.min_contacts,
+                               frame=frame, radius=args.radius, exact=not args.no_exact,
+                               hierarchy=not args.no_hierarchy, spin_arm=args.spin_arm,
+                               hierarchy_tol=args.hierarchy_tol)
+    except IndexError as exc:
+        n = getattr(exc, "n_frames", None)
+        if n is None:
+            raise
+        raise ValueError(f"--frame {args.frame}: {exc.path} holds {n} frame"
+                         f"{'s' if n != 1 else ''}: --frame in [1, {n}] (1 = first) or "
+                         f"[-{n}, -1] (-1 = last)") from None
     if args.json:
         stdout.write(json.dumps(res.as_dict(), indent=1, allow_nan=False) + "\n")
     elif args.csv:

@@ -120,7 +120,11 @@ class Simulation:
     law : a contact law from :mod:`dem.contact_laws`.
     dt : time step [s]; default ``0.8 * critical_dt``; refused (ValueError) above ``critical_dt``
         unless ``unsafe_dt=True`` (for tests of the instability guard).
-    damping : Cundall local damping lambda in [0, 1).
+    damping : Cundall local damping lambda in [0, 1); ``None`` (default) means 0.7, or 0 for a law
+        that follows another code's equations (``LAMMPS_EQUIVALENT``: the
+        :class:`~dem.contact_laws.LammpsHookeHistory` law, since LAMMPS has no Cundall damping).
+        An explicit ``damping > 0`` with such a law is refused: the run would leave LAMMPS's
+        equations (dv/v_rms of 0.1 at the first step).
     skin : Verlet skin [m], default 0.1 * mean diameter... (0.2 * mean radius).
     control : cell control (:class:`dem.cell.StrainRate`, :class:`dem.cell.PressureServo`) or None
         (the cell keeps its current ``L``).
@@ -141,13 +145,20 @@ class Simulation:
         ``docs/dem.md``).
     """
 
-    def __init__(self, state, law, *, dt=None, damping=0.7, skin=None, control=None, sort_every=20,
+    def __init__(self, state, law, *, dt=None, damping=None, skin=None, control=None, sort_every=20,
                  check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None, startup="leapfrog",
                  fuse=False, threads=1):
         self.state = state
         self.law = law
-        if not (0 <= damping < 1):
-            raise ValueError(f"damping must be in [0, 1), got {damping}")
+        lammps_law = getattr(law, "LAMMPS_EQUIVALENT", False)
+        if damping is None:
+            damping = 0.0 if lammps_law else 0.7
+        if not (isinstance(damping, (int, float, np.floating)) and 0 <= damping < 1):
+            raise ValueError(f"damping must be in [0, 1), got {damping!r}")
+        if lammps_law and damping > 0:
+            raise ValueError(f"damping = {damping!r} with {type(law).__name__}: LAMMPS has no "
+                             "Cundall local damping, so the run would leave LAMMPS's equations; "
+                             "leave damping unset (0 for this law) or give damping=0")
         self.damping = float(damping)
         self.skin = float(0.2 * np.mean(state.radius) if skin is None else skin)
         if not (self.skin > 0):

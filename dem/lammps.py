@@ -57,6 +57,7 @@ from . import io
 from .contact_laws import LinearFriction, damping_ratio
 from .integrate import critical_dt
 from .io import FormatError
+from .io._core import open_bytes
 from .packing import PackingProtocol, random_gas
 
 __all__ = ["LammpsRun", "write_inputs", "run_lammps", "read_run", "pack_lammps", "lammps_available",
@@ -352,7 +353,7 @@ def run_lammps(folder, *, np=1, lmp="lmp", mpirun="mpirun", input_name=INPUT_NAM
 
 def read_dump_local(path) -> tuple[list, np.ndarray]:
     """Last frame of a LAMMPS ``dump local`` text file: (column names, (M, ncol) array)."""
-    text = Path(path).read_text()
+    text = open_bytes(path).decode("utf-8", "replace")   # the reading rule of dem.io
     k = text.rfind("ITEM: TIMESTEP")
     if k < 0:
         raise FormatError(path, 1, "TIMESTEP", "not a LAMMPS dump local file")

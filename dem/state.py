@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -160,7 +162,20 @@ class State:
         path = os.fspath(path)
         if not path.endswith(".npz") and not os.path.exists(path):
             path += ".npz"
-        with np.load(path, allow_pickle=False) as z:
-            kw = {k: np.array(z[k]) for k in _ARRAYS if k in z.files}
-            scal = json.loads(str(z["_scalars"]))
-        return cls(**kw, rho=scal["rho"], step=scal["step"], time=scal["time"], meta=scal["meta"])
+        from .io import FormatError, check_regular_file
+
+        check_regular_file(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                kw = {k: np.array(z[k]) for k in _ARRAYS if k in z.files}
+                scal = json.loads(str(z["_scalars"]))
+            return cls(**kw, rho=scal["rho"], step=scal["step"], time=scal["time"],
+                       meta=scal["meta"])
+        except PermissionError:
+            raise
+        except (ValueError, KeyError, TypeError, OSError, EOFError, zipfile.BadZipFile,
+                zlib.error):
+            # numpy's "allow_pickle=False" text, a missing key, a truncated zip: one cause
+            raise FormatError(path, None, None, "not a readable dem checkpoint (an npz "
+                              "written by State.save, with its '_scalars' record): truncated, "
+                              "corrupt or another kind of file") from None

@@ -48,6 +48,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh, splu
 
 from microhom.kinematics import affine_tensor, assemble, stress0
+from microhom.network import ContactNetwork
 from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
                               prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
@@ -207,7 +208,9 @@ def _normalise(network, prestress):
     kn = network.kn
     s = float(2.0 ** np.round(np.log2(kn.max())))
     if not np.isfinite(s) or s == 0:
-        raise ValueError(f"kn must be finite and > 0 within the double range, got max {kn.max()!r}")
+        raise ValueError(f"kn must be in (0, 2^1023.5 = 1.27e308] N/m so that its power-of-two "
+                         f"scale exists; got max kn = {float(kn.max()):.6g} (rescale the "
+                         "stiffnesses: the moduli are proportional to kn)")
     kt = network.effective_kt
     ks = np.concatenate([kn, kt[kt > 0]])
     ratio = float(ks.max() / ks.min())
@@ -555,7 +558,7 @@ def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
 
 # ---- main entry ------------------------------------------------------------------------------
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
-              max_refine=50, count="auto", ordering="auto") -> StiffnessResult:
+              max_refine=50, count="auto", ordering="auto", spin_arm="contact") -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
     The named steps, each usable on its own: ``_normalise`` (input check, exact scaling),
@@ -575,13 +578,23 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     count : how zero (floppy) modes are counted: ``"auto"``, ``"pivots"`` or ``"rescale"`` (see
         :func:`count_modes`; ``"rescale"`` is forced on ill-conditioned networks).
     ordering : CHOLMOD fill-reducing ordering on the particle graph (:func:`particle_ordering`).
-    rtol : target relative residual of the relaxation solve.
+    rtol : target relative residual of the relaxation solve, in (0, 1).
+    spin_arm : ``"contact"`` (default: spins turn the contact point, arms ``|c| r_i/(r_i+r_j)``)
+        or ``"radius"`` (arms ``r_i``, LAMMPS's ``gran/*`` kinematics); see
+        :mod:`microhom.kinematics`. They agree on touching disks.
 
     Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
     "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
     lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
+                        f"from_overlaps or PackingResult.to_network()), got {type(network).__name__}")
+    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
+        raise ValueError(f"rtol must be a relative residual in (0, 1), got {rtol!r}")
+    if not (isinstance(max_refine, (int, np.integer)) and max_refine >= 1):
+        raise ValueError(f"max_refine must be an integer >= 1, got {max_refine!r}")
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if ordering not in ORDERINGS:
@@ -591,7 +604,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
-    asm = assemble(net, prestress=prestress, min_contacts=min_contacts)
+    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     c_aff = affine_stiffness(net, prestress=prestress)
     sigma0 = stress0(net) if prestress else None
     t_asm = time.perf_counter() - t0
@@ -633,14 +646,21 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     for msg in flags:   # a floppy direction is a property of the network, flagged but not warned
         if not msg.startswith("floppy"):
             warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    c_rel, c_aff = c_rel * s, c_aff * s
+    # moduli of the scaled tensors, then scaled back: no overflow inside the isotropic sums
+    (K_, G_), (Ka, Ga) = isotropic_moduli(c_rel), isotropic_moduli(c_aff)
+    with np.errstate(over="ignore", invalid="ignore"):
+        c_rel, c_aff = c_rel * s, c_aff * s
+        K_, G_, Ka, Ga = K_ * s, G_ * s, Ka * s, Ga * s
+    if not all(np.all(np.isfinite(v)) for v in (c_rel, c_aff, K_, G_, Ka, Ga)):   # past 1.8e308
+        msg = (f"overflow: the tensor exceeds the float64 range once scaled back by kn's scale "
+               f"{s:.3g}; rescale the stiffnesses (the moduli are proportional to kn)")
+        flags.append(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
     N = net.n_particles
     full = np.zeros((3 * N + 1, 3))
     full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
     u_f = np.stack([full[0:2 * N, b].reshape(N, 2) for b in range(3)])
     w_f = np.stack([full[2 * N:3 * N, b] for b in range(3)])
-    K_, G_ = isotropic_moduli(c_rel)
-    Ka, Ga = isotropic_moduli(c_aff)
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
         n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),

@@ -9,22 +9,25 @@ Examples::
 Measuring a packing file moved to the DEM package, where its engine lives:
 ``python -m dem analyse FILE`` (this package never imports ``dem``, lazily included).
 
-Exit codes: 0 every result valid; 3 at least one result flagged outside the theory's range (the
+Exit codes (the convention of :mod:`microhom.cli`, shared with ``python -m dem`` and the
+studies): 0 every result valid; 3 at least one result flagged outside the theory's range (the
 table, JSON and CSV say which and why); 2 bad input (the message names the option and its
-range); 1 the machine's state (the output cannot be written, e.g. a full disk); 141 the output
-pipe was closed (``| head``): silent, as Unix tools are.
+range, including more combinations than the memory holds); 1 the machine's state (the output
+cannot be written, e.g. a full disk); 130 interrupted; 141 the output pipe was closed
+(``| head``): silent, as Unix tools are.
 """
 from __future__ import annotations
 
 import argparse
-import os
+import json
+import math
 import sys
 
 import numpy as np
 
+from .cli import EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_OK, run_cli  # the codes shared by every CLI
+from .limits import MEMORY_FRACTION, available_memory
 from .moduli import predict_moduli
-
-EXIT_OK, EXIT_MACHINE, EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_BROKEN_PIPE = 0, 1, 2, 3, 141
 
 #: library wording -> the command line's own flags (the messages are shared with the Python API)
 _CLI_WORDS = (("Pass nbar explicitly", "Give --nbar"), ("pass nbar", "give --nbar"),
@@ -48,7 +51,7 @@ def build_parser():
         description="Micromechanical homogenisation of dense random disk packings. (To measure a "
                     "packing file: python -m dem analyse FILE.)",
         epilog="exit codes: 0 valid, 3 a result flagged outside the theory's range, 2 bad input, "
-               "1 output cannot be written (full disk), 141 output pipe closed")
+               "1 output cannot be written (full disk), 130 interrupted, 141 output pipe closed")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser(
         "predict", help="mean-field and fluctuation-corrected 2D bulk and shear moduli",
@@ -57,8 +60,8 @@ def build_parser():
                     "broadcast (one row per combination). Defaults: the seed paper's case.",
         epilog="exit codes: 0 every result valid, 3 at least one flagged outside the theory's range "
                "(in either direction: a correction that softens or stiffens by more than "
-               "--max-correction), 2 bad input, 1 output cannot be written (full disk), 141 output "
-               "pipe closed (silent)",
+               "--max-correction; overflow, underflow, kt/kn > 10), 2 bad input, 1 output cannot "
+               "be written (full disk), 130 interrupted, 141 output pipe closed (silent)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--kn", nargs="+", type=_floats("kn"), default=[SEED_CASE["kn"]],
                    help="normal contact stiffness [N/m], > 0 (2D: force per unit thickness per unit overlap)")
@@ -87,43 +90,51 @@ def build_parser():
     return ap
 
 
+#: Bytes one output row of ``predict`` takes at its peak (the broadcast inputs, the prediction's
+#: arrays, the pandas table, the records and the JSON text), measured as the peak resident size
+#: of ``predict --json`` with 1e5 rows less that with one row: 5.1 kB (see
+#: ``tests/test_messages.py::test_predict_row_memory_estimate``); the guard keeps a margin of 1.6.
+BYTES_PER_ROW = 8000
+
+
 def _grid(args):
-    cols = {"kn": args.kn, "kt": args.kt if args.kt is not None else [None], "nc": args.nc, "phi": args.phi,
-            "r": args.r}
+    """The option values broadcast over every combination: dict name -> flat array (or None),
+    checked against the memory *before* anything of that size is allocated."""
+    cols = {"kn": args.kn, "kt": args.kt, "nc": args.nc, "phi": args.phi, "r": args.r}
     if args.rho is not None:
         cols["rho"] = args.rho
     else:
         cols["alpha"] = args.alpha if args.alpha is not None else [SEED_CASE["alpha"]]
     defaults = all(getattr(args, k) == [SEED_CASE[k]] for k in ("nc", "phi")) and args.nbar is None
-    cols["nbar"] = args.nbar if args.nbar is not None else ([SEED_CASE["nbar"]] if defaults else [None])
-    names = list(cols)
-    mesh = np.meshgrid(*[np.arange(len(cols[n])) for n in names], indexing="ij")
-    rows = []
-    for idx in zip(*(m.ravel() for m in mesh)):
-        row = {n: cols[n][i] for n, i in zip(names, idx)}
-        if row["kt"] is None:
-            row["kt"] = row["kn"]
-        rows.append(row)
-    return rows
+    cols["nbar"] = args.nbar if args.nbar is not None else ([SEED_CASE["nbar"]] if defaults else None)
+    given = {k: v for k, v in cols.items() if v is not None}
+    count = math.prod(len(v) for v in given.values())
+    need, allowed = count * BYTES_PER_ROW, int(MEMORY_FRACTION * available_memory())
+    if need > allowed:
+        sizes = " x ".join(f"{len(v)} (--{k})" for k, v in given.items() if len(v) > 1)
+        raise ValueError(f"{sizes} = {count:,} combinations would take about {need / 1e9:.3g} GB, "
+                         f"more than the {allowed / 1e9:.3g} GB allowed ({MEMORY_FRACTION:g} of the "
+                         f"memory available): give fewer values per option")
+    names = list(given)
+    mesh = np.meshgrid(*[np.asarray(given[n], dtype=np.float64) for n in names], indexing="ij")
+    out = {n: m.ravel() for n, m in zip(names, mesh)}
+    if "kt" not in out:
+        out["kt"] = out["kn"]
+    return out
 
 
 def cmd_predict(args):
-    import pandas as pd
+    from .results import to_plain
 
-    rows = _grid(args)
-    frames = []
-    for row in rows:
-        kw = {k: v for k, v in row.items() if v is not None}
-        p = predict_moduli(max_correction=args.max_correction, warn=False, **kw)
-        f = p.to_frame()
-        for k in ("r", "phi", "nc", "kt", "kn"):
-            f.insert(0, k, row[k])
-        frames.append(f)
-    df = pd.concat(frames, ignore_index=True)
-    if args.json:
-        print(df.to_json(orient="records", indent=1))
+    grid = _grid(args)
+    p = predict_moduli(max_correction=args.max_correction, warn=False, **grid)
+    df = p.to_frame()
+    for k in ("r", "phi", "nc", "kt", "kn"):
+        df.insert(0, k, grid[k])
+    if args.json:   # every float at full precision (repr: round-trips), NaN and inf as null
+        print(json.dumps(to_plain(df.to_dict("records")), indent=1, allow_nan=False))
     elif args.csv:
-        print(df.to_csv(index=False), end="")
+        print(df.to_csv(index=False, float_format=None), end="")
     else:
         for i, r in df.iterrows():
             print(f"case {i}: kn = {r.kn:.4g} N/m, kt = {r.kt:.4g} N/m, Nc = {r.nc:.4g}, phi = {r.phi:.4g}, "
@@ -151,20 +162,15 @@ def main(argv=None):
               + " ".join(argv[1:]), file=sys.stderr)
         return EXIT_BAD_INPUT
     args = build_parser().parse_args(argv)
-    try:
-        return cmd_predict(args)
-    except BrokenPipeError:  # '| head' closed the pipe: silent, as Unix tools are
+
+    def run(_):
         try:
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        except (OSError, ValueError):
-            pass
-        return EXIT_BROKEN_PIPE
-    except ValueError as exc:
-        print(f"error: {_cli_words(str(exc))}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:  # the machine's state, e.g. a full disk under a redirected output
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_MACHINE
+            return cmd_predict(args)
+        except ValueError as exc:
+            print(f"error: {_cli_words(str(exc))}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    # closed pipe 141, full disk or unwritable output 1, Ctrl-C 130 (microhom.cli)
+    return run_cli(run)
 
 
 if __name__ == "__main__":

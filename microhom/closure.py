@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .limits import as_float_array
 from .results import Result
 
 __all__ = ["features", "predict_closure", "ClosurePrediction", "FEATURES", "COEF_K", "COEF_G",
@@ -42,10 +43,15 @@ RANGES = {"dz": (0.2, 2.52), "kt_over_kn": (0.1, 1.0), "dispersity": (0.0, 0.2),
 ERROR = {"K": 0.034, "G": 0.055}   # rms relative error on the 9 validation packings in range
 # -------------------------------------------------------------------------------------------------
 
+#: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
+#: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
+PHI_INFLATED_MAX = 1.1
+
 _REASONS = (
     (1, "outside the fitted range of Z - 3, kt/kn, dispersity or r"),
     (2, "near isostatic (Z - 3 below the fitted range): G -> 0, relative error unbounded"),
     (4, "frictionless contacts (kt = 0): not covered by the closure"),
+    (8, "phi above 1 (overlaps inflate it): outside the fitted range; the moduli scale with phi"),
 )
 
 
@@ -78,7 +84,8 @@ class ClosurePrediction(Result):
     valid : ndarray of bool
         False where a flag applies.
     flags : ndarray of int8
-        Bit mask: 1 outside the fitted range, 2 near-isostatic, 4 frictionless (kt = 0).
+        Bit mask: 1 outside the fitted range, 2 near-isostatic, 4 frictionless (kt = 0),
+        8 phi above 1 (overlap-inflated, as ``predict_from_network`` flags it).
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -101,10 +108,10 @@ class ClosurePrediction(Result):
 
 
 def _check(name, a, lo, hi=np.inf, lo_open=False):
-    a = np.asarray(a, dtype=float)
+    a = as_float_array(name, a)
     bad = ~np.isfinite(a) | ((a <= lo) if lo_open else (a < lo)) | (a > hi)
     if np.any(bad):
-        v = a.ravel()[np.flatnonzero(np.broadcast_to(bad, a.shape).ravel())[0]]
+        v = float(a.ravel()[np.flatnonzero(np.broadcast_to(bad, a.shape).ravel())[0]])
         raise ValueError(f"{name} must be finite and in {'(' if lo_open else '['}{lo:g}, {hi:g}]; got {v!r}")
     return a
 
@@ -120,7 +127,8 @@ def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
     r : array_like
         Contact-number fluctuation ``var(Nc)/Nc^2`` of the load-bearing particles, >= 0.
     phi : array_like
-        Solid fraction, in (0, 1].
+        Solid fraction, in (0, 1.1]; in (1, 1.1] (overlap-inflated, as packings squeezed to
+        p/kn ~ 1e-2 measure it) the result is flagged (bit 8) rather than refused.
     kt_over_kn : array_like
         Tangential over normal contact stiffness, >= 0.
     dispersity : array_like
@@ -140,7 +148,7 @@ def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
     """
     nc = _check("nc", nc, 0.0, lo_open=True)
     r = _check("r", r, 0.0)
-    phi = _check("phi", phi, 0.0, 1.0, lo_open=True)
+    phi = _check("phi", phi, 0.0, PHI_INFLATED_MAX, lo_open=True)   # (1, 1.1]: flagged (8)
     kr = _check("kt_over_kn", kt_over_kn, 0.0)
     d = _check("dispersity", dispersity, 0.0)
     kn = _check("kn", kn, 0.0, lo_open=True)
@@ -156,7 +164,8 @@ def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
     tol = 1e-9
     out = ((dz > zhi + tol) | (kr < klo - tol) | (kr > khi + tol) | (d < dlo - tol) | (d > dhi + tol)
            | (r < rlo - tol) | (r > rhi + tol))
-    flags = np.where(out & (kr > 0), 1, 0) | np.where(dz < zlo, 2, 0) | np.where(kr == 0, 4, 0)
+    flags = (np.where(out & (kr > 0), 1, 0) | np.where(dz < zlo, 2, 0) | np.where(kr == 0, 4, 0)
+             | np.where(phi > 1.0, 8, 0))
     flags = np.broadcast_to(flags, K.shape).astype(np.int8)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
                              error_K=ERROR["K"] * np.abs(K), error_G=ERROR["G"] * np.abs(G),

@@ -45,7 +45,7 @@ from .network import ContactNetwork
 from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
 
-__all__ = ["Estimate", "HierarchyResult", "relaxation_hierarchy", "block_preconditioner",
+__all__ = ["DEFAULT_TOL", "Estimate", "HierarchyResult", "relaxation_hierarchy", "block_preconditioner",
            "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments"]
 
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
@@ -525,7 +525,13 @@ def _extrapolate(seq):
 
 
 # ---- main entry ------------------------------------------------------------------------------
-def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = 1e-2,
+#: The one default target width of the hierarchy's interval (``relaxation_hierarchy``, ``dem
+#: analyse``): 1 %, below the errors of the predictions it judges (the theory's and the closure's
+#: are several %: docs/results/hierarchy.md); a smaller ``tol`` costs more CG orders.
+DEFAULT_TOL = 1e-2
+
+
+def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
                          max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto") -> HierarchyResult:

@@ -5,8 +5,11 @@ hierarchy (``microhom.hierarchy``) share; it lives on the theory side so that ``
 imports ``dem``.
 
 Formulation (2D, tension positive). Contact ``k`` joins ``i`` and ``j``, branch ``c = x_j - x_i``
-(periodic image resolved), ``n = c/|c|``, ``t = (-n_y, n_x)``, arms ``a_i = |c| r_i/(r_i+r_j)``,
-``a_j = |c| r_j/(r_i+r_j)``. Under a homogeneous strain ``E`` of the cell plus periodic
+(periodic image resolved), ``n = c/|c|``, ``t = (-n_y, n_x)``, spin arms ``a_i = |c| r_i/(r_i+r_j)``,
+``a_j = |c| r_j/(r_i+r_j)`` (``spin_arm="contact"``, the default: spins turn the material point
+at the contact point) or ``a_i = r_i``, ``a_j = r_j`` (``spin_arm="radius"``: the surface point of
+each disk on the line of centres, as LAMMPS ``gran/*`` and the disk engine's default law). The two
+agree for touching disks (``|c| = r_i + r_j``) and differ by the relative overlap otherwise. Under a homogeneous strain ``E`` of the cell plus periodic
 fluctuations ``u`` (translations) and ``omega`` (spins) the relative displacement of the contact
 point of ``j`` with respect to that of ``i`` is::
 
@@ -37,7 +40,10 @@ import scipy.sparse as sp
 from .network import ContactNetwork
 from .structural_sums import rattlers
 
-__all__ = ["ContactMatrices", "Assembly", "contact_matrices", "assemble", "stress0",
+#: Accepted ``spin_arm`` values (see the module docstring).
+SPIN_ARMS = ("contact", "radius")
+
+__all__ = ["SPIN_ARMS", "ContactMatrices", "Assembly", "contact_matrices", "assemble", "stress0",
            "affine_tensor", "sparse_rows", "block_diag"]
 
 _SQ2 = np.sqrt(2.0)
@@ -66,9 +72,18 @@ class ContactMatrices:
     Kg: np.ndarray | None
 
 
-def contact_matrices(net: ContactNetwork, prestress: bool = False) -> ContactMatrices:
+def _check_spin_arm(spin_arm):
+    if spin_arm not in SPIN_ARMS:
+        raise ValueError(f"spin_arm must be one of {SPIN_ARMS} ('contact': the distance to the "
+                         f"contact point, 'radius': the radius, as LAMMPS), got {spin_arm!r}")
+
+
+def contact_matrices(net: ContactNetwork, prestress: bool = False,
+                     spin_arm: str = "contact") -> ContactMatrices:
     """Per-contact ``B`` (C, 2, 6), ``D`` (C, 2, 3) [m], ``K`` (C, 2, 2) [N/m] (and ``K_g``
-    (C, 2, 2) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`)."""
+    (C, 2, 2) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`); ``spin_arm``
+    ``"contact"`` or ``"radius"`` (module docstring)."""
+    _check_spin_arm(spin_arm)
     if prestress and net.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network "
                          "(ContactNetwork.fn, compression positive, N/m)")
@@ -77,7 +92,10 @@ def contact_matrices(net: ContactNetwork, prestress: bool = False) -> ContactMat
     n = c / L[:, None]
     t = np.stack([-n[:, 1], n[:, 0]], axis=1)
     ri, rj = net.radii[net.pairs[:, 0]], net.radii[net.pairs[:, 1]]
-    ai, aj = L * ri / (ri + rj), L * rj / (ri + rj)
+    if spin_arm == "radius":
+        ai, aj = ri, rj
+    else:
+        ai, aj = L * ri / (ri + rj), L * rj / (ri + rj)
     kt = net.effective_kt
     nn = n[:, :, None] * n[:, None, :]
     eye = np.eye(2)
@@ -174,18 +192,20 @@ class Assembly:
 
 
 def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None,
-             pin: bool = True) -> Assembly:
+             pin: bool = True, spin_arm: str = "contact") -> Assembly:
     """Assemble the reduced Hessian ``H`` (ndof, ndof) [N/m] and load ``F`` (ndof, 3) of a periodic
     network (rattlers removed iteratively with :func:`microhom.structural_sums.rattlers`); see
     :class:`Assembly`. ``pin=False`` keeps every translation (``H`` then has the two global
     translations as null vectors, orthogonal to ``F``: what an iterative solver wants, since
-    pinning one particle breaks the cell's symmetry)."""
+    pinning one particle breaks the cell's symmetry). ``spin_arm``: ``"contact"`` (default) or
+    ``"radius"`` (the module docstring)."""
+    _check_spin_arm(spin_arm)
     if network.cell is None:
         raise ValueError("the stiffness problem needs a periodic network (cell is None)")
     N = network.n_particles
     ratt, keep_c = rattlers(network, min_contacts)
     net = network.select_contacts(keep_c)
-    m = contact_matrices(net, prestress)
+    m = contact_matrices(net, prestress, spin_arm)
     i, j = net.pairs[:, 0], net.pairs[:, 1]
     nc = i.shape[0]
 

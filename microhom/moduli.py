@@ -22,11 +22,17 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from .hierarchy import relaxation_hierarchy
+from .limits import as_float_array, check_broadcast
 from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, nbar_from_phi
+from .network import ContactNetwork
 from .structural_sums import network_statistics
 from .results import Result
 
-__all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi",
+#: Above this kt/kn a prediction is flagged with bit 128. The DEM of this project packs with kt
+#: in [0, 10 kn] (``python -m dem pack --kt``); beyond that the theory has no check.
+KT_OVER_KN_MAX = 10.0
+
+__all__ = ["predict_moduli", "predict_from_network", "Prediction", "rho_from_alpha", "nbar_from_phi", "KT_OVER_KN_MAX",
            "PHI_MAX", "PHI_MIN_NBAR"]
 
 _REASONS = (
@@ -38,13 +44,23 @@ _REASONS = (
     (8, "near isostatic (Z - Z_iso < 0.5 on the load-bearing particles): the shear modulus vanishes "
         "at isostaticity and the first-order theory cannot follow"),
     (16, "prediction above the rigorous upper bound of the relaxation hierarchy: provably too stiff"),
+    (32, "overflow: a modulus exceeds the float64 range (about 1.8e308): the inputs (kn, kt, nc) are "
+         "too large; rescale the stiffnesses (the moduli are proportional to kn)"),
+    (64, "underflow: a modulus below float64's normal range (2.2e-308) has lost digits: rescale the "
+         "stiffnesses (the moduli are proportional to kn)"),
+    (128, f"kt/kn above {KT_OVER_KN_MAX:g}: outside the range the theory was checked against (the "
+          f"DEM packs with kt in [0, {KT_OVER_KN_MAX:g} kn])"),
 )
 _N_CODES = 1 << len(_REASONS)
+#: Bytes :func:`predict_moduli` allocates per entry of the broadcast shape (its 15 output arrays
+#: and temporaries, float64): the memory guard's estimate (see :func:`microhom.limits.check_broadcast`).
+BYTES_PER_PREDICTION = 8 * 32
 
 
 def _check(name, x, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
-    """Array of float64, finite, in the allowed range; else ValueError naming the parameter."""
-    a = np.asarray(x, dtype=np.float64)
+    """Array of float64, finite, in the allowed range; else ValueError naming the parameter (also
+    for text, ``None`` and other non-numbers)."""
+    a = as_float_array(name, x, unit=f" [{unit.strip()}]" if unit else "")
     bad = ~np.isfinite(a)
     rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else f'{lo:.6g}'}, " \
           f"{'inf' if hi is None else f'{hi:.6g}'}{')' if hi_open or hi is None else ']'}"
@@ -96,9 +112,11 @@ class Prediction(Result):
         Correlation factor ``Nc sum V.W / sum V^2`` used [-].
     valid : ndarray of bool
         False where the first-order theory is out of range.
-    flags : ndarray of int8
+    flags : ndarray of int16
         Bit mask of the reasons (1 correction >= 1, 2 correction above ``max_correction``,
-        4 phi above close packing, 8 near-isostatic, 16 above the hierarchy's upper bound).
+        4 phi above close packing, 8 near-isostatic, 16 above the hierarchy's upper bound,
+        32 overflow (a modulus beyond float64's range), 64 underflow (a modulus below float64's
+        normal range, digits lost), 128 kt/kn above :data:`KT_OVER_KN_MAX`).
     index : pandas Index or None
         Index of the inputs when they were pandas Series, else None.
     reason : ndarray of str
@@ -188,8 +206,8 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
         Moduli [N/m] of the broadcast shape. Reproduces the seed's table: Nc = 4.1, r = 0.35, Nbar = 5, alpha = 1.76, kt = kn
     gives fraction changes 0.19 (bulk) and 0.28 (shear).
     """
-    index = getattr(next((a for a in (kn, kt, nc, phi, r, alpha, rho, nbar) if hasattr(a, "index")), None),
-                    "index", None)
+    index = next((a.index for a in (kn, kt, nc, phi, r, alpha, rho, nbar)
+                  if type(a).__module__.startswith("pandas") and hasattr(a, "index")), None)
     kn = _check("kn", kn, 0.0, lo_open=True, unit=" N/m")
     kt = _check("kt", kt, 0.0, unit=" N/m")
     nc = _check("nc", nc, 0.0, lo_open=True)
@@ -197,6 +215,11 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     r = _check("r", r, 0.0)
     _check("diameter", diameter, 0.0, lo_open=True, unit=" m")
     _check("max_correction", max_correction, 0.0, 1.0, lo_open=True)
+    named = {"kn": kn, "kt": kt, "nc": nc, "phi": phi, "r": r}
+    for name, v in (("alpha", alpha), ("rho", rho), ("nbar", nbar)):
+        if v is not None:
+            named[name] = _check(name, v) if name != "alpha" else as_float_array(name, v)
+    check_broadcast(named, bytes_per_element=BYTES_PER_PREDICTION, what="predict_moduli's result")
     if nbar is None:
         if np.any(phi < PHI_MIN_NBAR * (1 - 1e-12)):
             raise ValueError(
@@ -215,19 +238,34 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
             raise ValueError("give either alpha (the paper's model) or rho (measured), not both")
         rho = _check("rho", rho)
 
-    ratio = kt / kn  # stable for kn over many decades; kt = 0 exactly gives the frictionless pair
-    K_mf = nc * phi * kn / (2.0 * np.pi)
-    G_mf = nc * phi * (kn + kt) / (4.0 * np.pi)
-    x = r * (nbar / nc) * rho
-    drop_K = 4.0 / (3.0 + ratio) * x
-    drop_G = 2.0 * (2.0 + ratio) / (3.0 + ratio) * x
-    K = K_mf * (1.0 - drop_K)
-    G = G_mf * (1.0 - drop_G)
+    with np.errstate(over="ignore", under="ignore"):   # flagged below (bits 32, 64), with the reason
+        ratio = kt / kn  # stable for kn over many decades; kt = 0 exactly gives the frictionless pair
+        # kn times a factor of order one, kn (1 + kt/kn) rather than kn + kt: no spurious
+        # overflow of an intermediate product near float64's top
+        K_mf = kn * (nc * phi / (2.0 * np.pi))
+        G_mf = kn * (nc * phi * (1.0 + ratio) / (4.0 * np.pi))
+        x = r * (nbar / nc) * rho
+        drop_K = 4.0 / (3.0 + ratio) * x
+        drop_G = 2.0 * (2.0 + ratio) / (3.0 + ratio) * x
+        K = K_mf * (1.0 - drop_K)
+        G = G_mf * (1.0 - drop_G)
     drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
     big = np.maximum(drop_K, drop_G)
     size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
     flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
-    flags = flags.astype(np.int8)
+    # overflow: K = K_mf (1 - drop_K) is inf or NaN whenever K_mf is, so K and G tell it all
+    flags = flags | np.where(np.isfinite(K) & np.isfinite(G), 0, 32)
+    # underflow, per element only when a cheap global check finds a subnormal somewhere (a
+    # subnormal input has lost its digits already; kt = 0 is exact, not subnormal)
+    tiny = np.finfo(np.float64).tiny
+    arrays = (K_mf, G_mf, K, G, kn, kt)
+    sub = [(m != 0) & (np.abs(m) < tiny) for m in arrays]
+    if any(np.any(b) for b in sub):
+        for b in sub:
+            flags = flags | np.where(b, 64, 0)
+    if np.size(ratio) and np.max(ratio) > KT_OVER_KN_MAX:
+        flags = flags | np.where(ratio > KT_OVER_KN_MAX, 128, 0)
+    flags = np.asarray(flags).astype(np.int16)
     valid = flags == 0
     if warn and not np.all(valid):
         n_bad = int(np.size(valid) - np.count_nonzero(valid))
@@ -264,6 +302,9 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
       ladder: its cheapest rigorous bound; without pre-stress, as the theory): the prediction is
       then provably too stiff.
     """
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
+                        f"microhom.network.from_overlaps), got {type(network).__name__}")
     st = network_statistics(network, min_contacts=min_contacts)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
     if key is None:
@@ -298,7 +339,7 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
         if not h.unstable and (float(p.K) > h.K.upper + tol or float(p.G) > h.G.upper + tol):
             extra |= 16
     if extra:
-        flags = (np.asarray(p.flags) | extra).astype(np.int8)
+        flags = (np.asarray(p.flags) | extra).astype(np.int16)
         p = replace(p, flags=flags, valid=flags == 0)
     if warn and not np.all(p.valid):
         warnings.warn(f"prediction flagged: {p.reason}", RuntimeWarning, stacklevel=2)

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import periodic
+from .limits import as_float_array
 
 __all__ = ["ContactNetwork", "from_overlaps", "from_pairs"]
 
@@ -42,7 +43,7 @@ def _as_float(name, value, shape_tail, allow_none=False):
         if allow_none:
             return None
         raise ValueError(f"{name} is required")
-    arr = np.ascontiguousarray(value, dtype=np.float64)
+    arr = np.ascontiguousarray(as_float_array(name, value))
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != tuple(shape_tail):
         raise ValueError(f"{name} must have shape (n, {', '.join(map(str, shape_tail))})"
                          if shape_tail else f"{name} must be a 1-D array, got shape {arr.shape}")
@@ -125,8 +126,14 @@ class ContactNetwork:
         branch = _as_float("branch", np.reshape(self.branch, (-1, 2)), (2,))
         if branch.shape[0] != nc:
             raise ValueError(f"branch has {branch.shape[0]} rows but pairs has {nc}")
-        if nc and np.any(np.hypot(branch[:, 0], branch[:, 1]) <= 0):
-            raise ValueError("branch vectors must have a positive length")
+        zero = np.flatnonzero(np.hypot(branch[:, 0], branch[:, 1]) <= 0) if nc else []
+        if len(zero):
+            k = int(zero[0])
+            a, b = (int(v) for v in pairs[k])
+            raise ValueError(f"contact {k} between particles {a} and {b}: branch vector of zero "
+                             f"length (the centres coincide at ({pos[a, 0]:.6g}, {pos[a, 1]:.6g})"
+                             f"{'' if len(zero) == 1 else f'; {len(zero)} such contacts'}): "
+                             "coincident particles have no contact direction; remove duplicates")
         kn = _as_float("kn", _per_contact("kn", self.kn, nc), ())
         kt = _as_float("kt", _per_contact("kt", self.kt, nc), ())
         if np.any(kn <= 0):
@@ -310,13 +317,32 @@ def _candidate_pairs(positions, cell, origin, cutoff):
 def _check_geometry(positions, radii):
     positions = _as_float("positions", positions, (2,))
     n = positions.shape[0]
-    radii = np.asarray(radii, dtype=np.float64)
+    if n == 0:
+        raise ValueError("positions holds no particles (shape (0, 2)): a network needs at least "
+                         "one particle")
+    radii = as_float_array("radii", radii, unit=" [m]")
     if radii.ndim and radii.shape != (n,):
         raise ValueError(f"radii must be a scalar or have shape ({n},) like positions, got {radii.shape}")
     radii = _as_float("radii", np.broadcast_to(radii, (n,)), ())
-    if np.any(radii <= 0):
-        raise ValueError("radii must be > 0")
+    bad = np.flatnonzero(~(radii > 0))
+    if bad.size:
+        raise ValueError(f"radii must be > 0 [m]; particle {int(bad[0])} has {float(radii[bad[0]])!r}")
     return positions, radii
+
+
+def _check_cell(cell):
+    """The periodic shape matrix as a finite, non-singular (2, 2) float array (None stays None)."""
+    if cell is None:
+        return None
+    cell = as_float_array("cell", cell, unit=" [m]")
+    if cell.shape != (2, 2) or not np.all(np.isfinite(cell)):
+        raise ValueError(f"cell must be a finite 2x2 matrix whose columns are the periodic vectors "
+                         f"[m], or None (open boundaries); got shape {cell.shape}")
+    area = abs(float(np.linalg.det(cell)))
+    if not area > 1e-12 * float(np.abs(cell).max()) ** 2:
+        raise ValueError(f"cell must have a positive area (non-singular shape matrix, columns = "
+                         f"periodic vectors); got {cell.tolist()} with area {area:.3g}")
+    return cell
 
 
 def _finish(positions, radii, cell, origin, i, j, d, *, kn, kt, sliding, law, fn=None, ft=None):
@@ -381,8 +407,10 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
         raise ValueError(f"branch_length must be 'distance' or 'radii', got {branch_length!r}")
     if law is not None and branch_length != "distance":
         raise ValueError("a law needs the actual overlaps: use branch_length='distance'")
-    cell_arr = None if cell is None else np.asarray(cell, dtype=np.float64)
-    origin = np.asarray(origin, dtype=np.float64)
+    cell_arr = _check_cell(cell)
+    origin = as_float_array("origin", origin, unit=" [m]")
+    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+        raise ValueError(f"origin must be a finite (2,) point [m], got shape {origin.shape}")
     cutoff = 2.0 * radii.max() * (1.0 + tolerance)
     i, j, d = _candidate_pairs(positions, cell_arr, origin, cutoff)
     dist = np.hypot(d[:, 0], d[:, 1])
@@ -423,8 +451,8 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
     n = positions.shape[0]
     if i.size and (min(i.min(), j.min()) < 0 or max(i.max(), j.max()) >= n):
         raise ValueError(f"pairs contains particle indices outside [0, {n})")
-    cell_arr = None if cell is None else np.asarray(cell, dtype=np.float64)
-    origin = np.asarray(origin, dtype=np.float64)
+    cell_arr = _check_cell(cell)
+    origin = as_float_array("origin", origin, unit=" [m]")
     d = positions[j] - positions[i]
     if shifts is not None:
         if cell_arr is None:

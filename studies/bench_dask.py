@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from studies.runner import demo_case, run_cases
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def _noop(x):
@@ -67,7 +68,9 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2, help="LocalCluster workers")
     ap.add_argument("--trivial", type=int, default=200, help="number of trivial (20-particle) cases")
     ap.add_argument("--quick", action="store_true", help="8 cases of 20,000 particles, 40 trivial cases")
+    add_out(ap, "bench_dask")
     args = ap.parse_args(argv)
+    report_to(cli_out_dir(args.out, cache=False))   # the printed figures, also in OUT/report.txt
     if args.quick:
         args.cases, args.n, args.trivial = 8, 20_000, 40
     print(f"# bench_dask: {args.cases} cases x demo_case(n={args.n}), {args.trivial} trivial cases, "
@@ -119,4 +122,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

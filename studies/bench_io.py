@@ -24,6 +24,7 @@ import numpy as np
 
 from dem import io
 from dem.io import Configuration
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def packing(n, sheared, seed=0):
@@ -70,7 +71,9 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--keep", default=None, help="directory to keep the generated files in")
     ap.add_argument("--skip-parsers", action="store_true")
+    add_out(ap, "bench_io")
     args = ap.parse_args(argv)
+    report_to(cli_out_dir(args.out, cache=False))   # the printed figures, also in OUT/report.txt
     tmp = args.keep or tempfile.mkdtemp(prefix="bench_io_")
     os.makedirs(tmp, exist_ok=True)
     print(f"dem.io benchmark, N ~ {args.n:,}, files in {tmp}, {os.cpu_count()} CPUs")
@@ -102,4 +105,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from dem.scenes.mine import MineParams, build_scene, run_scene
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def one(p):
@@ -29,7 +30,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m studies.bench_mine")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--skip-fine", action="store_true")
+    add_out(ap, "bench_mine")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     run_scene(MineParams(duration=0.001, ramp_time=0.001))          # numba cache warm-up
     cases = [("paper scene, 1117 cells (inner radius 0.25 m)", MineParams()),
              ("paper-closest reading (eigenstrain gas)", MineParams(gas="eigenstrain")),
@@ -56,4 +59,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

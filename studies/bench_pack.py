@@ -36,6 +36,7 @@ import time
 
 from dem.measure import coordination
 from dem.packing import PackingProtocol, pack
+from studies.common import add_out, cli_out_dir, report_to
 
 PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")
 #: the defaults of ``python -m dem pack``: the PackingProtocol's own (p/kn = 1e-4, kt = kn,
@@ -98,7 +99,9 @@ def main(argv=None):
     ap.add_argument("--old", action="store_true", help="also run the protocol before issue 12.3")
     ap.add_argument("--case", choices=sorted(CASES), default="cli",
                     help="cli: the defaults of python -m dem pack; mu05: mu = mu_prep = 0.5")
+    add_out(ap, "bench_pack")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     have_lmp = shutil.which("lmp") is not None
     if not have_lmp:
         print("lmp not on PATH: the LAMMPS side is skipped (Debian: apt-get install -y lammps)")
@@ -135,4 +138,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

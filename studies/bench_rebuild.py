@@ -28,6 +28,7 @@ import numpy as np
 from dem import neighbors
 from dem.integrate import Simulation
 from studies.bench_throughput import DT, SKIN, bench_law, dense_base, tile, tiling
+from studies.common import add_out, cli_out_dir, report_to
 
 LIST = ("x", "v", "radius", "ids", "omega", "nl_i", "nl_j", "nl_shift", "nl_ft", "x_ref", "h_ref")
 
@@ -79,7 +80,9 @@ def main(argv=None):
     ap.add_argument("--inner", type=int, default=9, help="rebuilds per repeat (median taken)")
     ap.add_argument("--against", default=None, help="git revision whose dem/neighbors.py to compare")
     ap.add_argument("--base-n", type=int, default=10000, help="disks of the prepared state (tiled to N)")
+    add_out(ap, "bench_rebuild")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     mods = [("today", neighbors)]
     if a.against:
         mods.insert(0, (a.against, module_at(a.against)))
@@ -104,4 +107,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -21,6 +21,7 @@ import numpy as np
 
 from dem.integrate import Simulation
 from studies.bench_throughput import DT, bench_law, dense_base, tile
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def owned_bytes(*objs) -> int:
@@ -39,7 +40,9 @@ def owned_bytes(*objs) -> int:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="up to 64 000 disks")
+    add_out(ap, "bench_scaling")
     args = ap.parse_args(argv)
+    report_to(cli_out_dir(args.out, cache=False))   # the printed figures, also in OUT/report.txt
     base = dense_base(n=1000, ncomp=20000, nrelax=3000)
     tiles = [(1, 1), (2, 2), (4, 4), (8, 8)] + ([] if args.quick else [(16, 16), (32, 32)])
     rows = []
@@ -67,4 +70,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -35,6 +35,7 @@ from dem.stiffness import have_cholmod, stiffness
 from microhom.tensors import isotropic_moduli, mandel_to_strain, prestress_correction, tensor_to_mandel
 from microhom import lattices
 from microhom.network import ContactNetwork, from_overlaps
+from studies.common import add_out, cli_out_dir, report_to
 
 
 # ---- networks --------------------------------------------------------------------------------
@@ -167,7 +168,9 @@ def main(argv=None):
     ap.add_argument("--splu-max", type=float, default=2e5,
                     help="largest N also solved with SuperLU (1e6 takes ~400 s and ~16 GB)")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    add_out(ap, "bench_stiffness")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     if a.one:
         n, s = a.one.split(":")
         print(json.dumps(one_run(int(float(n)), s)))
@@ -230,4 +233,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -1,8 +1,8 @@
 """Benchmark of the theory half: prediction rate, import time, structural sums at 10^5 particles.
 
-    python -m studies.bench_theory [--quick]
+    python -m studies.bench_theory [--quick] [--out out/bench_theory]
 
-Prints figures; repeat runs give the spread (timings on shared machines are noisy).
+Prints figures (also written to ``OUT/report.txt``); repeat runs give the spread (timings on shared machines are noisy).
 """
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import sys
 import time
 
 import numpy as np
+
+from studies.common import add_out, cli_out_dir, tee
 
 
 def _best(fn, repeat):
@@ -26,7 +28,14 @@ def _best(fn, repeat):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller sizes, fewer repeats")
+    add_out(ap, "bench_theory")
     args = ap.parse_args(argv)
+    out = cli_out_dir(args.out, cache=False)
+    with tee(out):
+        _run(args)
+
+
+def _run(args):
     repeat = 3 if args.quick else 7
 
     from microhom.moduli import predict_moduli
@@ -66,4 +75,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

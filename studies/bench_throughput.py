@@ -51,6 +51,7 @@ from dem.integrate import Simulation
 from dem.lammps import lammps_available
 from dem.packing import PackingProtocol, pack
 from dem.state import State
+from studies.common import add_out, cli_out_dir, report_to
 
 INPUTS = Path(__file__).resolve().parent / "lammps_bench"
 KN = 1e4
@@ -175,7 +176,9 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1,
                     help="also time the default law with this many threads (multi-core; reported apart from "
                          "the per-core ratios, against the same serial LAMMPS runs)")
+    add_out(ap, "bench_throughput")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     steps_of = {n: (max(100, int(3e6 / n)) if a.quick else max(150, int(3e7 / n))) for n in a.ns}
     print(f"loadavg at start {os.getloadavg()} (2-core machine shared with other jobs: see the spread)")
 
@@ -251,4 +254,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -36,7 +36,7 @@ from microhom.kinematics import assemble
 from microhom.structural_sums import network_statistics
 from studies.bench_hierarchy import CASES, case_dict
 from studies.cases import get_packing
-from studies.common import out_dir, write_table
+from studies.common import cli_out_dir, write_table
 
 TRAIN = [dict(n=500, p_over_kn=p, kt_over_kn=1.0, mu=0.4877, mu_prep=mp, dispersity=d, seed=11)
          for d, mp, p in itertools.product((0.0, 0.2), (0.0, 0.05, 0.2, 1.0), (1e-4, 1e-2))]
@@ -103,7 +103,7 @@ def main(argv=None):
     ap.add_argument("--out", default="out/closure")
     ap.add_argument("--quick", action="store_true", help="4 training packings, 2 validation packings")
     args = ap.parse_args(argv)
-    out = out_dir(args.out)
+    out = cli_out_dir(args.out)  # checked before computing (one line and exit 1 otherwise)
     t0 = time.perf_counter()
     train = collect(TRAIN[:4] if args.quick else TRAIN, KT_RATIOS)
     val_cases = [case_dict(*c) for c in (CASES[:2] if args.quick else CASES)]
@@ -137,4 +137,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -28,13 +28,16 @@ from dem.contact_laws import LinearFriction
 from dem.lammps import lammps_available
 from dem.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
                                    start_state)
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--n-side", type=int, default=32, help="lattice side: N = n_side^2 disks")
+    add_out(ap, "lammps_equivalence")
     a = ap.parse_args(argv)
+    report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     if not lammps_available():
         print("lmp (LAMMPS) not on PATH: nothing to compare (Debian: apt-get install -y lammps)")
         return 1
@@ -63,4 +66,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -29,6 +29,7 @@ import pandas as pd
 
 from dem.scenes.mine import MineParams, block_labels, block_indicators, block_names, resolve, run_scene
 from dem.scenes.mine.outputs import draw_snapshot, snapshot
+from studies.common import cli_out_dir
 from studies.runner import case_id, run_cases
 
 BASE = dict(placement="near", floor="rollers", loading="traction", absorbing=False, gas="eigenstrain",
@@ -284,7 +285,7 @@ def main(argv=None):
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     out = a.out + ("_quick" if a.quick and a.out == "out/mine_bumps" else "")
-    os.makedirs(out, exist_ok=True)
+    cli_out_dir(out, cache=False)  # checked before computing (one line and exit 1 otherwise)
     t0 = time.perf_counter()
     load0 = os.getloadavg()
     all_cases = cases(a.quick, out)
@@ -325,4 +326,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

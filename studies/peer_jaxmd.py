@@ -20,13 +20,16 @@ import time
 import numpy as np
 
 from dem.peers import jaxmd_elasticity
+from studies.common import add_out, cli_out_dir, report_to
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[64, 256])
     ap.add_argument("--steps", type=int, default=40_000, help="FIRE steps of the minimisation")
+    add_out(ap, "peer_jaxmd")
     args = ap.parse_args(argv)
+    report_to(cli_out_dir(args.out, cache=False))   # the printed figures, also in OUT/report.txt
     os.environ.setdefault("JAX_ENABLE_X64", "1")
     try:  # optional peer: extra "peers"
         import jax
@@ -73,4 +76,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

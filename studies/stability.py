@@ -161,4 +161,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -25,7 +25,7 @@ from dem.stiffness import stiffness
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, closure_estimate, get_packing, hierarchy_estimates
-from studies.common import out_dir, write_table
+from studies.common import cli_out_dir, write_table
 from studies.runner import run_cases
 
 KT_RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
@@ -151,7 +151,7 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=None, help="workers of the local cluster")
     ap.add_argument("--out", default="out/sweep")
     args = ap.parse_args(argv)
-    out = out_dir(args.out)
+    out = cli_out_dir(args.out)  # checked before computing (one line and exit 1 otherwise)
     sched = args.scheduler
     if sched is None:
         try:
@@ -180,4 +180,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from studies.common import run_study
+
+    raise SystemExit(run_study(main))

@@ -188,12 +188,16 @@ def test_cli_out_dir_refuses_before_computing(tmp_path, capsys, monkeypatch):
 # above therefore use a path under a regular file, which nobody can create.
 
 
-def test_kuhn_out_unwritable_exits_73_at_once(tmp_path):
-    """studies.kuhn --out in an impossible folder: one line, exit 73, before any packing."""
+@pytest.mark.parametrize("study", ["kuhn", "sweep", "error_vs_runtime", "closure_fit",
+                                   "mine_bumps", "bench_theory"])
+def test_study_out_unwritable_exits_1_at_once(tmp_path, study):
+    """--out in an impossible folder: one line, exit 1 (the machine's state, the same code as
+    dem and microhom give; the studies said 73 and sweep, error_vs_runtime, closure_fit and
+    mine_bumps printed 10-13 lines of traceback), before anything is computed."""
     bad = unwritable_dirs(tmp_path)[0]
-    p = subprocess.run([sys.executable, "-m", "studies.kuhn", "--quick", "--out", str(bad)],
+    p = subprocess.run([sys.executable, "-m", f"studies.{study}", "--quick", "--out", str(bad)],
                        capture_output=True, text=True, timeout=120)
-    assert p.returncode == EXIT_NO_OUTPUT, p.stderr
+    assert p.returncode == EXIT_NO_OUTPUT == 1, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and str(bad) in p.stderr
     assert "Traceback" not in p.stderr and p.stdout == ""
 
@@ -291,3 +295,195 @@ def test_open_packing_sections_say_why(tmp_path, capsys):
     r = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"bare {c}"))
     assert r["network"]["periodic"] is False and r["coordination"]["z_all"] > 0
     assert "error" in r["stiffness"] and r["stiffness"]["error"]
+
+
+# ---- the reading rule (issue 27 (a)): no FIFO, no device, nothing larger than the memory ------
+
+def _dem_analyse(path, timeout=120):
+    return subprocess.run([sys.executable, "-m", "dem", "analyse", str(path), "--no-exact",
+                           "--no-hierarchy"], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_fifo_refused_by_name_without_blocking(tmp_path):
+    """A FIFO blocked 'dem analyse' for ever: refused by name (the timeout makes a hang a
+    failure, not a stuck suite); nothing writes to the FIFO, so any read would block."""
+    fifo = tmp_path / "packing.dump"
+    os.mkfifo(fifo)
+    p = _dem_analyse(fifo, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert str(fifo) in p.stderr and "FIFO" in p.stderr and "Traceback" not in p.stderr
+    with pytest.raises(FormatError, match="FIFO"):
+        io.read(fifo)   # in-process too (the check comes before any open())
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="needs /dev/zero")
+@pytest.mark.parametrize("name", ["zero.dump", "zero.npz", "zero.data", "D0001"])
+def test_dev_zero_symlink_refused(tmp_path, name):
+    """A symlink to /dev/zero took 21 GB in 45 s: now a character device, refused by name."""
+    link = tmp_path / name
+    link.symlink_to("/dev/zero")
+    p = _dem_analyse(link, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert str(link) in p.stderr and "character device" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+    with pytest.raises(FormatError, match="character device"):
+        io.read(link)
+
+
+def test_file_larger_than_memory_refused_before_reading(tmp_path, monkeypatch):
+    """A regular file larger than the reading limit is refused from its size, naming it."""
+    from dem.io import _core
+    p = good_file(tmp_path, "dump")
+    size = p.stat().st_size
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * (size - 1))
+    with pytest.raises(io.FileTooLarge, match=str(p)) as err:
+        io.read(p)
+    assert err.value.size == size and err.value.limit == size - 1
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * size)
+    assert io.read(p).n_particles == 16     # exactly at the limit: read
+
+
+def test_gzip_bomb_stopped_at_the_limit(tmp_path, monkeypatch):
+    """A small .gz inflating beyond the limit is stopped while inflating (never fully held)."""
+    from dem.io import _core
+    p = tmp_path / "bomb.dump.gz"
+    with gzip.open(p, "wb") as f:
+        f.write(b"ITEM: TIMESTEP\n0\n" + b" " * (40 << 20))
+    assert p.stat().st_size < 1 << 20
+    monkeypatch.setattr(_core, "available_memory", lambda: _core.READ_MEMORY_FACTOR * (20 << 20))
+    with pytest.raises(io.FileTooLarge, match="gunzipped") as err:
+        io.read(p)
+    assert err.value.limit == 20 << 20 and err.value.size <= (20 << 20) + (1 << 24)
+
+
+def test_available_memory_is_plausible():
+    """Second method: the free physical pages never exceed the total; MemAvailable is positive
+    and below the machine's physical memory."""
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert 0 < io.available_memory() <= total
+
+
+def test_garbage_checkpoint_message(tmp_path):
+    """A garbage checkpoint gave numpy's 'allow_pickle=' text: now the file and the cause."""
+    from dem.state import State
+    bad = tmp_path / "run.checkpoint.npz"
+    bad.write_bytes(b"not a zip" * 50)
+    with pytest.raises(FormatError) as err:
+        State.load(bad)
+    clean(str(err.value), bad)
+    assert "allow_pickle" not in str(err.value)
+
+
+# ---- one command-line convention (issue 27 (c)) ----------------------------------------------
+
+def test_run_cli_codes(capsys):
+    """The shared wrapper: Ctrl-C -> 130 with what was kept, a full disk -> 1 naming the path,
+    no traceback either way; an int return passes through, None is 0."""
+    import errno
+
+    from microhom import cli
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    def full(argv):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "/out/table.csv")
+
+    assert cli.run_cli(interrupted, partial=lambda: "kept: /out") == cli.EXIT_INTERRUPTED == 130
+    assert capsys.readouterr().err == "interrupted; kept: /out\n"
+    assert cli.run_cli(full) == cli.EXIT_MACHINE == 1
+    assert capsys.readouterr().err == "error: /out/table.csv: No space left on device\n"
+    assert cli.run_cli(lambda argv: 3) == 3 and cli.run_cli(lambda argv: None) == 0
+
+
+def test_exit_codes_are_documented():
+    """Every code of microhom.cli is in the docs' table, and the CLIs use the same numbers."""
+    from dem import __main__ as dem_cli
+    from microhom import __main__ as mh_cli
+    from microhom import cli
+
+    docs = (Path(__file__).parents[1] / "docs" / "index.md").read_text()
+    for code in cli.EXIT_CODES:
+        assert f"| {code} |" in docs, code
+    assert (dem_cli.EXIT_MACHINE, dem_cli.EXIT_BAD_INPUT, dem_cli.EXIT_INTERRUPTED) == (1, 2, 130)
+    assert (mh_cli.EXIT_BAD_INPUT, mh_cli.EXIT_FLAGGED) == (2, 3)
+
+
+def test_sweep_ctrl_c_exits_130_and_keeps_finished_cases(tmp_path):
+    """Ctrl-C in a sweep gave a 33-38-line KeyboardInterrupt: now one line, exit 130, and the
+    cases finished before it stay in sweep.csv (a re-run resumes from them)."""
+    import signal
+    import time
+
+    out = tmp_path / "sweep"
+    p = subprocess.Popen([sys.executable, "-m", "studies.sweep", "--quick", "--scheduler", "serial",
+                          "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    csv = out / "sweep.csv"
+    t0 = time.monotonic()
+    while not csv.exists() and p.poll() is None and time.monotonic() - t0 < 300:
+        time.sleep(0.05)
+    assert csv.exists() and p.poll() is None, "the sweep ended before its first case was written"
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr
+    assert "interrupted; the finished results" in stderr
+    assert str(out) in stderr
+    import pandas as pd
+    done = pd.read_csv(csv)
+    assert len(done) >= 1 and (done.status == "ok").all()
+
+
+def test_io_write_full_disk_names_path_and_leaves_no_file(tmp_path, monkeypatch):
+    """io.write on a full disk did not name the path and left a 0-byte file: now the error names
+    it and neither the file nor a temporary is left (an existing file is kept as it was)."""
+    import errno
+
+    def full_writer(path, config, **kw):
+        with open(path, "w") as f:
+            f.write("half a file")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setitem(io.FORMATS, "csv", (io.FORMATS["csv"][0], full_writer))
+    target = tmp_path / "out.csv"
+    with pytest.raises(OSError) as err:
+        io.write(target, lattice())
+    assert err.value.filename == str(target) and err.value.errno == errno.ENOSPC
+    assert str(target) in str(err.value) and "No space left" in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+    target.write_text("the old file")
+    with pytest.raises(OSError):
+        io.write(target, lattice())
+    assert target.read_text() == "the old file" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_analyse_frame_out_of_range_in_the_cli_numbering(tmp_path, capsys):
+    """'analyse --frame 99' said 'frame 98 requested': now the option as typed and its range."""
+    p = tmp_path / "one.dump"
+    io.write(p, lattice())
+    assert dem_main(["analyse", str(p), "--frame", "99", "--no-exact", "--no-hierarchy"]) == 2
+    err = capsys.readouterr().err
+    assert "--frame 99" in err and "[1, 1]" in err and "98" not in err
+
+
+def test_lammps_law_damping_set_or_refused():
+    """LammpsHookeHistory under Simulation's default damping (0.7) left LAMMPS silently: the
+    default is now 0 for it (the same state as an explicit damping=0 after a few steps, bit for
+    bit), and a non-zero damping is refused naming the law."""
+    from dem.contact_laws import LammpsHookeHistory, LinearFriction
+    from dem.integrate import Simulation
+    from dem.packing import random_gas
+
+    law = LammpsHookeHistory(kn=1e3, kt=1e3, gamma_n=5.0, mu=0.5)
+    st = random_gas(40, phi0=0.7, seed=1)
+    a = Simulation(st.copy(), law, startup="lammps")
+    b = Simulation(st.copy(), law, startup="lammps", damping=0.0)
+    assert a.damping == 0.0
+    a.run(20)
+    b.run(20)
+    assert np.array_equal(a.state.v, b.state.v) and np.array_equal(a.state.x, b.state.x)
+    with pytest.raises(ValueError, match="LammpsHookeHistory.*LAMMPS has no Cundall"):
+        Simulation(st.copy(), law, damping=0.7)
+    assert Simulation(st.copy(), LinearFriction(kn=1e3, kt=1e3, mu=0.5)).damping == 0.7

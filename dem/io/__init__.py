@@ -12,6 +12,10 @@ writer takes a ``Configuration`` (or a ``ContactNetwork``). Malformed files rais
 >>> io.write("packing.vtu", cfg, network=net)     # ParaView (needs meshio)
 
 Formats (``format=`` names and extensions) are described in ``docs/formats.md``.
+
+The reading rule (every reader): the path must be a regular file (a FIFO, a device, a socket or a
+folder is refused by name: :class:`FormatError`) no larger than the memory available to parse it
+(:func:`read_limit`, else :class:`FileTooLarge`); see :func:`check_regular_file`.
 """
 from __future__ import annotations
 
@@ -19,14 +23,16 @@ import os
 
 from microhom.network import ContactNetwork
 
-from ._core import KN_CONVENTIONS, Configuration, FormatError
+from ._core import (KN_CONVENTIONS, Configuration, FileTooLarge, FormatError, available_memory,
+                    check_regular_file, read_limit)
 from .lammps import (box_from_dump_bounds, dump_bounds, iter_lammps_dump, read_lammps_data,
                      read_lammps_dump, write_lammps_data, write_lammps_dump)
 from .oval import read_oval, write_oval
 from .simple import FORMAT_VERSION, read_csv, read_npz, write_csv, write_npz
 from .vtk import read_vtk, write_vtk
 
-__all__ = ["Configuration", "FormatError", "KN_CONVENTIONS", "FORMAT_VERSION", "FORMATS",
+__all__ = ["Configuration", "FormatError", "FileTooLarge", "KN_CONVENTIONS", "check_regular_file",
+           "available_memory", "read_limit", "FORMAT_VERSION", "FORMATS",
            "read", "write", "detect_format",
            "read_lammps_data", "write_lammps_data", "read_lammps_dump", "write_lammps_dump",
            "iter_lammps_dump", "dump_bounds", "box_from_dump_bounds",
@@ -95,4 +101,28 @@ def write(path, config, format=None, **kwargs):
             config = Configuration.from_network(config)
         else:
             raise TypeError(f"expected a Configuration or ContactNetwork, got {type(config)!r}")
-    return FORMATS[fmt][1](path, config, **kwargs)
+    if kwargs.get("append"):      # appending to a dump: in place (an existing file is extended)
+        return FORMATS[fmt][1](path, config, **kwargs)
+    return _write_atomic(path, lambda tmp: FORMATS[fmt][1](tmp, config, **kwargs))
+
+
+def _write_atomic(path, write):
+    """``write(tmp)`` into a temporary file beside ``path`` (same name ending, so that writers
+    choosing by extension choose the same), then renamed onto ``path``: a full disk or a killed
+    run leaves the old file (or none), never a truncated one. An ``OSError`` is re-raised naming
+    ``path`` and the system's reason, with the temporary file removed."""
+    path = os.fspath(path)
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    try:
+        out = write(tmp)
+        os.replace(tmp, path)
+        return out
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), path) from None   # names path
+    finally:
+        if os.path.exists(tmp):
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass

@@ -5,15 +5,18 @@ from __future__ import annotations
 import gzip
 import io as _io
 import os
+import stat
 import warnings
 import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from microhom.limits import available_memory
 from microhom.network import from_overlaps
 
-__all__ = ["Configuration", "FormatError", "KN_CONVENTIONS"]
+__all__ = ["Configuration", "FormatError", "FileTooLarge", "KN_CONVENTIONS", "available_memory",
+           "check_regular_file", "read_limit"]
 
 #: A periodic position more than this many cell lengths from the cell cannot be wrapped back
 #: without losing its digits (x = 1e300 would land on x = 0): such files are refused.
@@ -406,28 +409,107 @@ def parse_number(tok, path, lineno, fieldname, kind=float):
     return v
 
 
-def open_bytes(path) -> bytes:
-    """The whole file as bytes (transparently gunzipped for ``.gz``).
+class FileTooLarge(MemoryError):
+    """A file (or its gunzipped content) larger than the memory available to read it.
 
+    Raised *before* reading (regular files: from the size on disk) or as soon as a ``.gz``
+    stream passes the limit; the message names the file, its size and the limit. A
+    ``MemoryError``: the command lines report it as the machine's state (exit 1).
+    """
+
+    def __init__(self, path, size, limit, what="file"):
+        self.path, self.size, self.limit = str(path), size, limit
+        super().__init__(f"{path}: {what} of {_bytes(size)} is larger than the {_bytes(limit)} "
+                         f"it may take (1/{READ_MEMORY_FACTOR} of the {_bytes(limit * READ_MEMORY_FACTOR)} "
+                         f"of memory available); not read")
+
+
+#: A text table of S bytes takes up to about this many times S in memory while it is parsed
+#: (the bytes, pandas' buffers and the float64 arrays); a file is read only when
+#: READ_MEMORY_FACTOR x its size fits the available memory (:func:`read_limit`).
+READ_MEMORY_FACTOR = 4
+
+
+def _bytes(n) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.3g} {unit}"
+        n /= 1000.0
+    return f"{n} B"  # not reached
+
+
+def read_limit() -> int:
+    """The largest number of bytes a reader takes in: ``available_memory() // READ_MEMORY_FACTOR``."""
+    return available_memory() // READ_MEMORY_FACTOR
+
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+          (stat.S_ISDIR, "a folder"))
+
+
+def check_regular_file(path, *, limit=None) -> int:
+    """The reading rule of every reader: ``path`` (symlinks followed) must be a regular file no
+    larger than ``limit`` bytes (default :func:`read_limit`). Returns its size in bytes.
+
+    Raises ``FileNotFoundError`` naming the path for a missing file, :class:`FormatError` naming
+    the path and what it is for a FIFO, a device, a socket or a folder (reading them would block
+    for ever or never end), and :class:`FileTooLarge` for a file that does not fit the memory.
+    """
+    path = os.fspath(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(2, f"{path}: no such file", path) from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+        via = f" (through the symlink {path})" if os.path.islink(path) else ""
+        raise FormatError(path, None, None, f"is {kind}{via}, not a regular file: refused (reading "
+                          "it could block for ever or never end)")
+    limit = read_limit() if limit is None else int(limit)
+    if st.st_size > limit:
+        raise FileTooLarge(path, st.st_size, limit)
+    return int(st.st_size)
+
+
+def open_bytes(path) -> bytes:
+    """The whole file as bytes (transparently gunzipped for ``.gz``), under the reading rule.
+
+    The reading rule (:func:`check_regular_file`): FIFOs, devices, sockets and folders are refused
+    by name (:class:`FormatError`), and a file, or the gunzipped content of a ``.gz``, larger than
+    :func:`read_limit` raises :class:`FileTooLarge` (a ``.gz`` is decompressed in blocks and
+    stopped at the limit, never fully inflated first).
     Raises :class:`FormatError` naming the file for a truncated or non-gzip ``.gz`` and for binary
     content (NUL bytes: every format read through here is text); a missing or unreadable file
     raises the usual ``OSError``.
     """
     path = os.fspath(path)
+    limit = read_limit()
+    check_regular_file(path, limit=limit)
     with open(path, "rb") as raw:
         if path.endswith(".gz"):
             try:
                 with gzip.GzipFile(fileobj=raw, mode="rb") as f:
-                    data = f.read()
+                    chunks, total = [], 0
+                    while True:
+                        block = f.read(1 << 24)
+                        if not block:
+                            break
+                        total += len(block)
+                        if total > limit:
+                            raise FileTooLarge(path, total, limit, "gunzipped content (so far)")
+                        chunks.append(block)
+                    data = b"".join(chunks)
             except (OSError, EOFError, zlib.error) as exc:
                 why = ("truncated" if isinstance(exc, EOFError) else
                        "not gzip-compressed" if "gzip" in str(exc).lower() else "corrupt")
                 raise FormatError(path, None, None,
                                   f"not a readable .gz file ({why})") from None
         else:
-            data = raw.read()
+            data = raw.read(limit + 1)  # a file that grew since the check cannot run away
+            if len(data) > limit:
+                raise FileTooLarge(path, len(data), limit)
     if b"\x00" in data[:65536]:
         raise FormatError(path, None, None, "binary data (NUL bytes): not a text file of this "
                           "format")
     return data
-

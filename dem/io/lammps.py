@@ -525,7 +525,12 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     try:
         start = offs[frame]
     except IndexError:
-        raise IndexError(f"{path}: frame {frame} requested, file has {len(offs)}") from None
+        n = len(offs)
+        err = IndexError(f"{path}: frame={frame} does not exist: the file holds {n} frame"
+                         f"{'s' if n != 1 else ''}, frame in [0, {n - 1}] (0-based) or "
+                         f"[-{n}, -1] (from the end)")
+        err.path, err.frame, err.n_frames = path, frame, n   # for the command line's numbering
+        raise err from None
     k = offs.index(start)
     end = offs[k + 1] if k + 1 < len(offs) else len(data)
     cfg = _parse_dump_frame(data, start, end, path, radius, k)

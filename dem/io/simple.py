@@ -40,7 +40,8 @@ import zlib
 
 import numpy as np
 
-from ._core import Configuration, FormatError, build, open_bytes, require_particles, show
+from ._core import (Configuration, FormatError, build, check_regular_file, open_bytes,
+                    require_particles, show)
 
 
 def _f(x):
@@ -107,8 +108,7 @@ def write_npz(path, config, *, compressed=False, extra=None):
 def read_npz(path) -> Configuration:
     """Read an npz configuration written by :func:`write_npz` (checks format and version)."""
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"{path}: no such file")
+    check_regular_file(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)

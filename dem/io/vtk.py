@@ -23,11 +23,13 @@ ParaView: open the file, Glyph -> Sphere, Scale Array ``radius``, Scale Factor 2
 """
 from __future__ import annotations
 
+import contextlib
+import io as _io
 import os
 
 import numpy as np
 
-from ._core import Configuration, FormatError, build, require_particles
+from ._core import Configuration, FormatError, build, check_regular_file, require_particles
 
 __all__ = ["write_vtk", "read_vtk"]
 
@@ -128,10 +130,10 @@ def read_vtk(path) -> Configuration:
     """Read back a file written by :func:`write_vtk` (disks only; contacts are recomputable)."""
     meshio = _meshio()
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"{path}: no such file")
+    check_regular_file(path)
     try:
-        mesh = meshio.read(path)
+        with contextlib.redirect_stdout(_io.StringIO()):  # meshio prints "Error: ..." to stdout
+            mesh = meshio.read(path)
     except (Exception, SystemExit):  # meshio calls sys.exit on some malformed files
         raise FormatError(path, None, None, "not a readable VTK file (meshio could not parse "
                           "it)") from None
