@@ -135,7 +135,8 @@ class HierarchyResult(Result):
         [unit of kn], or None.
     spectral_bound_source : str
         ``"dense"``, ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
-        docs/theory.md section 9.9; ``spectral_bound`` is then None) or ``"none"``.
+        docs/theory.md section 9.9; ``spectral_bound`` is then None), ``"dense+companion"`` (both;
+        each order keeps the better lower bound) or ``"none"``.
     reasons : tuple of str
         Every condition that limits the result (empty = none).
     unstable : bool
@@ -588,7 +589,8 @@ class MemoryPlan(Result):
     soft_modes : int
         LOBPCG on the pencil: 1000 bytes per unknown and mode searched [bytes].
     dense : int
-        Dense spectral bound: 24 bytes x ndof^2 (matrix, copy and eigen-solver workspace) [bytes].
+        Dense spectral bound: 24 bytes x (3N)^2 (matrix, copy and eigen-solver workspace) [bytes];
+        ``relaxation_hierarchy`` checks it after the assembly with the actual ndof.
     total : int
         Sum of the parts [bytes].
     available : int or None
@@ -692,6 +694,8 @@ class _Run:
     kt_over_kn: float = float("nan")
     calibrated: bool = False
     min_contacts: object = None
+    limit: int | None = None         # memory limit [bytes] (max_memory or available), None: unknown
+    planned: int = 0                 # predicted peak without the dense bound [bytes]
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = 1e-2,
@@ -768,7 +772,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Memory limit [bytes] for the predicted peak (:func:`plan_memory`); default the system's
         available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
-        and with ``spectral_bound="auto"`` no dense bound are tried first, and ``reasons`` says so).
+        is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
 
     Returns
     -------
@@ -779,12 +783,11 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
                                      preconditioner, max_memory)
     run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts)
-    full, dense_ok = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes,
-                                   spectral_bound == "auto" and user_lam is None, dense_max, max_memory)
+    full = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory)
     _setup(run, min_contacts)
     t_asm = time.perf_counter() - t0
     t1 = time.perf_counter()
-    _spectral_step(run, user_lam, spectral_bound if dense_ok else "none", dense_max)
+    _spectral_step(run, user_lam, spectral_bound, dense_max)
     soft = _soft_mode_step(run, soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
@@ -824,42 +827,36 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
     return soft_modes, user_lam
 
 
-def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, dense_auto, dense_max,
-                  max_memory):
-    """Refuse before allocating when the predicted peak exceeds the limit; returns (full
-    re-orthogonalisation, dense bound allowed). Falls back to the recurrence / no dense bound
-    first when those were only "auto"."""
+def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory):
+    """Refuse before allocating when the predicted peak (:func:`plan_memory`, from N and N_c
+    alone) exceeds the limit; returns whether the basis is fully re-orthogonalised (with "auto",
+    the recurrence is tried before refusing). The dense bound is checked after the assembly."""
     net = run.network
     N, Nc = net.n_particles, net.n_contacts
     ndof = 3 * N
     limit = int(max_memory) if max_memory is not None else available_memory()
     full = ndof <= 50_000 if reorthogonalize == "auto" else bool(reorthogonalize)
     soft = (3 if ndof <= SOFT_MODES_AUTO_MAX else 0) if soft_modes == "auto" else int(soft_modes)
-    dense = dense_auto and 0 < ndof <= 3 * dense_max
 
-    def plan(f, d):
+    def plan(f):
         return plan_memory(N, Nc, max_order=max_order, full=f, preconditioner=preconditioner,
-                           soft_modes=soft, dense=d, available=limit)
-    p = plan(full, dense)
-    if limit is None or p.total <= limit:
-        return full, True
-    if dense and plan(full, False).total <= limit:
-        dense = False
-        run.reasons.append(f"dense spectral bound skipped: it needs {_gb(p.dense)} (available {_gb(limit)})")
-        p = plan(full, dense)
-    if full and reorthogonalize == "auto" and p.total > limit and plan(False, dense).total <= limit:
+                           soft_modes=soft, dense=False, available=limit)
+    p = plan(full)
+    if limit is not None and p.total > limit and full and reorthogonalize == "auto" \
+            and plan(False).total <= limit:
         run.reasons.append(f"re-orthogonalisation basis of {_gb(p.basis)} does not fit (available "
                            f"{_gb(limit)}): the block CG recurrence is used")
         full = False
-        p = plan(full, dense)
-    if p.total > limit:
+        p = plan(full)
+    run.limit, run.planned = limit, p.total
+    if limit is not None and p.total > limit:
         raise HierarchyMemoryError(
             f"relaxation_hierarchy needs about {_gb(p.total)} for N = {N} particles, {Nc} contacts "
             f"(assembly {_gb(p.assembly)}, preconditioner {_gb(p.preconditioner)}, basis "
-            f"{_gb(p.basis)}, soft modes {_gb(p.soft_modes)}, dense bound {_gb(p.dense)}) but "
-            f"{_gb(limit)} are available (max_memory); reduce max_order, pass reorthogonalize=False, "
-            "preconditioner='block', soft_modes=0 or spectral_bound='none'")
-    return full, dense
+            f"{_gb(p.basis)}, soft modes {_gb(p.soft_modes)}) but {_gb(limit)} are available "
+            "(max_memory); reduce max_order, pass reorthogonalize=False, preconditioner='block' "
+            "or soft_modes=0")
+    return full
 
 
 def _setup(run, min_contacts):
@@ -899,6 +896,8 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
     run.lam_hi = None if run.prestress else 2.0   # H <= 2M without pre-stress (docs/theory.md section 9)
     if user_lam is not None:
         run.lam, run.src = user_lam, "user"
+    elif spectral_bound == "auto" and 0 < asm.ndof <= dense_max and not _dense_fits(run, asm.ndof):
+        pass
     elif spectral_bound == "auto" and asm.ndof:
         run.lam, run.lam_hi, _, n_neg = spectral_lower_bound(asm, run.Msq, dense_max=dense_max,
                                                              return_max=True)
@@ -921,9 +920,20 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
                 run.reasons.append(f"dense bound of (H, M) not trusted at a stiffness ratio {r:.3g} < "
                                    f"{_TRUST_RATIO:g} (its soft cluster reaches the zero threshold)"
                                    + ("; the companion bound is used" if run.lam_n is not None else ""))
-            if run.lam is None and run.lam_n is not None:
-                run.src = "companion"
+            if run.lam_n is not None:
+                run.src = "companion" if run.lam is None else "dense+companion"
     run.t_bound += time.perf_counter() - tb
+
+
+def _dense_fits(run, ndof):
+    """Memory check of the dense bound (24 ndof^2 bytes on top of the planned peak); says why not."""
+    need = plan_memory(0, 0, max_order=0, preconditioner="block", soft_modes=0, dense=False).total \
+        + 24 * ndof * ndof
+    if run.limit is None or run.planned + need <= run.limit:
+        return True
+    run.reasons.append(f"dense spectral bound skipped: it needs {_gb(need)} on top of {_gb(run.planned)} "
+                       f"(available {_gb(run.limit)}): the lower bounds are not available")
+    return False
 
 
 def _min_ratio(net):
