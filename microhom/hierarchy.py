@@ -135,7 +135,7 @@ class HierarchyResult(Result):
         [unit of kn], or None.
     spectral_bound_source : str
         ``"dense"``, ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
-        docs/theory.md section 9.9; ``spectral_bound`` is then None), ``"dense+companion"`` (both;
+        docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None), ``"dense+companion"`` (both;
         each order keeps the better lower bound) or ``"none"``.
     reasons : tuple of str
         Every condition that limits the result (empty = none).
@@ -724,7 +724,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     cluster. The bounds stayed rigorous (the upper bound is an upper bound at every step); the
     stopping rule and the validity did not. Now the stopping rule uses the extrapolation only in
     the calibrated regime, and CG run to the rigorous tolerance reaches the exact value at every
-    ratio from 1e-6 to 1e9 (docs/theory.md, section 9.9; docs/results/hierarchy.md, section 6).
+    ratio from 1e-6 to 1e9 (docs/theory.md, section 9, "Stiffness ratios far from 1"; docs/results/hierarchy.md, section 6).
 
     Parameters
     ----------
@@ -948,7 +948,7 @@ def _min_ratio(net):
 
 
 def _companion_bound(run, dense_max):
-    """A second certified lower bound for stiffness ratios far from 1 (docs/theory.md, section 9.9).
+    """A second certified lower bound for stiffness ratios far from 1 (docs/theory.md, section 9, "Stiffness ratios far from 1").
 
     ``H'`` is the Hessian of the same network with every contact at ``k' = min(kn, kt_eff)`` in
     both directions (``kn`` kept where ``kt_eff = 0``): ``H - H' = sum_c B_c^T (K_c - K'_c) B_c``
@@ -1027,7 +1027,7 @@ def _cg_step(run, max_order, full, preconditioner):
             P, info = amg_preconditioner(asm)
             run.t_prec = info.setup_time
     # far from kt = kn: two conjugation passes and the true residual every step (round-off of the
-    # kt/kn-scaled products otherwise drifts the residual and stalls the lower bound; docs 9.9)
+    # kt/kn-scaled products otherwise drifts the residual and stalls the lower bound; docs/theory.md section 9)
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)

@@ -600,7 +600,7 @@ def test_memory_prediction_covers_the_measured_peak(packing):
 
 @pytest.mark.parametrize("ratio", [1e-6, 1e3])
 def test_companion_bound_holds_on_the_dense_pencil(packing, ratio):
-    """The companion bound (docs/theory.md 9.9): with H' the Hessian at k' = min(kn, kt) and N its
+    """The companion bound (docs/theory.md section 9, "Stiffness ratios far from 1"): with H' the Hessian at k' = min(kn, kt) and N its
     particle blocks, x^T H x >= lam' x^T N x on range(H). Checked independently: scipy's dense
     generalised eigen-solver on the pencil (H, N) itself, whose smallest non-zero eigenvalue must be
     >= lam' (which comes from the pencil (H', N))."""
