@@ -24,8 +24,15 @@ semi-definite, ``R_k`` increases with k in the Loewner order and ``R_k <= R``, s
 lower bound ``lam`` of the non-zero spectrum of the pencil ``(H, M)``:
 ``R - R_k <= Res_k^T M^-1 Res_k / lam`` (``Res_k = -F - H X_k``, the residual). ``lam`` is
 computed exactly (dense eigen-decomposition) for small systems, may be passed by the user, or is
-unavailable (then ``lower`` is None and the reason is stated). An extrapolated value (geometric tail
-of the decreasing sequence) carries a stated, non-rigorous error.
+unavailable (then ``lower`` is None and the reason is stated). Far from kt = kn the pencil has a
+cluster near ``min(kt/kn, kn/kt)`` (rolling without sliding, or the spins) and a *companion* bound
+replaces it: the pencil of the same network at ``min(kn, kt)`` in both directions
+(``_companion_bound``; docs/theory.md, section 9, "Stiffness ratios far from 1"). An extrapolated
+value (geometric tail of the decreasing sequence) carries a stated, non-rigorous error, trusted
+(for stopping and for ``valid``) only in the regime where it was calibrated
+(``CALIBRATED_KT_OVER_KN``); ``HierarchyResult.valid`` is the rule of docs/theory.md section 9,
+"What valid means". The predicted memory is checked before anything large is allocated
+(:func:`plan_memory`).
 
 This module imports numpy and scipy only (and never ``dem``).
 """
