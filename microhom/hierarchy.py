@@ -142,8 +142,8 @@ class HierarchyResult(Result):
         [unit of kn], or None.
     spectral_bound_source : str
         ``"dense"``, ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
-        docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None), ``"dense+companion"`` (both;
-        each order keeps the better lower bound) or ``"none"``.
+        docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None),
+        ``"dense+companion"`` (both; each order keeps the better lower bound) or ``"none"``.
     reasons : tuple of str
         Every condition that limits the result (empty = none).
     unstable : bool
@@ -731,7 +731,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     cluster. The bounds stayed rigorous (the upper bound is an upper bound at every step); the
     stopping rule and the validity did not. Now the stopping rule uses the extrapolation only in
     the calibrated regime, and CG run to the rigorous tolerance reaches the exact value at every
-    ratio from 1e-6 to 1e9 (docs/theory.md, section 9, "Stiffness ratios far from 1"; docs/results/hierarchy.md, section 6).
+    ratio from 1e-6 to 1e9 (docs/theory.md, section 9, "Stiffness ratios far from 1";
+    docs/results/hierarchy.md, section 6).
 
     Parameters
     ----------
@@ -891,6 +892,7 @@ def _setup(run, min_contacts):
         Rfo = np.zeros((3, 3))
     run.C_fo = _tensor(run.C_aff, 0.5 * (Rfo + Rfo.T), run.area, run.corr)
     kept = asm.net
+    run.far_ratio = kept.n_contacts > 0 and _min_ratio(kept) < 0.1    # some |log10(kt/kn)| > 1
     if kept.n_contacts:
         run.kt_over_kn = float(np.median(kept.effective_kt / np.maximum(np.asarray(kept.kn, float)
                                                                           * np.ones(kept.n_contacts), 1e-300)))
@@ -913,13 +915,10 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
         if n_neg:
             run.reasons.append(f"unstable: negative curvature, the pencil (H, M) has {n_neg} negative "
                                "eigenvalue(s) (dense check: H indefinite); the bounds are void")
-        if run.lam is None and asm.ndof > dense_max:
-            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "
-                               "pass spectral_bound=): the lower bounds are not available")
-        elif not run.unstable:
+        if not run.unstable:
             _companion_bound(run, dense_max)
             r = _min_ratio(run.asm.net)
-            if run.lam is not None and r < _TRUST_RATIO:
+            if run.lam is not None and r < _TRUST_RATIO and asm.ndof <= dense_max:
                 # the cluster near min(kt/kn, kn/kt) of (H, M) reaches the dense zero threshold
                 # (1e-9 of the largest eigenvalue): modes below it would be taken for floppy ones
                 # and the "smallest non-zero" eigenvalue would be too large (found at kt/kn = 1e9)
@@ -929,6 +928,9 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
                                    + ("; the companion bound is used" if run.lam_n is not None else ""))
             if run.lam_n is not None:
                 run.src = "companion" if run.lam is None else "dense+companion"
+        if run.lam is None and run.lam_n is None and asm.ndof > dense_max:
+            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "
+                               "pass spectral_bound=): the lower bounds are not available")
     run.t_bound += time.perf_counter() - tb
 
 
@@ -955,7 +957,8 @@ def _min_ratio(net):
 
 
 def _companion_bound(run, dense_max):
-    """A second certified lower bound for stiffness ratios far from 1 (docs/theory.md, section 9, "Stiffness ratios far from 1").
+    """A second certified lower bound for stiffness ratios far from 1 (docs/theory.md, section 9,
+    "Stiffness ratios far from 1").
 
     ``H'`` is the Hessian of the same network with every contact at ``k' = min(kn, kt_eff)`` in
     both directions (``kn`` kept where ``kt_eff = 0``): ``H - H' = sum_c B_c^T (K_c - K'_c) B_c``
@@ -971,9 +974,10 @@ def _companion_bound(run, dense_max):
     kn = np.asarray(net.kn, float) * np.ones(net.n_contacts)
     kt = net.effective_kt
     stick = kt > 0
-    run.far_ratio = bool(stick.any() and np.any(np.abs(np.log10(kt[stick] / kn[stick])) > 1.0))
     if not run.far_ratio:
         return                                            # ratios near 1: (H, M) is well conditioned
+    if run.asm.ndof > dense_max:
+        return            # spectral_lower_bound certifies dense systems only (for now): no twin
     kmin = np.where(stick, np.minimum(kn, kt), kn)
     twin = net.with_stiffness(kn=kmin, kt=np.where(stick, kmin, 0.0))
     asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False)
@@ -1202,7 +1206,8 @@ def _best_lower(run, C, cg):
 
 def _met(C, L, tol, Cs, calibrated=True, prestress=True):
     """Stop test: the rigorous interval (``L`` = the best lower bounds (K, G) of all orders so far,
-    or None; raised to 0 without pre-stress) has relative width <= tol for both K and G, or, only where the extrapolation is
+    or None; raised to 0 without pre-stress) has relative width <= tol for both K and G, or, only
+    where the extrapolation is
     calibrated, its stated interval ``value +- error`` has."""
     K, G = _iso(C)
     if L is not None:

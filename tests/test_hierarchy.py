@@ -90,7 +90,7 @@ def test_bounds_monotone_and_exact_limit(kt, sliding, prec):
         assert _psd(a - b, 1e-10 * scale)
     assert np.all(np.diff(h.K_orders) <= 1e-12 * scale) and np.all(np.diff(h.G_orders) <= 1e-12 * scale)
     # certified lower bounds (dense spectral bound on this small system) hold at every order
-    assert h.spectral_bound_source == "dense"
+    assert h.spectral_bound_source in ("dense", "dense+companion")   # companion: some kt/kn < 0.1
     ok = np.isfinite(h.K_lower_orders)
     assert ok[1:].all()
     assert np.all(h.K_lower_orders[ok] <= ex.K + 1e-10 * scale)
@@ -600,7 +600,8 @@ def test_memory_prediction_covers_the_measured_peak(packing):
 
 @pytest.mark.parametrize("ratio", [1e-6, 1e3])
 def test_companion_bound_holds_on_the_dense_pencil(packing, ratio):
-    """The companion bound (docs/theory.md section 9, "Stiffness ratios far from 1"): with H' the Hessian at k' = min(kn, kt) and N its
+    """The companion bound (docs/theory.md section 9, "Stiffness ratios far from 1"): with H' the
+    Hessian at k' = min(kn, kt) and N its
     particle blocks, x^T H x >= lam' x^T N x on range(H). Checked independently: scipy's dense
     generalised eigen-solver on the pencil (H, N) itself, whose smallest non-zero eigenvalue must be
     >= lam' (which comes from the pencil (H', N))."""
