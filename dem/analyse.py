@@ -322,6 +322,7 @@ def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
     return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
             "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
             "order": h.order, "converged": h.converged, "unstable": h.unstable,
+            "valid": h.valid, "certified": h.certified, "calibrated": h.calibrated,
             "reasons": list(h.reasons), "time_s": time.perf_counter() - t0}
 
 
@@ -560,8 +561,9 @@ def format_table(res) -> str:
     elif cl:
         L.append(f"  closure: n/a ({cl['error']})")
     if hi and "error" not in hi:
+        flag = "" if hi.get("valid", True) else "  FLAGGED: not valid (see notes)"
         L.append(f"  {'hierarchy (%d CG steps), value' % hi['order']:44}{_g(hi['K']):>14}{_g(hi['G']):>14}"
-                 f"{_g(cmp.get('K_hierarchy_over_exact'), '.4f'):>10}{_g(cmp.get('G_hierarchy_over_exact'), '.4f'):>10}")
+                 f"{_g(cmp.get('K_hierarchy_over_exact'), '.4f'):>10}{_g(cmp.get('G_hierarchy_over_exact'), '.4f'):>10}{flag}")
         L.append(f"  {'  rigorous upper bound':44}{_g(hi['K_upper']):>14}{_g(hi['G_upper']):>14}")
         L.append(f"  {'  rigorous lower bound':44}{_g(hi['K_lower']):>14}{_g(hi['G_lower']):>14}")
         L.append(f"  {'  stated error':44}{_g(hi['K_error'], '.3g'):>14}{_g(hi['G_error'], '.3g'):>14}"

@@ -17,6 +17,11 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
 * symmetric block Gauss-Seidel smoothing (two sweeps each way) on the particles' 3 x 3 (or 2 x 2)
   blocks, so that one V-cycle is a symmetric operator.
 
+The near-null space does not contain the motions that slip at no contact (rolling without
+sliding, about ``3n - N_c`` of them), which cost only kn: at kt >> kn they form a cluster of the
+pencil near kn/kt that the V-cycle does not remove, and CG needs many more steps there
+(docs/theory.md, section 9, "Stiffness ratios far from 1"; docs/results/hierarchy.md, section 6).
+
 Measured (docs/results/hierarchy.md): on N = 3000 DEM packings the upper bound after 8 steps is
 within 2.3 % of the exact shear modulus on every frictional packing (block Jacobi: up to 68 %).
 

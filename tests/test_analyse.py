@@ -113,6 +113,8 @@ def test_hierarchy_and_closure_sections(packing_npz):
         assert r["comparison"][f"{m}_hierarchy_over_exact"] == pytest.approx(h[m] / exact, rel=1e-12)
     lib = relaxation_hierarchy(net, prestress=True, tol=DEFAULT_TOL, max_order=16)
     assert h["G_upper"] == pytest.approx(lib.G.upper, rel=1e-10) and h["order"] == lib.order
+    # the JSON carries the library's validity rule (issue 22)
+    assert (h["valid"], h["certified"], h["calibrated"]) == (lib.valid, lib.certified, lib.calibrated)
     st = network_statistics(net)
     cl = predict_closure(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=c["kt_over_kn"],
                          dispersity=c["dispersity"], kn=float(np.mean(net.kn)))
@@ -121,6 +123,7 @@ def test_hierarchy_and_closure_sections(packing_npz):
     assert json.loads(q.stdout)["hierarchy"] == {"error": "not computed"}
     t = run(path)
     assert "rigorous upper bound" in t.stdout and "closure (statistics only)" in t.stdout
+    assert ("FLAGGED: not valid" in t.stdout) == (not lib.valid)
 
 
 def test_table_and_csv_outputs(packing_npz):
