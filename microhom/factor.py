@@ -153,15 +153,17 @@ def available_memory() -> float:
 #: benchmark networks: 2.95e5 unknowns -> see docs/stiffness.md "Memory guard")
 _NNZ_COEF = 4.0
 #: bytes per non-zero of the factor including indices and work space, per back end (measured peaks)
-_BYTES_PER_NNZ = {"pardiso": 12.0, "cholmod": 12.0, "splu": 40.0}
+_BYTES_PER_NNZ = {"pardiso": 20.0, "cholmod": 12.0, "splu": 80.0}
+#: fixed work space of a factorisation [bytes]
+_FIXED_BYTES = 32e6
 
 
 def predicted_factor_bytes(n: int, backend: str = "pardiso") -> float:
     """Predicted memory [bytes] of the sparse factorisation of a 2D contact Hessian with ``n``
     unknowns (before anything is allocated): ``_NNZ_COEF n log2 n`` non-zeros of ``L`` times the
-    measured bytes per non-zero of the back end (``docs/stiffness.md``, "Memory guard")."""
+    measured bytes per non-zero of the back end, plus ``_FIXED_BYTES`` (``docs/stiffness.md``, "Memory guard")."""
     n = max(int(n), 2)
-    return _NNZ_COEF * n * np.log2(n) * _BYTES_PER_NNZ.get(backend, 40.0)
+    return _NNZ_COEF * n * np.log2(n) * _BYTES_PER_NNZ.get(backend, 40.0) + _FIXED_BYTES
 
 
 def memory_check(need: float, what: str, limit: float | None = None):
@@ -236,8 +238,8 @@ class _Pardiso(Factor):
         ip[4] = 0 if perm is None else 1
         ip[7] = 0          # no automatic refinement (the caller refines against the true matrix)
         ip[9] = 13 if not spd else 13     # pivot perturbation 1e-13 (counted in iparm(14))
-        ip[10] = 0         # no scaling
-        ip[12] = 0         # no weighted matching (keeps the symmetric congruence plain)
+        ip[10] = 1         # symmetric scaling (a congruence: keeps the inertia)
+        ip[12] = 1         # symmetric weighted matching (2x2 pivots across supernodes: fewer perturbed pivots)
         ip[17] = -1        # report nnz of the factor
         ip[20] = 1         # Bunch-Kaufman 1x1 and 2x2 pivoting (type -2)
         ip[23] = 0

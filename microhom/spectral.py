@@ -36,8 +36,12 @@ from scipy.sparse.linalg import LinearOperator, eigsh
 from microhom.factor import FactorisationError, _Pardiso, available_backends, factor
 from microhom.results import Result
 
-__all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS"]
+__all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
+           "CERTIFIED_MAX_DOF"]
 
+#: largest system certified by default (``microhom.hierarchy.spectral_lower_bound``, ``dem analyse``):
+#: 1e5 frictional disks (3 unknowns each)
+CERTIFIED_MAX_DOF = 300_000
 #: default zero threshold of the pencil (eigenvalues in (-eps, eps) are the null space)
 ZERO_EPS = 1e-12
 _U = np.finfo(float).eps
@@ -176,10 +180,6 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
         raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
                          "LL^T only)")
     nf = 0
-    upper = gershgorin_upper(H, Minv_sqrt) if Minv_sqrt is not None else None
-    lmax = lam_max if lam_max is not None else (upper if upper is not None else
-                                                 _lam_max_estimate(H, M))
-    margin = 1e3 * _U * np.sqrt(max(n, 1)) * abs(lmax)
     fm = factor(M, backend=backend, max_memory=max_memory)
     try:
         m_neg = _neg(fm)
@@ -189,6 +189,10 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
     if m_neg or m_pos != n:
         raise ValueError(f"M must be symmetric positive definite; its inertia is {m_pos} positive, "
                          f"{m_neg} negative of {n}")
+    upper = gershgorin_upper(H, Minv_sqrt) if Minv_sqrt is not None else None
+    lmax = lam_max if lam_max is not None else (upper if upper is not None else
+                                                 _lam_max_estimate(H, M))
+    margin = 1e3 * _U * np.sqrt(max(n, 1)) * abs(lmax)
 
     def out(lower, est, shift, nb, n_zero, n_neg, reason, name):
         return SpectralBound(lower=lower, estimate=est, shift=shift, margin=float(margin), upper=upper,
@@ -213,7 +217,7 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
             fac.refactor(pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
         return _neg(fac)
 
-    try:
+    def _run():
         n_neg = 0 if psd else factor_at(-eps)
         n_low = factor_at(eps)
         n_zero = n_low - n_neg
@@ -247,6 +251,11 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
         return out(None, est, None, None, n_zero, n_neg,
                    f"no shift above eps = {eps:g} certified in {max_tries} tries (eigenvalues crowd "
                    "just above the zero threshold)", be)
+
+    try:
+        return _run()
+    except FactorisationError as exc:     # perturbed pivots, no symmetric pivoting: no certificate
+        return out(None, None, None, None, 0, 0, f"no certified inertia: {exc}", be)
     finally:
         if fac is not None:
             fac.release()
