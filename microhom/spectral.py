@@ -42,6 +42,8 @@ __all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper"
 #: largest system certified by default (``microhom.hierarchy.spectral_lower_bound``, ``dem analyse``):
 #: 1e5 frictional disks (3 unknowns each)
 CERTIFIED_MAX_DOF = 300_000
+#: smallest system for which ``backend="auto"`` takes PARDISO (else SuperLU)
+AUTO_PARDISO_DOF = 30_000
 #: default zero threshold of the pencil (eigenvalues in (-eps, eps) are the null space)
 ZERO_EPS = 1e-12
 _U = np.finfo(float).eps
@@ -200,7 +202,9 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                              n=n, n_factorisations=nf, backend=name, time=time.perf_counter() - t0,
                              reason=reason)
 
-    be = backend if backend != "auto" else ("pardiso" if "pardiso" in available_backends() else "splu")
+    be = backend
+    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF unknowns (docs/stiffness.md)
+        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF else "splu"
     pencil = _Pencil(H, M) if be == "pardiso" else None
     fac = None
 
