@@ -406,10 +406,16 @@ class _PardisoLDL:
 
     name = "pardiso"
 
-    def __init__(self, H, d, shift, max_memory=None):
+    def __init__(self, H, d, shift, max_memory=None, first_shift=None):
+        from microhom.spectral import _Pencil    # H + s diag(H) on one pattern for every s
+        pencil = _Pencil(H, sp.diags(-d).tocsr())
         self.shift = shift
-        self.f = _factor.factor((H + sp.diags(shift * d)).tocsr(), backend="pardiso",
-                                max_memory=max_memory)
+        self.first_inertia = None
+        s0 = shift if first_shift is None else first_shift
+        self.f = _factor._Pardiso(pencil.matrix(s0), upper=True, max_memory=max_memory)
+        if first_shift is not None:   # count at first_shift, then refactor on the same analysis
+            self.first_inertia = (self.f.inertia(), self.f.n_perturbed)
+            self.f.refactor(pencil.at(shift))
         self.inertia = self.f.inertia()
         self.n_perturbed = self.f.n_perturbed
 
@@ -432,7 +438,7 @@ def _auto_solver(n):
 
 
 def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="auto", eta=_ETA,
-              max_memory=None):
+              max_memory=None, psd=True):
     """Factorise a :class:`Reduced` system.
 
     solver: ``"pardiso"`` (MKL PARDISO Bunch-Kaufman ``LDL^T`` of ``H - eta diag(H)``: its
@@ -456,8 +462,9 @@ def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="aut
                            "Windows)")
     if solver == "auto":
         solver = _auto_solver(red.H.shape[0])
-    if solver == "pardiso":
-        return _PardisoLDL(red.H, red.d, -eta, max_memory=max_memory)
+    if solver == "pardiso":    # not psd: H + eta diag(H) counted first, on the same analysis
+        return _PardisoLDL(red.H, red.d, -eta, max_memory=max_memory,
+                           first_shift=None if psd else eta)
     memory_check(predicted_factor_bytes(red.H.shape[0], solver),
                  f"{solver} factorisation of {red.H.shape[0]} unknowns", max_memory)
     if solver == "cholmod" and pairs is not None:
@@ -526,7 +533,9 @@ def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=No
             return replace(m, factor=m.factor or slu)
         n_below = factor.inertia.n_neg
         n_neg = 0
-        if not psd:
+        if not psd and factor.first_inertia is not None and not factor.first_inertia[1]:
+            n_neg = factor.first_inertia[0].n_neg      # counted at +eta before the solve factor
+        elif not psd:
             f2 = _PardisoLDL(red.H, red.d, eta, max_memory=max_memory)
             n_neg = f2.inertia.n_neg
             f2.release()
@@ -703,7 +712,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     tc = time.perf_counter()
     if red.H.shape[0]:
         factor = factorise(red, solver, pairs=asm.net.pairs, n_particles=net.n_particles,
-                           ordering=ordering, max_memory=max_memory)
+                           ordering=ordering, max_memory=max_memory, psd=not prestress)
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
     modes = count_modes(factor, red, count, psd=not prestress, max_memory=max_memory)
