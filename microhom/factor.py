@@ -96,9 +96,6 @@ def _setup_pardiso(lib):
                             ctypes.c_void_p, i32p, i32p, i32p, i32p, i32p, i32p,
                             ctypes.c_void_p, ctypes.c_void_p, i32p]
     lib.pardiso.restype = None
-    lib.pardiso_getdiag.argtypes = [ctypes.POINTER(ctypes.c_int64), ctypes.c_void_p, ctypes.c_void_p,
-                                    i32p, i32p]
-    lib.pardiso_getdiag.restype = None
 
 
 def have_pardiso() -> bool:
@@ -237,7 +234,7 @@ class _Pardiso(Factor):
         ip[3] = 0
         ip[4] = 0 if perm is None else 1
         ip[7] = 0          # no automatic refinement (the caller refines against the true matrix)
-        ip[9] = 13 if not spd else 13     # pivot perturbation 1e-13 (counted in iparm(14))
+        ip[9] = 13         # pivot perturbation 1e-13 (counted in iparm(14), checked by callers)
         ip[10] = 1         # symmetric scaling (a congruence: keeps the inertia)
         ip[12] = 1         # symmetric weighted matching (2x2 pivots across supernodes: fewer perturbed pivots)
         ip[17] = -1        # report nnz of the factor

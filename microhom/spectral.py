@@ -174,6 +174,12 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
     n = H.shape[0]
     if H.shape != (n, n) or M.shape != (n, n):
         raise ValueError(f"H and M must be square of the same shape, got {H.shape} and {M.shape}")
+    for name, X in (("H", H), ("M", M)):
+        scale = float(abs(X).max()) if X.nnz else 0.0
+        if X.nnz and not np.isfinite(scale):
+            raise ValueError(f"{name} must be finite")
+        if X.nnz and float(abs(X - X.T).max()) > 1e-12 * scale:
+            raise ValueError(f"{name} must be symmetric (|{name} - {name}^T| <= 1e-12 max|{name}|)")
     if not (0 < eps <= 1e-3):
         raise ValueError(f"eps must be in (0, 1e-3], got {eps!r}")
     if not (0 < rel_gap <= 0.5):

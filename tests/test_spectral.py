@@ -95,6 +95,8 @@ def test_count_below_and_bad_input():
     I = sp.identity(n, format="csr")
     with pytest.raises(ValueError, match="M must be symmetric positive definite"):
         certified_bound(_ring(n), -I)
+    with pytest.raises(ValueError, match="H must be symmetric"):
+        certified_bound(sp.triu(_ring(n), format="csr"), I)
     with pytest.raises(ValueError, match="eps"):
         certified_bound(_ring(n), I, eps=0.1)
     with pytest.raises(ValueError, match="rel_gap"):
