@@ -153,7 +153,7 @@ def gershgorin_upper(H, Minv_sqrt):
     return r * (1.0 + 1e3 * _U * max(A.shape[0], 1))
 
 
-def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-5,
+def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
                     Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4) -> SpectralBound:
     """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
     threshold ``eps``, with the counts of zero and negative eigenvalues (module docstring).
