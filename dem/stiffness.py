@@ -54,14 +54,15 @@ from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tens
                               prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
                               voigt_to_mandel, voigt_to_tensor)
 
-try:    # optional: CHOLMOD (scikit-sparse, built against Debian's libsuitesparse-dev)
-    import sksparse.cholmod as _cholmod
-except ImportError:     # pragma: no cover - depends on the machine
-    _cholmod = None
+from microhom import factor as _factor
+from microhom.factor import MemoryGuardError, have_pardiso, memory_check, predicted_factor_bytes
+
+_cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
 __all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
            "factorise", "count_modes", "relax", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
-           "particle_ordering", "Reduced", "ModeCount"]
+           "have_pardiso", "particle_ordering", "predicted_memory", "Reduced", "ModeCount",
+           "MemoryGuardError"]
 # the tensor-notation helpers (mandel_to_tensor, isotropic_moduli, ...) live in microhom.tensors and
 # the assembly in microhom.kinematics; they are imported here for the solver, not re-exported.
 
@@ -79,7 +80,7 @@ class StiffnessResult(Result):
     and the two global translations); ``n_unstable`` negative modes of the Hessian (pre-stress
     only); ``n_dof`` the number of unknowns solved for. ``solve_time`` is factorisation + mode
     count + solves [s]; ``assembly_time`` the assembly [s]. ``solver`` the back end that ran
-    (``"cholmod"`` or ``"splu"``). ``flags``: the reasons the result is degenerate, one
+    (``"pardiso"``, ``"cholmod"`` or ``"splu"``). ``flags``: the reasons the result is degenerate, one
     sentence each (not jammed, floppy, unstable, ill-conditioned); empty for a rigid, stable
     network. ``stiffness_scale``: the power of two the contact stiffnesses were divided by
     before the solve (exact; the tensor is scaled back).
@@ -391,30 +392,85 @@ class _SuperLU:
         return self.lu.solve(b)
 
 
-SOLVERS = ("auto", "cholmod", "splu")
+SOLVERS = ("auto", "pardiso", "cholmod", "splu")
 #: smallest system for which ``solver="auto"`` takes CHOLMOD (measured: 3e3 unknowns, SuperLU 0.03 s
 #: against 0.09 s; 3e4 unknowns, CHOLMOD 2.5x faster)
 AUTO_CHOLMOD_DOF = 10_000
+#: smallest system for which ``solver="auto"`` takes PARDISO (measured, one thread, CPU time of
+#: analysis + factorisation + solve: 8.8e3 unknowns PARDISO 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns
+#: 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s; docs/stiffness.md)
+AUTO_PARDISO_DOF = 30_000
 
 
-def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="auto", eta=_ETA):
-    """Factorise ``M = H + eta diag(H)`` of a :class:`Reduced` system.
+class _PardisoLDL:
+    """MKL PARDISO Bunch-Kaufman ``LDL^T`` (:mod:`microhom.factor`) of ``H + shift diag(H)``:
+    its inertia counts the eigenvalues of the pencil ``(H, diag H)`` below ``-shift``
+    (Sylvester). With ``shift = -eta`` the negative pivots are the zero and negative modes."""
 
-    solver: ``"cholmod"`` (CHOLMOD supernodal Cholesky, needs scikit-sparse), ``"splu"`` (scipy
-    SuperLU, always available) or ``"auto"`` (cholmod if importable and the system has at least
-    ``AUTO_CHOLMOD_DOF`` unknowns, else splu: below that SuperLU is faster, see
-    ``docs/stiffness.md``). A matrix that is
-    not positive definite (pre-stress with negative modes) goes to SuperLU, whose symmetric
-    pivots count the negative modes. ``pairs``/``n_particles`` give the particle graph for the
-    CHOLMOD ordering (``ordering``: see :func:`particle_ordering`)."""
+    name = "pardiso"
+
+    def __init__(self, H, d, shift, max_memory=None, first_shift=None):
+        from microhom.spectral import _Pencil    # H + s diag(H) on one pattern for every s
+        pencil = _Pencil(H, sp.diags(-d).tocsr())
+        self.shift = shift
+        self.first_inertia = None
+        s0 = shift if first_shift is None else first_shift
+        self.f = _factor._Pardiso(pencil.matrix(s0), upper=True, max_memory=max_memory)
+        if first_shift is not None:   # count at first_shift, then refactor on the same analysis
+            self.first_inertia = (self.f.inertia(), self.f.n_perturbed)
+            self.f.refactor(pencil.at(shift))
+        self.inertia = self.f.inertia()
+        self.n_perturbed = self.f.n_perturbed
+
+    def solve(self, b):
+        return self.f.solve(b)
+
+    def pivots(self):
+        return None, False
+
+    def release(self):
+        self.f.release()
+
+
+def _auto_solver(n):
+    if have_pardiso() and n >= AUTO_PARDISO_DOF:
+        return "pardiso"
+    if _cholmod is not None and n >= AUTO_CHOLMOD_DOF:
+        return "cholmod"
+    return "splu"
+
+
+def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="auto", eta=_ETA,
+              max_memory=None, psd=True):
+    """Factorise a :class:`Reduced` system.
+
+    solver: ``"pardiso"`` (MKL PARDISO Bunch-Kaufman ``LDL^T`` of ``H - eta diag(H)``: its
+    inertia counts the zero and negative modes, see :func:`count_modes`; needs the ``mkl``
+    wheel, a default dependency on x86-64), ``"cholmod"`` (CHOLMOD supernodal Cholesky of
+    ``H + eta diag(H)``, needs scikit-sparse), ``"splu"`` (scipy SuperLU of ``H + eta diag(H)``,
+    always available) or ``"auto"``: pardiso if loadable and the system has at least
+    ``AUTO_PARDISO_DOF`` unknowns, else cholmod if importable and at least ``AUTO_CHOLMOD_DOF``
+    unknowns, else splu (measured in ``docs/stiffness.md``). For CHOLMOD, a matrix that is not
+    positive definite (pre-stress with negative modes) goes to SuperLU, whose symmetric pivots
+    count the negative modes. ``pairs``/``n_particles`` give the particle graph for the CHOLMOD
+    ordering (``ordering``: see :func:`particle_ordering`). ``max_memory`` [bytes]: refuse a
+    factorisation predicted above it (:class:`MemoryGuardError`; default: the available memory)."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
     if solver == "cholmod" and _cholmod is None:
         raise RuntimeError("solver='cholmod' needs scikit-sparse (CHOLMOD): apt-get install "
                            "libsuitesparse-dev, then pip install 'scikit-sparse==0.4.16'")
-    if solver == "auto" and red.H.shape[0] < AUTO_CHOLMOD_DOF:
-        solver = "splu"
-    if solver in ("auto", "cholmod") and _cholmod is not None and pairs is not None:
+    if solver == "pardiso" and not have_pardiso():
+        raise RuntimeError("solver='pardiso' needs MKL PARDISO: pip install mkl (x86-64 Linux or "
+                           "Windows)")
+    if solver == "auto":
+        solver = _auto_solver(red.H.shape[0])
+    if solver == "pardiso":    # not psd: H + eta diag(H) counted first, on the same analysis
+        return _PardisoLDL(red.H, red.d, -eta, max_memory=max_memory,
+                           first_shift=None if psd else eta)
+    memory_check(predicted_factor_bytes(red.H.shape[0], solver),
+                 f"{solver} factorisation of {red.H.shape[0]} unknowns", max_memory)
+    if solver == "cholmod" and pairs is not None:
         try:
             return _Cholmod(red.H, red.d, eta, particle_ordering(red, pairs, n_particles, ordering))
         except NotPositiveDefinite:
@@ -428,7 +484,8 @@ class ModeCount:
     """Zero (floppy) and negative modes of the reduced Hessian, from the factor's pivots.
 
     n_floppy, n_unstable : counts; gap : (largest relative pivot counted floppy, smallest kept);
-    method : ``"pivots"``, ``"rescale"`` or ``"eig"`` (dense/shift-invert fallback);
+    method : ``"pivots"``, ``"rescale"``, ``"inertia"`` (PARDISO) or ``"eig"`` (dense/shift-invert
+    fallback);
     factor : the factor to solve with (the rescaled one when ``method == "rescale"`` replaced the
     input factor in place, CHOLMOD), or None (keep using the input factor)."""
 
@@ -445,9 +502,18 @@ COUNTS = ("auto", "pivots", "rescale")
 _AMBIGUOUS = (1e-10, 1e-6)
 
 
-def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
+def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=None) -> ModeCount:
     """Count zero and negative modes from the pivots of the shifted factorisation (Sylvester's
     law of inertia: M = H + eta diag H is congruent to the diagonal of its LDL^T).
+
+    PARDISO (``method == "inertia"``, the rules below do not apply): the factor is the
+    Bunch-Kaufman ``LDL^T`` of ``H - eta diag(H)``; its negative pivots are the eigenvalues of the
+    pencil ``(H, diag H)`` below ``eta`` (zero and negative modes); unless ``psd`` (``H`` known
+    to be positive semi-definite: no pre-stress), a second factorisation of ``H + eta diag(H)``
+    counts those below ``-eta`` (negative modes). Exact zero modes sit at ``|lam| < 1e-15`` and
+    the smallest rigid mode of the 1e5-disk network at ``7.8e-10`` (``docs/stiffness.md``), so
+    the threshold ``eta = 1e-12`` leaves orders of magnitude on both sides; the certified gap
+    (``stiffness(certify=True)``) proves it for a given network.
 
     ``count="pivots"``: a relative pivot below 1e-8 is a zero mode. ``"rescale"``: a second
     factorisation with a 100x smaller shift; a pivot belongs to a zero mode iff it scales with
@@ -461,6 +527,22 @@ def count_modes(factor, red, count="auto", eta=_ETA) -> ModeCount:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if red.H.shape[0] == 0:
         return ModeCount(red.n_zero, 0, (np.nan, np.nan), count)
+    if isinstance(factor, _PardisoLDL):
+        if factor.n_perturbed:   # the inertia is that of a perturbed matrix: count with SuperLU
+            warnings.warn(f"PARDISO perturbed {factor.n_perturbed} pivot(s): modes counted with "
+                          "SuperLU", RuntimeWarning, stacklevel=3)
+            slu = _SuperLU(red.H, red.d, eta)
+            m = count_modes(slu, red, count, eta)
+            return replace(m, factor=m.factor or slu)
+        n_below = factor.inertia.n_neg
+        n_neg = 0
+        if not psd and factor.first_inertia is not None and not factor.first_inertia[1]:
+            n_neg = factor.first_inertia[0].n_neg      # counted at +eta before the solve factor
+        elif not psd:
+            f2 = _PardisoLDL(red.H, red.d, eta, max_memory=max_memory)
+            n_neg = f2.inertia.n_neg
+            f2.release()
+        return ModeCount(red.n_zero + n_below - n_neg, n_neg, (np.nan, np.nan), "inertia")
     piv, ok = factor.pivots()
     if not ok:
         warnings.warn("SuperLU did not pivot symmetrically: mode counts from an eigen-solver "
@@ -557,8 +639,25 @@ def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
 
 
 # ---- main entry ------------------------------------------------------------------------------
+#: bytes per particle of everything but the factor (assembly, network, fields), measured peak
+#: at 1e5 disks minus the factor (docs/stiffness.md, "Memory guard")
+_BYTES_PER_PARTICLE = 4.0e3
+
+
+def predicted_memory(n_particles, n_dof=None, solver="auto"):
+    """Predicted peak memory [bytes] of :func:`stiffness` on a network of ``n_particles`` disks
+    with ``n_dof`` unknowns (default ``3 n_particles``): the fitted factor size of the solver
+    (:func:`microhom.factor.predicted_factor_bytes`) plus ``_BYTES_PER_PARTICLE`` per particle
+    for the assembly. Measured against it in ``docs/stiffness.md``."""
+    n_dof = 3 * int(n_particles) if n_dof is None else int(n_dof)
+    if solver == "auto":
+        solver = _auto_solver(n_dof)
+    return predicted_factor_bytes(n_dof, solver) + _BYTES_PER_PARTICLE * int(n_particles)
+
+
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
-              max_refine=50, count="auto", ordering="auto", spin_arm="contact") -> StiffnessResult:
+              max_refine=50, count="auto", ordering="auto", spin_arm="contact",
+              max_memory=None) -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
     The named steps, each usable on its own: ``_normalise`` (input check, exact scaling),
@@ -573,10 +672,16 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         terms of the Cauchy stress increment (needs ``network.fn``).
     min_contacts : rattler threshold (particles with fewer contacts are removed, iteratively);
         None = per particle 2 if it has a contact with kt_eff > 0, else 3.
-    solver : ``"auto"`` (default: CHOLMOD if scikit-sparse is importable, else SuperLU),
-        ``"cholmod"`` or ``"splu"`` (scipy SuperLU, always available).
-    count : how zero (floppy) modes are counted: ``"auto"``, ``"pivots"`` or ``"rescale"`` (see
-        :func:`count_modes`; ``"rescale"`` is forced on ill-conditioned networks).
+    solver : ``"auto"`` (default: PARDISO where the ``mkl`` wheel loads, else CHOLMOD if
+        scikit-sparse is importable, else SuperLU; small systems use SuperLU, see
+        :func:`factorise`), ``"pardiso"``, ``"cholmod"`` or ``"splu"`` (scipy SuperLU, always
+        available).
+    count : how zero (floppy) modes are counted with CHOLMOD and SuperLU: ``"auto"``,
+        ``"pivots"`` or ``"rescale"`` (see :func:`count_modes`; ``"rescale"`` is forced on
+        ill-conditioned networks). PARDISO counts by the inertia of its ``LDL^T``.
+    max_memory : bytes the solve may use (default: the machine's available memory); a network
+        whose predicted peak (:func:`predicted_memory`, then PARDISO's own analysis) exceeds it
+        is refused with :class:`MemoryGuardError` before the assembly allocates.
     ordering : CHOLMOD fill-reducing ordering on the particle graph (:func:`particle_ordering`).
     rtol : target relative residual of the relaxation solve, in (0, 1).
     spin_arm : ``"contact"`` (default: spins turn the contact point, arms ``|c| r_i/(r_i+r_j)``)
@@ -601,9 +706,13 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         raise ValueError(f"unknown ordering {ordering!r}; allowed: {', '.join(ORDERINGS)}")
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    if max_memory is not None and not (np.isfinite(max_memory) and max_memory > 0):
+        raise ValueError(f"max_memory must be a finite number of bytes > 0, got {max_memory!r}")
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
+    memory_check(predicted_memory(net.n_particles, solver=solver),
+                 f"exact stiffness of {net.n_particles} particles ({solver} solver)", max_memory)
     asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     c_aff = affine_stiffness(net, prestress=prestress)
     sigma0 = stress0(net) if prestress else None
@@ -617,10 +726,10 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     tc = time.perf_counter()
     if red.H.shape[0]:
         factor = factorise(red, solver, pairs=asm.net.pairs, n_particles=net.n_particles,
-                           ordering=ordering)
+                           ordering=ordering, max_memory=max_memory, psd=not prestress)
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
-    modes = count_modes(factor, red, count)
+    modes = count_modes(factor, red, count, psd=not prestress, max_memory=max_memory)
     if modes.factor is not None:      # CHOLMOD refactored in place with the smaller shift
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
@@ -628,6 +737,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
     steps["relax"] = time.perf_counter() - tc
     used = factor.name if factor is not None else "none"
+    if factor is not None and hasattr(factor, "release"):
+        factor.release()
     del factor
     Q = np.zeros((asm.ndof, 3))
     Q[red.idx] = Xr

@@ -310,8 +310,30 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     With ``return_max``, (lam, lam_max + margin, n_zero, n_negative).
     """
     n = asm.ndof
-    if n == 0 or n > dense_max:
+    if n == 0:
         return (None, None, 0, 0) if return_max else (None, 0, 0)
+    if n > dense_max:
+        # above the dense limit: certified by Sylvester's law of inertia (microhom.spectral),
+        # up to CERTIFIED_MAX_DOF unknowns (1e5 particles); two or three sparse factorisations
+        from microhom import spectral
+        from microhom.factor import FactorisationError, MemoryGuardError
+        none = (None, None, 0, 0) if return_max else (None, 0, 0)
+        if n > spectral.CERTIFIED_MAX_DOF:
+            return none
+        M, _, S, n_bad = block_preconditioner(asm)
+        if n_bad:
+            return none
+        S = S if Minv_sqrt is None else Minv_sqrt
+        psd = asm.Kgs is None                     # no pre-stress: H = B^T K B >= 0
+        try:
+            b = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None)
+        except (FactorisationError, MemoryGuardError, ValueError):
+            return none
+        hi = b.upper if b.upper is not None else None
+        if psd:   # H <= 2M without pre-stress (docs/theory.md section 9)
+            hi = 2.0 + b.margin if hi is None else min(hi, 2.0 + b.margin)
+        out = b.lower, b.n_zero, b.n_negative
+        return (out[0], hi, out[1], out[2]) if return_max else out
     S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))

@@ -455,3 +455,79 @@ def test_result_exports():
     assert d["K"] == r.K and "u" not in d and d["flags"] == [] and r.ok
     with pytest.raises(Exception):
         r.K = 0.0                                # frozen
+
+
+# ---- PARDISO (the default where the mkl wheel loads) and the memory guard (issue 22 items 4, 5) --
+needs_pardiso = pytest.mark.skipif(not dem.stiffness.have_pardiso(), reason="mkl wheel not installed")
+
+
+@needs_pardiso
+@pytest.mark.parametrize("kt", [0.6, 0.0])
+def test_pardiso_agrees_with_superlu(kt):
+    net = _diluted(14, 14, z=4.4 if kt else 5.5, kt=kt, seed=5)
+    a, b = stiffness(net, solver="pardiso"), stiffness(net, solver="splu", count="rescale")
+    assert a.solver == "pardiso" and b.solver == "splu" and a.count_method == "inertia"
+    assert np.abs(a.C_mandel - b.C_mandel).max() <= 1e-11 * np.abs(b.C_mandel).max()
+    assert a.n_floppy == b.n_floppy and a.n_rattlers == b.n_rattlers and a.residual < 1e-12
+
+
+@needs_pardiso
+def test_pardiso_floppy_count_of_the_frictionless_square():
+    """nx + ny - 2 sliding modes (closed form) from the inertia of LDL^T(H - eta diag H)."""
+    asm = assemble(lattices.square(5, 6, kn=3.0, kt=0.0))
+    red = reduce_system(asm)
+    f = factorise(red, "pardiso")
+    m = count_modes(f, red, psd=False)
+    assert (m.n_floppy, m.n_unstable, m.method) == (5 + 6 - 2, 0, "inertia")
+    Q, res, _ = relax(f, red, asm.F_scale)
+    assert res < 1e-12
+    r = stiffness(lattices.square(5, 6, kn=3.0, kt=0.0), solver="pardiso")
+    assert r.n_floppy == 9 and abs(r.C_mandel[2, 2]) <= 1e-12 * 3.0
+
+
+@needs_pardiso
+def test_pardiso_counts_negative_modes_under_prestress():
+    """A compressed frictionless triangular lattice whose pre-stress exceeds what the lattice
+    carries: the negative modes of the pencil (H, diag H) counted by a dense eigen-solve,
+    against the PARDISO inertia and SuperLU's pivots."""
+    t = lattices.triangular(6, 6, kn=1.0, kt=0.0)
+    net = replace(t, fn=np.full(t.n_contacts, 0.8))     # 33 negative modes, none near zero
+    asm = assemble(net, prestress=True)
+    red = reduce_system(asm)
+    d = red.d
+    w = np.linalg.eigvalsh((red.H / np.sqrt(np.outer(d, d))).toarray())
+    n_neg, n_zero = int((w < -1e-9).sum()), int((np.abs(w) <= 1e-9).sum())
+    assert n_neg > 0
+    with pytest.warns(RuntimeWarning, match="unstable"):
+        a = stiffness(net, prestress=True, solver="pardiso")
+    with pytest.warns(RuntimeWarning, match="unstable"):
+        b = stiffness(net, prestress=True, solver="splu")
+    assert a.n_unstable == b.n_unstable == n_neg
+    assert a.n_floppy == b.n_floppy == n_zero + red.n_zero
+    assert np.abs(a.C_mandel - b.C_mandel).max() <= 1e-9 * np.abs(b.C_mandel).max()
+
+
+def test_memory_guard_refuses_before_assembling(monkeypatch):
+    """Item 5: a predicted peak above max_memory is refused with the figure, before the
+    assembly allocates anything."""
+    net = _diluted(8, 8, seed=1)
+
+    def boom(*a, **k):
+        raise AssertionError("assemble must not run")
+
+    monkeypatch.setattr(dem.stiffness, "assemble", boom)
+    with pytest.raises(dem.stiffness.MemoryGuardError, match=r"predicted .* GB, available .* GB"):
+        stiffness(net, max_memory=1e6)
+    with pytest.raises(ValueError, match="max_memory"):
+        stiffness(net, max_memory=-1.0)
+
+
+def test_predicted_memory_covers_the_measured_peaks():
+    """The prediction against peaks measured by studies.bench_stiffness (docs/stiffness.md):
+    1e5 disks (295 246 unknowns) 0.68 GB with PARDISO, 1.2-2.0 GB with SuperLU; 1e6 disks 5.3 GB
+    with CHOLMOD; and a 4e6-disk network is refused on a 23 GB machine."""
+    pm = dem.stiffness.predicted_memory
+    assert 0.68e9 <= pm(99_960, 295_246, "pardiso") <= 3 * 0.68e9
+    assert 2.0e9 <= pm(99_960, 295_246, "splu") <= 3 * 2.0e9
+    assert 5.3e9 <= pm(999_750, 2_955_742, "cholmod") <= 3 * 5.3e9
+    assert pm(4_000_000, 12_000_000, "pardiso") > 23e9
