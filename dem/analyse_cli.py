@@ -58,6 +58,10 @@ def add_parser(sub):
     a.add_argument("--alpha", type=float, default=None,
                    help="alignment width of the model-rho prediction (54), in [0, 2]; default "
                         "2(1 - 1/Nbar)")
+    a.add_argument("--rho-neighbours", choices=("near", "contacts"), default="near",
+                   help="neighbourhood of the measured rho: 'near' (default, the paper's Nbar near "
+                        "neighbours of eq. 39, Nbar from phi; 4 below phi = pi/4, said in the output) "
+                        "or 'contacts' (contacting neighbours only)")
     a.add_argument("--prestress", action="store_true",
                    help="exact stiffness with the pre-stress terms (normal forces from the file, "
                         "else kn*overlap)")
@@ -108,7 +112,8 @@ def run(args, stdout) -> int:
                            kn_convention=args.kn_convention, branch_length=args.branch_length,
                            alpha=args.alpha, prestress=args.prestress,
                            min_contacts=args.min_contacts, frame=frame, radius=args.radius,
-                           exact=not args.no_exact, hierarchy=not args.no_hierarchy)
+                           exact=not args.no_exact, hierarchy=not args.no_hierarchy,
+                           rho_neighbours=args.rho_neighbours)
     if args.json:
         stdout.write(json.dumps(res.as_dict(), indent=1, allow_nan=False) + "\n")
     elif args.csv:

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from dem.stiffness import stiffness
-from microhom.moduli import predict_moduli
+from microhom.moduli import PHI_MAX, predict_moduli
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, closure_estimate, get_packing, hierarchy_estimates
 from studies.common import out_dir, write_table
@@ -38,14 +38,14 @@ def sweep_case(case: dict) -> dict:
     ratio = float(case["kt_ratio"])
     net = res.to_network().with_stiffness(kt=ratio * 1.0)
     t0 = time.perf_counter()
-    st = network_statistics(net).as_dict()
-    if st["nbar_phi"] is None:
-        raise ValueError(f"phi = {st['phi']:.4f} < pi/4: Nbar(phi) undefined")
+    st = network_statistics(net).as_dict()   # rho over the N̄ near neighbours (the paper's (39))
     if st["n_rattlers"] == st["n_particles"]:
         raise ValueError(f"no load-bearing backbone at kt/kn = {ratio:g}: every particle is a rattler "
                          f"(Nc with rattlers = {st['nc_all']:.2f}; frictionless disks need Nc > 4)")
-    out = {k: st[k] for k in ("nc", "nc_all", "r", "r_all", "rho", "phi", "nbar_phi", "rattler_fraction")}
-    base = dict(kn=1.0, kt=ratio, nc=st["nc"], phi=st["phi"], nbar=st["nbar_phi"], warn=False)
+    out = {k: st[k] for k in ("nc", "nc_all", "r", "r_all", "rho", "phi", "nbar_phi", "rattler_fraction",
+                              "rho_nbar", "rho_note")}
+    # N̄ from phi; below pi/4 predict_moduli uses N̄ = 4 and flags it (theory_*_valid), as rho_note says
+    base = dict(kn=1.0, kt=ratio, nc=st["nc"], phi=min(st["phi"], PHI_MAX), warn=False)
     for name, kw in (("mf", dict(r=0.0)), ("rho", dict(r=st["r"], rho=st["rho"])),
                      ("alpha", dict(r=st["r"], alpha=1.76))):
         p = predict_moduli(**base, **kw)
