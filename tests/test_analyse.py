@@ -31,8 +31,11 @@ def test_lammps_dump_chain_of_four_disks():
     C = np.array(r["stiffness"]["C_mandel"])
     assert C[0, 0] == pytest.approx(0.8, rel=1e-12)
     assert np.allclose(np.delete(C.ravel(), 0), 0, atol=1e-12)
-    # phi = 4 pi/4 / 10 < pi/4: the theory cannot derive Nbar and says so, the rest still runs
-    assert "error" in r["theory"] and "phi" in r["theory"]["error"]
+    # phi = 4 pi/4 / 10 < pi/4: Nbar(phi) does not exist; the theory uses Nbar = 4, flags the
+    # prediction and names the substitute (issue 25; it was an error before)
+    th = r["theory"]
+    assert th["nbar"] == 4.0 and not th["valid_rho"] and "below pi/4" in th["reason_rho"]
+    assert "Nbar = 4" in th["reason_rho"]
 
 
 def test_oval_lattice_equals_closed_form_with_kn_convention():
