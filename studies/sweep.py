@@ -106,6 +106,19 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def errors_table(df: pd.DataFrame, seed: int = 1) -> pd.DataFrame:
+    """Errors against the exact response [%] of the seed's formula (measured rho), the closure and
+    the hierarchy (upper bound, extrapolated), for one seed's frictional cases (docs/results/sweep.md)."""
+    ok = df[(df.status == "ok") & (df.seed == seed) & (df.kt_ratio > 0)].sort_values(["mu_prep", "p_over_kn", "kt_ratio"])
+    out = pd.DataFrame({"mu_prep": ok.mu_prep, "p/kn": ok.p_over_kn, "kt/kn": ok.kt_ratio, "Z": ok.nc.round(2)})
+    for m in ("K", "G"):
+        for label, col in (("seed", "theory_rho"), ("closure", "closure"), ("hier up 8", "hier_upper"),
+                           ("hier ext 8", "hier")):
+            out[f"{m} {label} [%]"] = (100 * (ok[f"{col}_{m}"] / ok[f"exact_{m}"] - 1)).round(2)
+    out["closure valid"] = ok.closure_valid.astype(bool)
+    return out.reset_index(drop=True)
+
+
 def plot(summary: pd.DataFrame, path):
     import matplotlib
 
@@ -175,6 +188,8 @@ def main(argv=None):
                      f"{len(df)} cases ({n_err} failed, see sweep.csv), scheduler {sched}, wall {wall:.0f} s. "
                      "Means over seeds with standard errors (_sem).")
     summary.to_csv(out / "summary.csv", index=False)   # after write_table, which writes the shown columns
+    if (df.status == "ok").any() and 1 in set(df.seed):
+        write_table(errors_table(df), out, "errors_seed1", "Errors against the exact response [%], seed 1")
     plot(summary, out / "sweep.png")
     print(f"written: {md}, {out / 'sweep.csv'}, {out / 'sweep.png'}; {n_err} failed cases; wall {wall:.0f} s")
 
