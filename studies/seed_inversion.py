@@ -195,7 +195,7 @@ def summary_table(k: pd.DataFrame, curves: pd.DataFrame) -> pd.DataFrame:
          "needed for G": "none reaches it" if np.all(np.isnan(sc["G"])) else f"{np.nanmean(sc['G']):.3g}"},
         {"parameter": "largest x(Nbar) for Nbar in 3-30", "measured": f"{xmax.mean():.3g}",
          "needed for K": span("x_K"), "needed for G": span("x_G")},
-        {"parameter": "particles in a correlated cluster, N_cl = n pi d0^2", "measured": "",
+        {"parameter": "particles within the first zero of the non-affine correlation, N_cl = n pi d0^2", "measured": "",
          "needed for K": span("ncl_bulk"), "needed for G": span("ncl_shear")},
         {"parameter": "drop G / drop K (theory: 3/2)", "measured": span("ratio_measured"),
          "needed for K": "", "needed for G": ""},
