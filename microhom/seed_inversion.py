@@ -87,7 +87,7 @@ def _arr(name, v, lo=None, lo_open=False, hi=None):
     if hi is not None:
         bad |= a >= hi
     if np.any(bad):
-        rng = f"{'(' if lo_open else '['}{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'})"
+        rng = f"{'(' if lo_open or lo is None else '['}{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'})"
         raise ValueError(f"{name} must be finite and in {rng}; got {a.ravel()[np.flatnonzero(bad.ravel())[0]]!r}")
     return a
 

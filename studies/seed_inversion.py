@@ -164,7 +164,9 @@ def self_consistent_nbar(curve: pd.DataFrame, x_needed: float) -> float:
 def sweep_inversion(path) -> pd.DataFrame:
     """Invert every successful case of the sweep's ``sweep.csv`` (its reference: no pre-stress)."""
     df = pd.read_csv(path)
-    df = df[(df.status == "ok") & (df.rho.abs() > 0)].copy()
+    # kt = 0 re-analyses of frictional packings are mechanisms (exact K = G = 0, drop 1): no finite x
+    df = df[(df.status == "ok") & (df.rho.abs() > 0) & (df.kt_ratio > 0)
+            & (df.exact_K / df.theory_mf_K > 1e-9) & (df.exact_G / df.theory_mf_G > 1e-9)].copy()
     inv = invert_frame(df, df["kt_ratio"].to_numpy())
     keys = ["mu_prep", "p_over_kn", "kt_ratio", "seed", "nc", "r", "rho", "phi"]
     out = pd.concat([df[keys], inv], axis=1)
