@@ -274,13 +274,14 @@ def _coordination(net, min_contacts):
 
 _STAT_KEYS = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi",
               "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
-              "ebar_theory", "odd_norm")
+              "ebar_theory", "odd_norm", "rho_nbar", "rho_note")
 
 
-def _statistics(net, min_contacts):
-    st = network_statistics(net, min_contacts)
+def _statistics(net, min_contacts, rho_neighbours="near"):
+    st = network_statistics(net, min_contacts, rho_neighbours=rho_neighbours)
     get = (lambda k: st.get(k)) if isinstance(st, dict) else (lambda k: getattr(st, k, None))
     out = {k: get(k) for k in _STAT_KEYS}
+    out["rho_neighbours"] = rho_neighbours
     # r = var/mean^2 and rho = sum V.W / sum V^2 are 0/0 without contacts: None, never 0
     if not out["nc_all"]:
         out["r_all"] = out["rho_all"] = None
@@ -295,8 +296,8 @@ def _stress(net):
             "sxy": float(s[0, 1]), "p_over_kn": float(-np.trace(s) / 2 / np.mean(net.kn))}
 
 
-def _theory(net, alpha, min_contacts):
-    p = predict_from_network(net, warn=False, min_contacts=min_contacts)
+def _theory(net, alpha, min_contacts, rho_neighbours="near"):
+    p = predict_from_network(net, warn=False, min_contacts=min_contacts, rho_neighbours=rho_neighbours)
     out = {"K_mf": float(p.K_mf), "G_mf": float(p.G_mf), "K_rho": float(p.K), "G_rho": float(p.G),
            "rho": float(p.rho), "nbar": float(p.nbar), "valid_rho": bool(p.valid),
            "reason_rho": str(p.reason)}
@@ -335,7 +336,8 @@ def _stiffness(net, prestress, min_contacts, spin_arm="contact"):
 
 
 def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
-            hierarchy=True, spin_arm="contact", hierarchy_tol=DEFAULT_TOL) -> AnalysisResult:
+            hierarchy=True, spin_arm="contact", hierarchy_tol=DEFAULT_TOL,
+            rho_neighbours="near") -> AnalysisResult:
     """All measurements and predictions of one network (see the module docstring).
 
     Parameters
@@ -361,6 +363,9 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     hierarchy_tol : float
         Target relative width of the hierarchy's interval, in (0, 1); default
         :data:`microhom.hierarchy.DEFAULT_TOL` (the library's own default).
+    rho_neighbours : str
+        The neighbourhood of the measured rho (``microhom.structural_sums.network_statistics``):
+        ``"near"`` (default, the paper's N̄ near neighbours) or ``"contacts"``.
 
     Returns
     -------
@@ -379,10 +384,10 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     jammed = "error" in coord or coord["n_rattlers"] < net.n_particles
     if not jammed:
         coord["z"] = None  # the mean over no particle
-    structural = _section(_statistics, net, min_contacts) if jammed else {"error": NOT_JAMMED}
+    structural = _section(_statistics, net, min_contacts, rho_neighbours) if jammed else {"error": NOT_JAMMED}
     stress_ = (_section(_stress, net) if net.fn is not None and net.n_contacts
                else {"error": "no contact forces in the file" if net.fn is None else "no contacts"})
-    theory = _section(_theory, net, alpha, min_contacts) if jammed else {"error": NOT_JAMMED}
+    theory = _section(_theory, net, alpha, min_contacts, rho_neighbours) if jammed else {"error": NOT_JAMMED}
     closure = (_section(_closure, net, structural) if jammed and "error" not in structural
                else {"error": structural.get("error", NOT_JAMMED)})
     snet = net
@@ -429,7 +434,7 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
 def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
                  branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
                  radius=None, exact=True, hierarchy=True, spin_arm=None,
-                 hierarchy_tol=DEFAULT_TOL) -> AnalysisResult:
+                 hierarchy_tol=DEFAULT_TOL, rho_neighbours="near") -> AnalysisResult:
     """:func:`load_network` then :func:`analyse`; the result's ``file`` section says what was read
     and how long it took, its notes start with the assumptions made while reading.
 
@@ -457,7 +462,8 @@ def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
                "the distance to the contact point |c| r_i/(r_i + r_j)")
             + "; --spin-arm contact|radius chooses; the theory and the hierarchy use contact arms)")
     res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact,
-                  hierarchy=hierarchy, spin_arm=spin_arm, hierarchy_tol=hierarchy_tol)
+                  hierarchy=hierarchy, spin_arm=spin_arm, hierarchy_tol=hierarchy_tol,
+                  rho_neighbours=rho_neighbours)
     notes = info.pop("notes") + res.notes
     return replace(res, file={**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1},
                    notes=notes)
@@ -511,7 +517,11 @@ def format_table(res) -> str:
         L.append(f"  {'mean Z':28}{_g(c['z_all'], '.5f'):>16}{_g(c['z'], '.5f'):>16}")
         if "error" not in s:
             L.append(f"  {'r = var(Z)/Z^2':28}{_g(s['r_all'], '.5f'):>16}{_g(s['r'], '.5f'):>16}")
-            L.append(f"  {'rho (measured)':28}{_g(s['rho_all'], '.5f'):>16}{_g(s['rho'], '.5f'):>16}")
+            hood = ("V over contacts" if s.get("rho_neighbours") == "contacts"
+                    else f"V over Nbar = {_g(s.get('rho_nbar'), '.3g')}")
+            L.append(f"  {'rho (' + hood + ')':28}{_g(s['rho_all'], '.5f'):>16}{_g(s['rho'], '.5f'):>16}")
+            if s.get("rho_note"):
+                L.append(f"  rho: {s['rho_note']}")
         L.append(f"  rattlers: {c['n_rattlers']} ({100 * c['rattler_fraction']:.2f} %); "
                  f"contact-count histogram (0, 1, 2, ...): {c['hist_all']}")
     s = res["structural"]

@@ -60,6 +60,10 @@ def add_parser(sub):
     a.add_argument("--alpha", type=float, default=None,
                    help="alignment width of the model-rho prediction (54), in [0, 2]; default "
                         "2(1 - 1/Nbar)")
+    a.add_argument("--rho-neighbours", choices=("near", "contacts"), default="near",
+                   help="neighbourhood of the measured rho: 'near' (default, the paper's Nbar near "
+                        "neighbours of eq. 39, Nbar from phi; 4 below phi = pi/4, said in the output) "
+                        "or 'contacts' (contacting neighbours only)")
     a.add_argument("--prestress", action="store_true",
                    help="exact stiffness with the pre-stress terms (normal forces from the file, "
                         "else kn*overlap)")
@@ -125,7 +129,8 @@ def run(args, stdout) -> int:
                                prestress=args.prestress, min_contacts=args.min_contacts,
                                frame=frame, radius=args.radius, exact=not args.no_exact,
                                hierarchy=not args.no_hierarchy, spin_arm=args.spin_arm,
-                               hierarchy_tol=args.hierarchy_tol)
+                               hierarchy_tol=args.hierarchy_tol,
+                               rho_neighbours=args.rho_neighbours)
     except IndexError as exc:
         n = getattr(exc, "n_frames", None)
         if n is None:

@@ -78,7 +78,8 @@ def build_parser():
                    help="alignment width of the V-W correlation model (54), in [0, 2]; "
                         f"default {SEED_CASE['alpha']} (the paper's fit) unless --rho is given")
     g.add_argument("--rho", nargs="+", type=_floats("rho"), default=None,
-                   help="measured rho = Nc sum V.W / sum V^2 (replaces the alpha model)")
+                   help="measured rho = Nc sum V.W / sum V^2, V over the Nbar near neighbours (the "
+                        "paper's definition, as python -m dem analyse measures it; replaces the alpha model)")
     p.add_argument("--nbar", nargs="+", type=_floats("nbar"), default=None,
                    help="mean number of near neighbours; default from phi via phi = (pi/4)/sin(pi(Nbar-2)/Nbar) "
                         "(needs phi >= pi/4); with all defaults the paper's Nbar = 5")

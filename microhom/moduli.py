@@ -50,6 +50,8 @@ _REASONS = (
          "stiffnesses (the moduli are proportional to kn)"),
     (128, f"kt/kn above {KT_OVER_KN_MAX:g}: outside the range the theory was checked against (the "
           f"DEM packs with kt in [0, {KT_OVER_KN_MAX:g} kn])"),
+    (256, "phi below pi/4: Nbar(phi) does not exist; Nbar = 4 (its value at phi = pi/4) used for Nbar/Nc "
+         "(and for the near neighbourhood of a measured rho); pass nbar to choose"),
 )
 _N_CODES = 1 << len(_REASONS)
 #: Bytes :func:`predict_moduli` allocates per entry of the broadcast shape (its 15 output arrays
@@ -116,7 +118,8 @@ class Prediction(Result):
         Bit mask of the reasons (1 correction >= 1, 2 correction above ``max_correction``,
         4 phi above close packing, 8 near-isostatic, 16 above the hierarchy's upper bound,
         32 overflow (a modulus beyond float64's range), 64 underflow (a modulus below float64's
-        normal range, digits lost), 128 kt/kn above :data:`KT_OVER_KN_MAX`).
+        normal range, digits lost), 128 kt/kn above :data:`KT_OVER_KN_MAX`,
+        256 phi below pi/4 with no ``nbar`` given: N̄ = 4 used).
     index : pandas Index or None
         Index of the inputs when they were pandas Series, else None.
     reason : ndarray of str
@@ -193,7 +196,9 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
         Particle diameter [m], > 0. The 2D moduli do not depend on it (they scale with
         D^2/v = 4 phi/pi); it is validated and kept for symmetry with the 3D theory.
     nbar : array_like, optional
-        Mean number of near neighbours; default from ``phi`` (requires phi >= pi/4).
+        Mean number of near neighbours, > 2; default from ``phi``. Below phi = pi/4, where
+        N̄(phi) does not exist, the default is N̄ = 4 (its value at pi/4) and the result is
+        flagged (bit 256, ``reason`` names the substitute).
     max_correction : float
         Fraction change above which a result is flagged as outside the first-order
         range, in (0, 1] (default 0.5).
@@ -220,13 +225,10 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
         if v is not None:
             named[name] = _check(name, v) if name != "alpha" else as_float_array(name, v)
     check_broadcast(named, bytes_per_element=BYTES_PER_PREDICTION, what="predict_moduli's result")
-    if nbar is None:
-        if np.any(phi < PHI_MIN_NBAR * (1 - 1e-12)):
-            raise ValueError(
-                f"phi must be in [pi/4, pi/(2 sqrt 3)] = [{PHI_MIN_NBAR:.4f}, {PHI_MAX:.4f}] to derive Nbar "
-                f"from phi = (pi/4)/sin(pi (Nbar-2)/Nbar); got min phi = {np.min(phi):.4f}. "
-                "Pass nbar explicitly for looser packings.")
-        nbar = nbar_from_phi(phi)
+    loose = np.zeros(np.shape(phi), dtype=bool)
+    if nbar is None:   # below pi/4 N̄(phi) does not exist: N̄ = 4, flagged (bit 256) with its reason
+        loose = phi < PHI_MIN_NBAR * (1 - 1e-12)
+        nbar = np.where(loose, 4.0, nbar_from_phi(np.maximum(phi, PHI_MIN_NBAR)))
     else:
         nbar = _check("nbar", nbar, 2.0, lo_open=True)
     if rho is None:
@@ -252,7 +254,7 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
     drop_K, drop_G = np.broadcast_arrays(drop_K, drop_G)
     big = np.maximum(drop_K, drop_G)
     size = np.maximum(np.abs(drop_K), np.abs(drop_G))  # a stiffening correction counts too
-    flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0)
+    flags = np.where(big >= 1.0, 1, 0) | np.where(size > max_correction, 2, 0) | np.where(loose, 256, 0)
     # overflow: K = K_mf (1 - drop_K) is inf or NaN whenever K_mf is, so K and G tell it all
     flags = flags | np.where(np.isfinite(K) & np.isfinite(G), 0, 32)
     # underflow, per element only when a cheap global check finds a subnormal somewhere (a
@@ -282,7 +284,8 @@ def predict_moduli(kn, kt, nc, phi, r, alpha=None, rho=None, diameter=1.0, nbar=
 
 
 def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="exclude", min_contacts=None,
-                         nbar=None, check_bounds=True, bound_order=8, **kwargs) -> Prediction:
+                         nbar=None, check_bounds=True, bound_order=8, rho_neighbours="near",
+                         **kwargs) -> Prediction:
     """Predict the moduli of a :class:`~microhom.network.ContactNetwork` from its own statistics.
 
     ``kn`` is the mean contact ``kn``; ``kt`` the mean *effective* tangent stiffness (0 for sliding
@@ -290,11 +293,16 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     ``Nc``, ``r`` and ``rho`` are measured (see :func:`microhom.structural_sums.network_statistics`)
     with rattlers excluded (``rattlers="exclude"``, default) or included; ``phi`` is the network's
     solid fraction. With ``measured_rho=False`` the paper's alpha model is used instead.
+    ``rho_neighbours`` chooses the neighbourhood V of (41) is summed over: ``"near"`` (default,
+    the paper's N̄ near neighbours of (39), N̄ = ``nbar`` or from phi) or ``"contacts"`` (the
+    option; only mu's contacting neighbours, which makes rho ~ 1 by definition,
+    ``docs/results/rho.md``).
 
     It flags (``valid = False``, ``reason``) rather than raising:
 
     * ``phi`` above close packing (overlapping disks): Nbar and the mean field are taken at close
-      packing (below pi/4 Nbar(phi) does not exist: ValueError asking for ``nbar``, as before);
+      packing; below pi/4, where Nbar(phi) does not exist, Nbar = 4 is used (bit 256, unless
+      ``nbar`` is given);
     * near-isostatic packings, ``Z - Z_iso < 0.5`` with ``Z`` the mean coordination of the
       load-bearing particles and ``Z_iso`` = 3 (frictional: some contact has kt_eff > 0) or 4;
     * with ``check_bounds`` (periodic networks), a K or G above the rigorous upper bound of the
@@ -305,7 +313,7 @@ def predict_from_network(network, *, alpha=None, measured_rho=True, rattlers="ex
     if not isinstance(network, ContactNetwork):
         raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
                         f"microhom.network.from_overlaps), got {type(network).__name__}")
-    st = network_statistics(network, min_contacts=min_contacts)
+    st = network_statistics(network, min_contacts=min_contacts, rho_neighbours=rho_neighbours, nbar=nbar)
     key = {"exclude": "", "include": "_all"}.get(rattlers)
     if key is None:
         raise ValueError(f"rattlers must be 'exclude' or 'include', got {rattlers!r}")

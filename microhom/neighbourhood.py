@@ -33,10 +33,11 @@ from functools import lru_cache
 import numpy as np
 
 from .network import ContactNetwork, _candidate_pairs
+from .periodic import heights as periodic_heights
 from .results import Result
 
-__all__ = ["PHI_MAX", "PHI_MIN_NBAR", "nbar_from_phi", "phi_from_nbar", "derive_phi_of_nbar",
-           "near_neighbours", "Neighbourhood"]
+__all__ = ["PHI_MAX", "PHI_MIN_NBAR", "nbar_from_phi", "nbar_or_substitute", "phi_from_nbar",
+           "derive_phi_of_nbar", "near_neighbours", "Neighbourhood"]
 
 PHI_MAX = np.pi / (2 * np.sqrt(3))  # triangular close packing: N̄ = 6
 PHI_MIN_NBAR = np.pi / 4  # N̄ = 4: below this phi the relation has no solution on the branch [4, 6]
@@ -63,6 +64,26 @@ def nbar_from_phi(phi):
     """
     p = _phi_in_range(phi)
     return 2.0 * np.pi / np.arcsin(np.minimum(np.pi / (4.0 * p), 1.0))
+
+
+def nbar_or_substitute(phi):
+    """N̄ from phi where it exists, else the value at the nearer end of the branch, with a note.
+
+    Returns ``(nbar, note)``: ``note`` is ``""`` when ``phi`` is in ``[pi/4, pi/(2 sqrt 3)]`` and
+    ``nbar = nbar_from_phi(phi)``. Below pi/4 (loose packings) φ(N̄) has no solution: N̄ = 4, its
+    value at phi = pi/4, is used and the note says so; above close packing (overlaps inflate phi)
+    N̄ = 6. phi: a finite scalar solid fraction, > 0.
+    """
+    phi = float(phi)
+    if not (np.isfinite(phi) and phi > 0):
+        raise ValueError(f"phi must be finite and > 0, got {phi!r}")
+    if phi < PHI_MIN_NBAR * (1 - 1e-12):
+        return 4.0, (f"phi = {phi:.4f} below pi/4: Nbar(phi) does not exist; Nbar = 4 (its value at "
+                     "phi = pi/4) used")
+    if phi > PHI_MAX * (1 + 1e-12):
+        return 6.0, (f"phi = {phi:.4f} above close packing pi/(2 sqrt 3): Nbar = 6 (its value at close "
+                     "packing) used")
+    return float(nbar_from_phi(min(max(phi, PHI_MIN_NBAR), PHI_MAX))), ""
 
 
 def phi_from_nbar(nbar):
@@ -132,7 +153,7 @@ class Neighbourhood(Result):
     gap_cutoff: float
 
 
-def near_neighbours(network: ContactNetwork, nbar=None, search=1.6) -> Neighbourhood:
+def near_neighbours(network: ContactNetwork, nbar=None, search=None) -> Neighbourhood:
     """The neighbourhood of (39) measured on a packing: the N̄ near neighbours of each particle.
 
     The paper's N̄ counts the neighbours around a particle, "not necessarily touching" (section 2,
@@ -146,8 +167,10 @@ def near_neighbours(network: ContactNetwork, nbar=None, search=1.6) -> Neighbour
     nbar : float, optional
         Target mean number of near neighbours, > 0; default
         ``nbar_from_phi(network.solid_fraction)`` (needs phi in ``[pi/4, pi/(2 sqrt 3)]``).
-    search : float
-        Candidate pairs are looked for up to ``search * 2 r_max`` between centres (> 1).
+    search : float, optional
+        Candidate pairs are looked for up to ``search * 2 r_max`` between centres (> 1). Default:
+        1.6, doubled while there are fewer candidates than ``N nbar / 2`` (sparse or small
+        packings), up to the whole open packing or half the periodic cell's height.
 
     Returns
     -------
@@ -159,16 +182,33 @@ def near_neighbours(network: ContactNetwork, nbar=None, search=1.6) -> Neighbour
     nbar = float(nbar)
     if not (np.isfinite(nbar) and nbar > 0):
         raise ValueError(f"nbar must be finite and > 0, got {nbar!r}")
+    adaptive = search is None
+    search = 1.6 if adaptive else search
     if not (np.isfinite(search) and search > 1):
         raise ValueError(f"search must be finite and > 1, got {search!r}")
     n = network.n_particles
     rad = network.radii
-    i, j, d = _candidate_pairs(network.positions, network.cell, network.origin, search * 2.0 * rad.max())
-    gap = np.hypot(d[:, 0], d[:, 1]) - rad[i] - rad[j]
     m = int(round(n * nbar / 2))
+    if n < 2 or m > n * (n - 1) // 2 and network.cell is None:
+        raise ValueError(f"nbar = {nbar:g} near neighbours need N nbar/2 = {m} pairs; {n} particles have "
+                         f"{n * (n - 1) // 2}")
+    d2 = 2.0 * rad.max()
+    if network.cell is None:
+        span = float(np.ptp(network.positions, axis=0).max()) if n else 0.0
+        limit = span + d2           # every pair
+    else:
+        limit = 0.4999 * float(np.min(periodic_heights(network.cell)))
+    while True:
+        cut = min(search * d2, limit) if adaptive else search * d2
+        i, j, d = _candidate_pairs(network.positions, network.cell, network.origin, cut)
+        if len(i) >= m or not adaptive or cut >= limit:
+            break
+        search *= 2.0
+    gap = np.hypot(d[:, 0], d[:, 1]) - rad[i] - rad[j]
     if m > len(gap):
-        raise ValueError(f"only {len(gap)} candidate pairs within search = {search} diameters for "
-                         f"N nbar/2 = {m}: raise search")
+        raise ValueError(f"only {len(gap)} candidate pairs within {cut / d2:.3g} diameters for "
+                         f"N nbar/2 = {m}" + (": raise search" if not adaptive else
+                                              " (the periodic cell is too small for this nbar)"))
     keep = np.argsort(gap, kind="stable")[:m]
     i, j, d, gap = i[keep], j[keep], d[keep], gap[keep]
     degree = np.bincount(np.concatenate([i, j]), minlength=n)

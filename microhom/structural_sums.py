@@ -18,7 +18,8 @@ Per particle (arrays with the particle index first):
   numbers of mu's neighbours (41). ``ParticleSums.V`` sums over the contacting neighbours;
   :func:`neighbour_vector` over any neighbour set, e.g. the paper's N̄ near neighbours of (39)
   (:func:`microhom.neighbourhood.near_neighbours`); ``network_statistics(rho_neighbours=...)``
-  chooses, and :func:`rho_definitions` compares both with a shuffled-Nc null model.
+  chooses (default ``"near"``, the paper's definition; ``"contacts"`` is the option), and
+  :func:`rho_definitions` compares both with a shuffled-Nc null model.
 
 The choices for V and W are explained in docs/theory.md §7, the measurements in docs/results/rho.md.
 """
@@ -28,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, near_neighbours, nbar_from_phi
+from .neighbourhood import PHI_MAX, PHI_MIN_NBAR, near_neighbours, nbar_from_phi, nbar_or_substitute
 from .network import ContactNetwork
 from .results import Result
 
@@ -267,9 +268,16 @@ class NetworkStatistics(Result):
         ``ebar`` of (37) with the measured Nc, mean D^2, kn, kt [N m].
     odd_norm : float
         Mean Frobenius norm of A3 over non-rattlers, over ``kn D`` (dimensionless).
+    rho_nbar : float or None
+        N̄ of the near neighbourhood V was summed over (``rho_neighbours="near"``); None for
+        ``"contacts"``.
+    rho_note : str
+        ``""`` when N̄ came from phi or was given; otherwise what was used instead and why (phi
+        below pi/4, where N̄(phi) does not exist: N̄ = 4; above close packing: N̄ = 6).
     rho_neighbours : str
         The neighbourhood V is summed over (``RHO_NEIGHBOURS``); not exported, so that
-        ``as_dict()`` keeps the keys the command-line tools have always written.
+        ``as_dict()`` keeps the keys the command-line tools have always written (the two fields
+        above come after them).
     """
 
     n_particles: int
@@ -291,10 +299,12 @@ class NetworkStatistics(Result):
     vbar_theory: float = float("nan")
     ebar_theory: float = float("nan")
     odd_norm: float = float("nan")
-    rho_neighbours: str = field(default="contacts", metadata={"export": False})
+    rho_nbar: float | None = None
+    rho_note: str = ""
+    rho_neighbours: str = field(default="near", metadata={"export": False})
 
 
-def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbours="contacts",
+def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbours="near",
                        nbar=None) -> NetworkStatistics:
     """The statistics the theory takes as input, with and without rattlers (:class:`NetworkStatistics`).
 
@@ -305,13 +315,15 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
     min_contacts : int, optional
         Rattler threshold of :func:`rattlers` (None: 2 with tangent stiffness, 3 without).
     rho_neighbours : str
-        The neighbourhood the vector V of (41) is summed over. ``"contacts"`` (default; the
-        definition used so far): mu's contacting neighbours only. ``"near"``: the paper's
-        neighbourhood of (39), the N̄ near neighbours of mu whether or not they touch it
-        (:func:`microhom.neighbourhood.near_neighbours`); needs N̄, from phi unless ``nbar`` is
-        given. ``docs/results/rho.md`` compares the two with a null model.
+        The neighbourhood the vector V of (41) is summed over. ``"near"`` (default since issue
+        25): the paper's neighbourhood of (39), the N̄ near neighbours of mu whether or not they
+        touch it (:func:`microhom.neighbourhood.near_neighbours`), N̄ from phi unless ``nbar`` is
+        given. Where N̄(phi) does not exist (phi below pi/4; or above close packing) N̄ = 4 (6)
+        is used and ``rho_note`` says so. ``"contacts"`` (the option; the default before issue 25):
+        mu's contacting neighbours only, which makes ``V ~ Nc W`` and rho ~ 1 by definition.
+        ``docs/results/rho.md`` compares the two with a null model.
     nbar : float, optional
-        Mean number of near neighbours for ``rho_neighbours="near"`` (default from phi).
+        Mean number of near neighbours for ``rho_neighbours="near"``, > 0 (default from phi).
     """
     if rho_neighbours not in RHO_NEIGHBOURS:
         raise ValueError(f"rho_neighbours must be one of {RHO_NEIGHBOURS}, got {rho_neighbours!r}")
@@ -322,8 +334,21 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
     n = network.n_particles
     c_all = all_sums.counts.astype(float)
     c = sums.counts[keep].astype(float)
+    rho_nbar, rho_note = None, ""
     if rho_neighbours == "near":
-        pairs, branch = _near_pairs(network, _nbar_or_raise(network, nbar))
+        if nbar is None:
+            rho_nbar, rho_note = nbar_or_substitute(network.solid_fraction)
+        else:
+            rho_nbar = float(nbar)
+        try:
+            pairs, branch = _near_pairs(network, rho_nbar)
+        except ValueError as exc:  # too few particles (or too small a cell) for N nbar/2 pairs
+            if nbar is not None:
+                raise
+            rho_note = ((rho_note + "; ") if rho_note else "") + \
+                f"no near neighbourhood ({exc}): V over the contacting neighbours used"
+            rho_nbar, rho_neighbours = None, "contacts"
+    if rho_neighbours == "near":
         V_all = neighbour_vector(all_sums.counts, pairs, branch)
         V = neighbour_vector(sums.counts, pairs, branch)
     else:
@@ -342,7 +367,7 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
         nbar_phi=float(nbar_from_phi(phi)) if PHI_MIN_NBAR <= phi <= PHI_MAX * (1 + 1e-12) else None,
         diameter=float(2 * network.radii.mean()),
         sliding_fraction=float(network.sliding.mean()) if network.n_contacts else 0.0,
-        rho_neighbours=rho_neighbours)
+        rho_nbar=rho_nbar, rho_note=rho_note, rho_neighbours=rho_neighbours)
     if np.any(keep):
         vb, eb = isotropic_fit(sums.A4[keep].mean(axis=0))
         d2 = float(np.mean(network.lengths[active] ** 2)) if np.any(active) else 0.0

@@ -11,7 +11,8 @@ Nbar from phi, rho = Nc sum V.W / sum V^2), and their moduli obtained every way 
 
 * theory, mean field (measured Nc, phi);
 * theory, corrected with the paper's alpha = 1.76 and the measured r;
-* theory, corrected with the measured rho (rattlers excluded / included);
+* theory, corrected with the measured rho (the paper's definition: V over the N̄ near neighbours
+  of (39); rattlers excluded / included);
 * DEM affine tensor of the same network (the structural sum the mean field idealises);
 * DEM exact linear response (reference: the packing's incremental stiffness, pre-stress included);
 * DEM strain probes (a second, independent route to the same tensor).
@@ -20,6 +21,11 @@ The table is shaped like the seed's (mean field, effective, fraction change) wit
 error against the DEM and its run time. The theory's inputs are measured, never tuned; the one
 fitted variant (alpha chosen to match the DEM) is labelled "fit". Moduli are reported in units of
 kn and, for comparison with the seed's table, at kn = 5e7 N/m (OVAL's 1e8 on half the overlap).
+
+It also inverts the seed's correction in closed form (:mod:`microhom.seed_inversion`): the r, rho or
+N̄ that would reproduce the DEM's drop of K and, separately, of G (``inversion.md``); ``--invert``
+adds the full study of ``studies.seed_inversion`` on the same packings (rho re-measured over larger
+neighbourhoods, size of the correlated non-affine clusters; ``inversion/``).
 """
 from __future__ import annotations
 
@@ -32,6 +38,7 @@ import pandas as pd
 from scipy.optimize import brentq
 
 from microhom.moduli import predict_moduli
+from microhom.seed_inversion import invert_seed_correction
 from studies import rho_definitions
 from studies.cases import DEFAULTS, packing_case
 from studies.common import cli_out_dir, markdown_table, write_table
@@ -67,8 +74,8 @@ def build_table(df: pd.DataFrame) -> pd.DataFrame:
     methods = [
         ("theory: mean field", "theory_mf", "theory_time_s"),
         ("theory: alpha = 1.76 (paper), measured r", "theory_alpha", "theory_time_s"),
-        ("theory: measured rho, r (no rattlers)", "theory_rho", "theory_time_s"),
-        ("theory: measured rho, r (rattlers incl.)", "theory_rho_all", "theory_time_s"),
+        ("theory: measured rho (paper's Nbar neighbours), r (no rattlers)", "theory_rho", "theory_time_s"),
+        ("theory: measured rho (paper's Nbar neighbours), r (rattlers incl.)", "theory_rho_all", "theory_time_s"),
         ("closure: statistics only (microhom.closure)", "closure", "closure_time_s"),
         ("hierarchy: first order (single-particle relaxation)", "first_order", "hier_time_s"),
         ("hierarchy: 8 CG steps (16 moments), upper bound", "hier_upper", "hier_time_s"),
@@ -126,6 +133,9 @@ def main(argv=None):
     ap.add_argument("--mu-prep", type=float, default=DEFAULTS["mu_prep"], help="preparation friction")
     ap.add_argument("--no-probes", action="store_true", help="skip the strain probes")
     ap.add_argument("--out", default="out/kuhn", help="output folder (CSV, markdown, PNG)")
+    ap.add_argument("--invert", action="store_true",
+                    help="also run studies.seed_inversion on these packings (rho over larger "
+                         "neighbourhoods, correlated-cluster sizes; about 15 s per packing)")
     args = ap.parse_args(argv)
     n = args.n or (300 if args.quick else 1000)
     seeds = args.seeds or ([1] if args.quick else [1, 2, 3, 4, 5])
@@ -163,14 +173,28 @@ def main(argv=None):
     print("\nModuli in units of kn (mean over seeds); fraction change = 1 - value / theory mean field:")
     print(table.drop(columns=["at_kn_5e7_Nm"]).to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     fit = amorphous["alpha_fit"].mean()
-    # the contact-number fluctuation r the first-order theory would need (with the measured rho,
-    # Nbar, Nc) to reproduce the DEM's drops: a diagnostic of where the theory misses, not a fit
+    # the r, rho or Nbar the first-order theory would need (the other two measured) to reproduce
+    # the DEM's drops, per modulus: a diagnostic of where the theory misses, not a fit
     m = amorphous.mean(numeric_only=True)
-    x_per_r = m.nbar_phi / m.nc * m.rho
-    r_need_K = (1 - m.exact_K / m.theory_mf_K) / x_per_r
-    r_need_G = (1 - m.exact_G / m.theory_mf_G) / (1.5 * x_per_r)
-    print(f"r the theory would need to match the DEM (measured rho, Nbar, Nc): {r_need_K:.3f} (bulk), "
-          f"{r_need_G:.3f} (shear); measured r = {m.r:.3f} (rattlers incl. {m.r_all:.3f}); Kuhn's r = 0.35")
+    inv = invert_seed_correction(1 - amorphous.exact_K / amorphous.theory_mf_K,
+                                 1 - amorphous.exact_G / amorphous.theory_mf_G, kt_over_kn=1.0,
+                                 nc=amorphous.nc, r=amorphous.r, nbar=amorphous.nbar_phi, rho=amorphous.rho)
+    inv_table = pd.DataFrame([{"parameter": name, "measured": meas,
+                               "needed for K": float(np.mean(getattr(inv, f"{key}_K"))),
+                               "needed for G": float(np.mean(getattr(inv, f"{key}_G")))}
+                              for name, key, meas in (("x = r (Nbar/Nc) rho", "x", float(np.mean(inv.x_measured))),
+                                                      ("r", "r", m.r), ("rho", "rho", m.rho),
+                                                      ("Nbar (rho fixed)", "nbar", m.nbar_phi))])
+    r_need_K, r_need_G = float(np.mean(inv.r_K)), float(np.mean(inv.r_G))
+    print("\nWhat the seed's correction would need to match the DEM (each with the other two measured; "
+          "mean over packings):")
+    print(inv_table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    print(f"mismatch x_G/x_K = {float(np.mean(inv.mismatch)):.3f} (1 if one parameter could fit both; the DEM's "
+          f"drop ratio {float(np.mean(inv.ratio_measured)):.3f} against the theory's 3/2); measured r with "
+          f"rattlers {m.r_all:.3f}; Kuhn's r = 0.35")
+    write_table(inv_table, out, "inversion", "What the seed's correction would need (closed form, "
+                "microhom.seed_inversion)", f"Mean over the amorphous packings. Mismatch x_G/x_K = "
+                f"{float(np.mean(inv.mismatch)):.3f} (1 where one parameter fits both moduli).")
     print(f"\nFitted alpha (labelled a fit: the alpha making the corrected G equal the DEM's): {fit:.3f}"
           + (" (no alpha in [0, 2] reaches the DEM value)" if not math.isfinite(fit) else ""))
     seed_rows = pd.DataFrame([
@@ -182,11 +206,17 @@ def main(argv=None):
              + f"\n\nPackings: N = {n}, seeds {seeds}, p/kn = {DEFAULTS['p_over_kn']}, kt = kn, "
              f"mu = {DEFAULTS['mu']}, mu_prep = {args.mu_prep}; {excluded}. Measured mean Nc = "
              f"{amorphous.nc.mean():.3f}, r = {amorphous.r.mean():.3f} (rattlers incl. {amorphous.r_all.mean():.3f}), "
-             f"rho = {amorphous.rho.mean():.3f}, phi = {amorphous.phi.mean():.4f}. Fitted alpha: {fit:.3f}. "
+             f"rho = {amorphous.rho.mean():.3f} (V over the Nbar near neighbours), phi = {amorphous.phi.mean():.4f}. Fitted alpha: {fit:.3f}. "
              f"The r the theory would need to match the DEM: {r_need_K:.3f} (bulk), {r_need_G:.3f} (shear). "
              f"Total wall time {time.perf_counter() - t_all:.0f} s.")
     md = write_table(table, out, "table", "Seed conditions: theory against DEM", notes)
     rho_definitions.report(n, seeds, args.mu_prep, out / "rho")  # rho per definition of V, with its null model
+    if args.invert:   # the full inversion study on the same (cached) packings
+        from studies import seed_inversion
+        k, curves = seed_inversion.kuhn_packings(n, list(amorphous.seed), args.mu_prep)
+        curves.to_csv(out / "inversion_nbar_curve.csv", index=False)
+        write_table(seed_inversion.summary_table(k, curves), out, "inversion_full",
+                    "What the seed's correction would need (studies.seed_inversion)")
     plot(table, out / "moduli.png")
     print(f"\nwritten: {md}, {out / 'cases.csv'}, {out / 'moduli.png'} "
           f"(total {time.perf_counter() - t_all:.0f} s)")

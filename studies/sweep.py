@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from dem.stiffness import stiffness
-from microhom.moduli import predict_moduli
+from microhom.moduli import PHI_MAX, predict_moduli
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, closure_estimate, get_packing, hierarchy_estimates
 from studies.common import cli_out_dir, write_table
@@ -38,14 +38,14 @@ def sweep_case(case: dict) -> dict:
     ratio = float(case["kt_ratio"])
     net = res.to_network().with_stiffness(kt=ratio * 1.0)
     t0 = time.perf_counter()
-    st = network_statistics(net).as_dict()
-    if st["nbar_phi"] is None:
-        raise ValueError(f"phi = {st['phi']:.4f} < pi/4: Nbar(phi) undefined")
+    st = network_statistics(net).as_dict()   # rho over the N̄ near neighbours (the paper's (39))
     if st["n_rattlers"] == st["n_particles"]:
         raise ValueError(f"no load-bearing backbone at kt/kn = {ratio:g}: every particle is a rattler "
                          f"(Nc with rattlers = {st['nc_all']:.2f}; frictionless disks need Nc > 4)")
-    out = {k: st[k] for k in ("nc", "nc_all", "r", "r_all", "rho", "phi", "nbar_phi", "rattler_fraction")}
-    base = dict(kn=1.0, kt=ratio, nc=st["nc"], phi=st["phi"], nbar=st["nbar_phi"], warn=False)
+    out = {k: st[k] for k in ("nc", "nc_all", "r", "r_all", "rho", "phi", "nbar_phi", "rattler_fraction",
+                              "rho_nbar", "rho_note")}
+    # N̄ from phi; below pi/4 predict_moduli uses N̄ = 4 and flags it (theory_*_valid), as rho_note says
+    base = dict(kn=1.0, kt=ratio, nc=st["nc"], phi=min(st["phi"], PHI_MAX), warn=False)
     for name, kw in (("mf", dict(r=0.0)), ("rho", dict(r=st["r"], rho=st["rho"])),
                      ("alpha", dict(r=st["r"], alpha=1.76))):
         p = predict_moduli(**base, **kw)
@@ -104,6 +104,19 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
         out[f"drop_{m}_dem"] = 1 - out[f"exact_{m}"] / out[f"theory_mf_{m}"]
         out[f"drop_{m}_theory"] = 1 - out[f"theory_rho_{m}"] / out[f"theory_mf_{m}"]
     return out
+
+
+def errors_table(df: pd.DataFrame, seed: int = 1) -> pd.DataFrame:
+    """Errors against the exact response [%] of the seed's formula (measured rho), the closure and
+    the hierarchy (upper bound, extrapolated), for one seed's frictional cases (docs/results/sweep.md)."""
+    ok = df[(df.status == "ok") & (df.seed == seed) & (df.kt_ratio > 0)].sort_values(["mu_prep", "p_over_kn", "kt_ratio"])
+    out = pd.DataFrame({"mu_prep": ok.mu_prep, "p/kn": ok.p_over_kn, "kt/kn": ok.kt_ratio, "Z": ok.nc.round(2)})
+    for m in ("K", "G"):
+        for label, col in (("seed", "theory_rho"), ("closure", "closure"), ("hier up 8", "hier_upper"),
+                           ("hier ext 8", "hier")):
+            out[f"{m} {label} [%]"] = (100 * (ok[f"{col}_{m}"] / ok[f"exact_{m}"] - 1)).round(2)
+    out["closure valid"] = ok.closure_valid.astype(bool)
+    return out.reset_index(drop=True)
 
 
 def plot(summary: pd.DataFrame, path):
@@ -175,6 +188,8 @@ def main(argv=None):
                      f"{len(df)} cases ({n_err} failed, see sweep.csv), scheduler {sched}, wall {wall:.0f} s. "
                      "Means over seeds with standard errors (_sem).")
     summary.to_csv(out / "summary.csv", index=False)   # after write_table, which writes the shown columns
+    if (df.status == "ok").any() and 1 in set(df.seed):
+        write_table(errors_table(df), out, "errors_seed1", "Errors against the exact response [%], seed 1")
     plot(summary, out / "sweep.png")
     print(f"written: {md}, {out / 'sweep.csv'}, {out / 'sweep.png'}; {n_err} failed cases; wall {wall:.0f} s")
 

@@ -31,8 +31,11 @@ def test_lammps_dump_chain_of_four_disks():
     C = np.array(r["stiffness"]["C_mandel"])
     assert C[0, 0] == pytest.approx(0.8, rel=1e-12)
     assert np.allclose(np.delete(C.ravel(), 0), 0, atol=1e-12)
-    # phi = 4 pi/4 / 10 < pi/4: the theory cannot derive Nbar and says so, the rest still runs
-    assert "error" in r["theory"] and "phi" in r["theory"]["error"]
+    # phi = 4 pi/4 / 10 < pi/4: Nbar(phi) does not exist; the theory uses Nbar = 4, flags the
+    # prediction and names the substitute (issue 25; it was an error before)
+    th = r["theory"]
+    assert th["nbar"] == 4.0 and not th["valid_rho"] and "below pi/4" in th["reason_rho"]
+    assert "Nbar = 4" in th["reason_rho"]
 
 
 def test_oval_lattice_equals_closed_form_with_kn_convention():
@@ -193,6 +196,10 @@ OLD_JSON_KEYS = {
     "comparison": [], "notes": "list"}
 NEW_SECTIONS = ("closure", "hierarchy")
 NEW_KEYS = ("spin_arm",)
+#: issue 25: rho is the paper's (near neighbours) and says what it used: three keys appended to the
+#: structural section; phi < pi/4 (this file) is no longer an error, so theory and comparison fill in
+NEW_STRUCTURAL = ["rho_nbar", "rho_note", "rho_neighbours"]
+FILLED_SINCE_25 = ("theory", "comparison")
 
 
 def run_in(capsys, *args):
@@ -225,11 +232,20 @@ def test_json_and_csv_layout_unchanged_and_typed_result(capsys):
     # issue 27 added file.spin_arm (the spin kinematics of the exact stiffness): new, not moved
     old = lambda key: (not any(f"_{n}_" in key for n in NEW_SECTIONS)   # noqa: E731 (new comparison keys)
                        and key.split(".")[-1] not in NEW_KEYS)
-    assert {k: ([x for x in v if old(x)] if isinstance(v, dict) else "list") for k, v in r.items()
-            if k not in NEW_SECTIONS} == OLD_JSON_KEYS
+    got = {k: ([x for x in v if old(x)] if isinstance(v, dict) else "list") for k, v in r.items()
+           if k not in NEW_SECTIONS}
+    assert got["structural"] == OLD_JSON_KEYS["structural"] + NEW_STRUCTURAL
+    # 4 disks in the cell: no Nbar = 4 neighbourhood fits, so V is over the contacts, and it says both
+    note = r["structural"]["rho_note"]
+    assert "below pi/4" in note and "contacting neighbours used" in note and r["structural"]["rho_nbar"] is None
+    assert {k: v for k, v in got.items() if k not in FILLED_SINCE_25 + ("structural",)} == \
+        {k: v for k, v in OLD_JSON_KEYS.items() if k not in FILLED_SINCE_25 + ("structural",)}
+    assert "error" not in r["theory"] and not r["theory"]["valid_rho"]
     c = run_in(capsys, DATA / "radius.dump", "--kn", "2", "--csv")
     head = c.stdout.splitlines()[0].split(",")
-    assert ",".join(h for h in head if h.split(".")[0] not in NEW_SECTIONS and old(h)) == OLD_CSV_HEADER
+    new_25 = {f"structural.{k}" for k in NEW_STRUCTURAL}
+    kept = [h for h in head if h.split(".")[0] not in NEW_SECTIONS + FILLED_SINCE_25 and old(h) and h not in new_25]
+    assert ",".join(kept) == ",".join(h for h in OLD_CSV_HEADER.split(",") if h.split(".")[0] not in FILLED_SINCE_25)
     res = analyse_file(DATA / "radius.dump", kn=2.0)
     assert isinstance(res, AnalysisResult) and isinstance(res, Result)
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -289,7 +305,8 @@ def test_cli_messages_name_cli_flags(tmp_path, capsys):
     assert "--kn-convention oval" in run_in(capsys, DATA / "D0001", "--no-exact").stdout
     q = subprocess.run([sys.executable, "-m", "microhom", "predict", "--phi", "0.5"],
                        capture_output=True, text=True)
-    assert q.returncode == 2 and "--nbar" in q.stderr and "Pass nbar" not in q.stderr
+    # below pi/4 Nbar(phi) does not exist: Nbar = 4 is used, flagged (exit 3) and named (issue 25)
+    assert q.returncode == 3 and "below pi/4" in q.stdout and "Nbar = 4" in q.stdout
     for text in (p.stderr, q.stderr):
         assert "Traceback" not in text
 

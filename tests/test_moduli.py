@@ -84,13 +84,19 @@ def test_phi_at_close_packing_and_explicit_nbar():
     assert float(q.nbar) == 4.5
     assert float(q.K) == pytest.approx(3.5 * 0.5 / (2 * math.pi) * (1 - xq), rel=1e-13)
     assert float(q.drop_G) == pytest.approx(1.5 * xq, rel=1e-13)
-    with pytest.raises(ValueError, match="nbar explicitly"):
-        predict_moduli(1.0, 1.0, 3.5, 0.5, 0.1, alpha=1.0)
+    # without nbar: Nbar = 4 (its value at pi/4) is used, flagged (bit 256) and named in the reason
+    with pytest.warns(RuntimeWarning, match="outside"):
+        s = predict_moduli(1.0, 1.0, np.array([3.5, 3.5]), np.array([0.5, 0.82]), 0.1, alpha=1.0)
+    assert list(s.nbar) == [4.0, pytest.approx(4.91159, abs=1e-4)]
+    assert list(s.valid) == [False, True] and int(s.flags[0]) == 256
+    assert "below pi/4" in s.reason[0] and "Nbar = 4" in s.reason[0]
+    x4 = 0.1 * (4.0 / 3.5) * math.pi / 4
+    assert float(s.drop_K[0]) == pytest.approx(x4, rel=1e-13)   # kt = kn: drop_K = x
 
 
 @pytest.mark.parametrize("kwargs, name", [
     (dict(kn=-1.0), "kn"), (dict(kn=0.0), "kn"), (dict(kt=-1e-9), "kt"), (dict(nc=-4.0), "nc"),
-    (dict(r=-0.1), "r"), (dict(phi=0.0), "phi"), (dict(phi=0.95), "phi"), (dict(phi=0.6), "phi"),
+    (dict(r=-0.1), "r"), (dict(phi=0.0), "phi"), (dict(phi=0.95), "phi"),
     (dict(alpha=2.5), "alpha"), (dict(kn=np.nan), "kn"), (dict(kt=np.inf), "kt"),
     (dict(r=np.array([0.1, np.nan])), "r"), (dict(diameter=0.0), "diameter"),
 ])

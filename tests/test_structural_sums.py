@@ -201,7 +201,7 @@ def test_from_overlaps_matches_brute_force(tilt):
 # ---- typed statistics, the near neighbourhood of (39) and the rho definitions (issue 16) ----------
 LEGACY_KEYS = ["n_particles", "n_contacts", "n_rattlers", "rattler_fraction", "nc_all", "r_all", "rho_all", "nc",
                "r", "rho", "phi", "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
-               "ebar_theory", "odd_norm"]
+               "ebar_theory", "odd_norm", "rho_nbar", "rho_note"]  # the last two appended by issue 25
 
 
 def _disordered(seed=0, side=12, noise=0.04, grow=1.03):
@@ -221,7 +221,8 @@ def test_network_statistics_is_a_frozen_result_with_the_old_keys():
     with pytest.raises(dataclasses.FrozenInstanceError):
         st.nc = 1.0
     assert st.to_frame().shape == (1, len(LEGACY_KEYS))
-    assert st.rho_neighbours == "contacts"
+    assert st.rho_neighbours == "near"  # the paper's definition is the default
+    assert st.rho_nbar == 6.0 and "close packing" in st.rho_note  # overlaps: phi = 0.96 > pi/(2 sqrt 3)
     with pytest.raises(ValueError, match="rho_neighbours"):
         network_statistics(_disordered(), rho_neighbours="delaunay")
 
@@ -299,7 +300,7 @@ def test_rho_definitions_exact_cases_and_consistency():
     # a disordered packing: the two definitions agree with network_statistics
     net = _disordered(seed=3, noise=0.06, grow=1.02)
     res = rho_definitions(net, nbar=5.0, n_null=4, seed=1)
-    assert res.rho["contacts"] == pytest.approx(network_statistics(net).rho, rel=1e-12)
+    assert res.rho["contacts"] == pytest.approx(network_statistics(net, rho_neighbours="contacts").rho, rel=1e-12)
     assert res.rho["near"] == pytest.approx(network_statistics(net, rho_neighbours="near", nbar=5.0).rho, rel=1e-12)
     assert res.null_std["contacts"] > 0 and res.mean_degree["near"] == pytest.approx(res.nbar, abs=1 / 144)
     assert set(res.as_dict()) >= {"rho", "null_mean", "null_std", "nbar"}
@@ -307,11 +308,32 @@ def test_rho_definitions_exact_cases_and_consistency():
         rho_definitions(net, n_null=1)
 
 
-def test_near_needs_nbar_outside_the_phi_range():
+def test_near_outside_the_phi_range_says_what_it_used():
+    # phi = 3 (pi/4)/100 < pi/4: Nbar(phi) does not exist; Nbar = 4 is used and the result says so
     pos = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
     net = from_overlaps(pos, 0.5, np.diag([10.0, 10.0]))
-    with pytest.raises(ValueError, match="nbar"):
-        network_statistics(net, rho_neighbours="near")
+    st = network_statistics(net)   # 3 particles in the cell: no Nbar = 4 neighbourhood; says both
+    assert st.rho_nbar is None and st.rho_neighbours == "contacts"
+    assert "below pi/4" in st.rho_note and "contacting neighbours used" in st.rho_note
+    assert st.as_dict()["rho_note"] == st.rho_note
+    with pytest.raises(ValueError, match="cell is too small"):
+        network_statistics(net, nbar=4.0)   # an explicit nbar is never replaced
+    # on a loose periodic packing: the substitute is exactly an explicit nbar = 4, which leaves no note
+    rng = np.random.default_rng(2)
+    L = 12.0
+    pos = rng.uniform(0, L, (80, 2))
+    loose = from_overlaps(pos, 0.5, np.diag([L, L]))
+    assert loose.solid_fraction < np.pi / 4
+    a, b = network_statistics(loose), network_statistics(loose, nbar=4.0)
+    assert a.rho == b.rho and a.rho_nbar == b.rho_nbar == 4.0 and not b.rho_note
+    assert "below pi/4" in a.rho_note and "Nbar = 4" in a.rho_note
+    c = network_statistics(loose, rho_neighbours="contacts")
+    assert c.rho_nbar is None and c.rho_note == ""
+    # above close packing (overlaps inflate phi): Nbar = 6, said
+    dense = _disordered(noise=0.01, grow=1.05)
+    assert dense.solid_fraction > np.pi / (2 * np.sqrt(3))
+    d = network_statistics(dense)
+    assert d.rho_nbar == 6.0 and "close packing" in d.rho_note
 
 
 def test_moduli_and_structural_sums_import_each_other_without_a_cycle():

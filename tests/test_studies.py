@@ -99,3 +99,38 @@ def test_closure_fit_quick(tmp_path, capsys):
     t = pd.read_csv(tmp_path / "validation_full.csv")
     assert len(t) == 2 and t.closure_valid.all()
     assert (t.err_K.abs() < 0.2).all() and (t.err_G.abs() < 0.3).all()  # a 4-packing refit, loosely
+
+
+def test_displacement_correlation_of_a_plane_wave_on_the_triangular_lattice():
+    # u = (cos k x, 0) on a triangular lattice (spacing 1, rows along x): over the 6 nearest
+    # neighbours at angles 0, 60, ..., 300 deg, <u_i.u_j>/<u^2> = (cos k + 2 cos(k/2))/3 exactly
+    import numpy as np
+
+    from microhom import lattices
+    from studies.seed_inversion import displacement_correlation
+
+    net = lattices.triangular(12, 12)
+    L = float(net.cell[0, 0])
+    k = 2 * np.pi / L
+    u = np.stack([np.cos(k * net.positions[:, 0]), np.zeros(net.n_particles)], 1)
+    centres, c = displacement_correlation(net, u, np.ones(net.n_particles, bool), np.array([0.9, 1.1]))
+    assert c[0] == pytest.approx((np.cos(k) + 2 * np.cos(k / 2)) / 3, rel=1e-12)
+
+
+def test_seed_inversion_quick_round_trips_on_a_packing(tmp_path):
+    import numpy as np
+
+    from microhom.moduli import predict_moduli
+    from studies import seed_inversion
+
+    seed_inversion.main(["--quick", "--out", str(tmp_path)])
+    k = pd.read_csv(tmp_path / "kuhn_all.csv").iloc[0]
+    # the r the inversion says each modulus needs gives back the exact DEM modulus
+    for m, col in (("K", "r_K"), ("G", "r_G")):
+        p = predict_moduli(1.0, 1.0, k.nc, k.phi, k[col], rho=k.rho, nbar=k.nbar, warn=False)
+        assert float(getattr(p, m)) == pytest.approx(k[f"exact_{m}"], rel=1e-10)
+    assert k.mismatch == pytest.approx(k.ratio_measured / 1.5, rel=1e-12)
+    assert 1.0 < k.d0_shear < 20 and np.isfinite(k.ncl_bulk)
+    curve = pd.read_csv(tmp_path / "nbar_curve.csv")
+    assert len(curve) == len(seed_inversion.NBAR_GRID) and (curve.rho.abs() < 2).all()
+    assert (tmp_path / "kuhn.md").exists() and (tmp_path / "inversion.png").exists()
