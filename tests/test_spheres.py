@@ -1,7 +1,7 @@
 """3D (spheres): the kinematics assembly against closed forms, rigid motions and energy finite
 differences that share no code with it.
 
-Closed forms (derived by hand in docs/theory.md, "Spheres"): a simple cubic lattice of diameter D,
+Closed forms (derived by hand in docs/spheres.md): a simple cubic lattice of diameter D,
     C11 = kn/D, C12 = 0, C44 = kt/D   (Mandel, so C44 = 2 c44 of Voigt),
 and a face-centred cubic lattice,
     C11 = sqrt2 (kn + kt)/D, C12 = (kn - kt)/(sqrt2 D), C44 = sqrt2 (kn + kt)/D.
