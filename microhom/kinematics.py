@@ -43,26 +43,45 @@ from .structural_sums import rattlers
 #: Accepted ``spin_arm`` values (see the module docstring).
 SPIN_ARMS = ("contact", "radius")
 
-__all__ = ["SPIN_ARMS", "ContactMatrices", "Assembly", "contact_matrices", "assemble", "stress0",
+__all__ = ["SPIN_ARMS", "ContactMatrices", "Assembly", "contact_matrices", "contact_forces",
+           "rotational_dofs", "assemble", "stress0",
            "affine_tensor", "sparse_rows", "block_diag"]
 
 _SQ2 = np.sqrt(2.0)
+#: Mandel components per dimension (``microhom.tensors``): 2D [11, 22, 12]; 3D [11, 22, 33, 23, 13, 12]
+_MANDEL = {2: ((0, 0), (1, 1), (0, 1)), 3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
+
+
+def rotational_dofs(dim: int) -> int:
+    """Rotational unknowns per particle: 1 spin for a disk (2D), 3 for a sphere (3D)."""
+    return 1 if dim == 2 else 3
+
+
+def _cross_matrix(n):
+    """(C, 3, 3) matrices ``[n]x`` with ``[n]x w = n x w``."""
+    z = np.zeros(n.shape[0])
+    return np.stack([np.stack([z, -n[:, 2], n[:, 1]], axis=1),
+                     np.stack([n[:, 2], z, -n[:, 0]], axis=1),
+                     np.stack([-n[:, 1], n[:, 0], z], axis=1)], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
 class ContactMatrices:
     """Element matrices of every contact of a network (see the module docstring).
 
+    ``d`` is the dimension, ``r`` the rotational unknowns per particle (1 in 2D, 3 in 3D) and
+    ``m`` the Mandel strain components (3 in 2D, 6 in 3D).
+
     Attributes
     ----------
-    B : (C, 2, 6) array
-        Compatibility on the local unknowns ``(u_i[2], omega_i, u_j[2], omega_j)`` [m for the spin
-        columns, 1 for translations].
-    D : (C, 2, 3) array
+    B : (C, d, 2(d + r)) array
+        Compatibility on the local unknowns ``(u_i, omega_i, u_j, omega_j)`` [m for the rotation
+        columns, 1 for translations]: (C, 2, 6) in 2D, (C, 3, 12) in 3D.
+    D : (C, d, m) array
         Affine contact displacement per Mandel unit strain [m].
-    K : (C, 2, 2) array
+    K : (C, d, d) array
         Contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m].
-    Kg : (C, 2, 2) array or None
+    Kg : (C, d, d) array or None
         Geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
     """
 
@@ -80,17 +99,18 @@ def _check_spin_arm(spin_arm):
 
 def contact_matrices(net: ContactNetwork, prestress: bool = False,
                      spin_arm: str = "contact") -> ContactMatrices:
-    """Per-contact ``B`` (C, 2, 6), ``D`` (C, 2, 3) [m], ``K`` (C, 2, 2) [N/m] (and ``K_g``
-    (C, 2, 2) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`); ``spin_arm``
-    ``"contact"`` or ``"radius"`` (module docstring)."""
+    """Per-contact ``B`` (C, d, 2(d + r)), ``D`` (C, d, m) [m], ``K`` (C, d, d) [N/m] (and
+    ``K_g`` (C, d, d) [N/m] if ``prestress``) of ``net`` (see :class:`ContactMatrices`);
+    ``spin_arm`` ``"contact"`` or ``"radius"`` (module docstring)."""
     _check_spin_arm(spin_arm)
     if prestress and net.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network "
                          "(ContactNetwork.fn, compression positive, N/m)")
+    dim = net.dim
+    rot = rotational_dofs(dim)
     c = net.branch
     L = net.lengths
     n = c / L[:, None]
-    t = np.stack([-n[:, 1], n[:, 0]], axis=1)
     ri, rj = net.radii[net.pairs[:, 0]], net.radii[net.pairs[:, 1]]
     if spin_arm == "radius":
         ai, aj = ri, rj
@@ -98,79 +118,102 @@ def contact_matrices(net: ContactNetwork, prestress: bool = False,
         ai, aj = L * ri / (ri + rj), L * rj / (ri + rj)
     kt = net.effective_kt
     nn = n[:, :, None] * n[:, None, :]
-    eye = np.eye(2)
+    eye = np.eye(dim)
     K = (net.kn - kt)[:, None, None] * nn + kt[:, None, None] * eye
     nc = c.shape[0]
-    B = np.zeros((nc, 2, 6))
-    B[:, 0, 0] = B[:, 1, 1] = -1.0
-    B[:, 0, 3] = B[:, 1, 4] = 1.0
-    B[:, :, 2] = -ai[:, None] * t
-    B[:, :, 5] = -aj[:, None] * t
-    D = np.zeros((nc, 2, 3))              # E c for Mandel unit strains [E11, E22, sqrt2 E12]
-    D[:, 0, 0] = c[:, 0]
-    D[:, 1, 1] = c[:, 1]
-    D[:, 0, 2] = c[:, 1] / _SQ2
-    D[:, 1, 2] = c[:, 0] / _SQ2
+    B = np.zeros((nc, dim, 2 * (dim + rot)))
+    ui, wi, uj, wj = 0, dim, dim + rot, 2 * dim + rot          # first column of each block
+    B[:, :, ui:ui + dim] = -eye
+    B[:, :, uj:uj + dim] = eye
+    if dim == 2:                 # Delta gains -(a_i w_i + a_j w_j) t  (w x n = w t in the plane)
+        t = np.stack([-n[:, 1], n[:, 0]], axis=1)
+        B[:, :, wi] = -ai[:, None] * t
+        B[:, :, wj] = -aj[:, None] * t
+    else:                        # Delta gains -(a_i w_i + a_j w_j) x n = a_i n x w_i + a_j n x w_j
+        nx = _cross_matrix(n)
+        B[:, :, wi:wi + 3] = ai[:, None, None] * nx
+        B[:, :, wj:wj + 3] = aj[:, None, None] * nx
+    D = np.zeros((nc, dim, len(_MANDEL[dim])))   # E c for Mandel unit strains
+    for a, (p, q) in enumerate(_MANDEL[dim]):
+        if p == q:
+            D[:, p, a] = c[:, p]
+        else:                    # E_pq = E_qp = 1/sqrt2
+            D[:, p, a] = c[:, q] / _SQ2
+            D[:, q, a] = c[:, p] / _SQ2
     Kg = None
     if prestress:
         Kg = (-(net.fn / L))[:, None, None] * (eye - nn)
     return ContactMatrices(B=B, D=D, K=K, Kg=Kg)
 
 
-def stress0(net: ContactNetwork) -> np.ndarray:
-    """(2, 2) pre-stress ``sigma0 = -(1/A) sum sym((fn n + ft t) (x) c)`` [N/m, tension positive]."""
+def contact_forces(net: ContactNetwork) -> np.ndarray:
+    """(C, d) force on ``j`` of every contact, ``fn n + ft`` [N] (``ft t`` in 2D): the forces of
+    the pre-stress. Needs ``net.fn``."""
     if net.fn is None:
         raise ValueError("the pre-stress needs the normal forces fn of the network")
     n = net.normals
     f = net.fn[:, None] * n
     if net.ft is not None:
-        f = f + net.ft[:, None] * np.stack([-n[:, 1], n[:, 0]], axis=1)
-    s = -(f[:, :, None] * net.branch[:, None, :]).sum(axis=0) / net.area
+        if net.dim == 2:
+            f = f + net.ft[:, None] * np.stack([-n[:, 1], n[:, 0]], axis=1)
+        else:
+            f = f + net.ft
+    return f
+
+
+def stress0(net: ContactNetwork) -> np.ndarray:
+    """(d, d) pre-stress ``sigma0 = -(1/V) sum sym((fn n + ft t) (x) c)`` [N/m in 2D, Pa in 3D,
+    tension positive] (3D: ``ft`` is the tangential force vector)."""
+    f = contact_forces(net)
+    s = -(f[:, :, None] * net.branch[:, None, :]).sum(axis=0) / net.volume
     return 0.5 * (s + s.T)
 
 
 def affine_tensor(net: ContactNetwork, prestress: bool = False) -> np.ndarray:
-    """(3, 3) Mandel affine stiffness ``(1/A) sum D^T (K + K_g) D`` [N/m], without the
-    pre-stress correction of the Cauchy increment (add ``tensors.prestress_correction``)."""
+    """(m, m) Mandel affine stiffness ``(1/V) sum D^T (K + K_g) D`` [N/m in 2D, Pa in 3D], without
+    the pre-stress correction of the Cauchy increment (add ``tensors.prestress_correction``)."""
     m = contact_matrices(net, prestress)
     KK = m.K if m.Kg is None else m.K + m.Kg
-    return m.D.reshape(-1, 3).T @ (KK @ m.D).reshape(-1, 3) / net.area
+    nm = m.D.shape[2]
+    return m.D.reshape(-1, nm).T @ (KK @ m.D).reshape(-1, nm) / net.volume
 
 
 def sparse_rows(B, ldof, ndof):
-    """(C, 2, 6) element rows on local unknowns -> CSR (2C, ndof); unknowns < 0 are dropped."""
-    nc = B.shape[0]
-    r = np.repeat(np.arange(2 * nc), 6)
-    c = np.broadcast_to(ldof[:, None, :], (nc, 2, 6)).ravel()
+    """(C, d, l) element rows on local unknowns -> CSR (d C, ndof); unknowns < 0 are dropped."""
+    nc, dim, nl = B.shape
+    r = np.repeat(np.arange(dim * nc), nl)
+    c = np.broadcast_to(ldof[:, None, :], (nc, dim, nl)).ravel()
     m = c >= 0
-    return sp.csr_matrix((B.ravel()[m], (r[m], c[m])), shape=(2 * nc, ndof))
+    return sp.csr_matrix((B.ravel()[m], (r[m], c[m])), shape=(dim * nc, ndof))
 
 
 def block_diag(K):
-    """(C, 2, 2) -> block-diagonal CSR (2C, 2C)."""
-    nc = K.shape[0]
-    ind = np.arange(2 * nc).reshape(nc, 2)
-    r = np.broadcast_to(ind[:, :, None], (nc, 2, 2)).ravel()
-    c = np.broadcast_to(ind[:, None, :], (nc, 2, 2)).ravel()
-    return sp.csr_matrix((K.ravel(), (r, c)), shape=(2 * nc, 2 * nc))
+    """(C, d, d) -> block-diagonal CSR (d C, d C)."""
+    nc, dim = K.shape[0], K.shape[1]
+    ind = np.arange(dim * nc).reshape(nc, dim)
+    r = np.broadcast_to(ind[:, :, None], (nc, dim, dim)).ravel()
+    c = np.broadcast_to(ind[:, None, :], (nc, dim, dim)).ravel()
+    return sp.csr_matrix((K.ravel(), (r, c)), shape=(dim * nc, dim * nc))
 
 
 @dataclass(frozen=True, eq=False)
 class Assembly:
     """The reduced linear-response problem ``H q = -F eps`` of a periodic network.
 
-    Unknowns: translations of non-rattlers (``2p, 2p+1`` in the full numbering), spins ``2N + p``
-    of particles with a contact of ``kt_eff > 0``; the best-connected particle's translation is
-    pinned (removes the two global translations).
+    Unknowns (d = 2 or 3, r = 1 spin per disk or 3 rotations per sphere): translations of
+    non-rattlers (``d p .. d p + d - 1`` in the full numbering), rotations ``d N + r p ..`` of
+    particles with a contact of ``kt_eff > 0``; the best-connected particle's translation is pinned
+    (removes the d global translations). In 2D the numbering is ``2p, 2p+1`` and ``2N + p``.
 
-    H : (ndof, ndof) CSC Hessian [N/m]; F : (ndof, 3) load per Mandel unit strain [N/m * m];
+    H : (ndof, ndof) CSC Hessian [N/m]; F : (ndof, m) load per Mandel unit strain [N/m * m];
     F_scale : norm of the per-contact element loads before they cancel in the assembly;
-    Bs : (2C, ndof) CSR compatibility; Ks : (2C, 2C) block-diagonal contact stiffness;
-    Bcs, Kgs : the same for the geometric (pre-stress) term, or None; Df : (2C, 3) affine
-    displacements; matrices : per-contact :class:`ContactMatrices`; ldof : (C, 6) local-to-reduced
-    map (-1 = fixed or absent); net : the network without rattlers' contacts; rattlers : (N,) bool;
-    n_spins : spin unknowns kept; pinned : pinned particle or -1; ndof : number of unknowns;
-    dof_map : (3N,) full-to-reduced map (-1 = not an unknown).
+    Bs : (dC, ndof) CSR compatibility; Ks : (dC, dC) block-diagonal contact stiffness;
+    Bcs, Kgs : the same for the geometric (pre-stress) term, or None; Df : (dC, m) affine
+    displacements; matrices : per-contact :class:`ContactMatrices`; ldof : (C, 2(d + r))
+    local-to-reduced map (-1 = fixed or absent); net : the network without rattlers' contacts;
+    rattlers : (N,) bool; n_spins : particles whose rotations are unknowns; pinned : pinned
+    particle or -1; ndof : number of unknowns; dof_map : ((d + r) N,) full-to-reduced map
+    (-1 = not an unknown).
     """
 
     H: sp.csc_matrix
@@ -195,7 +238,7 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
              pin: bool = True, spin_arm: str = "contact") -> Assembly:
     """Assemble the reduced Hessian ``H`` (ndof, ndof) [N/m] and load ``F`` (ndof, 3) of a periodic
     network (rattlers removed iteratively with :func:`microhom.structural_sums.rattlers`); see
-    :class:`Assembly`. ``pin=False`` keeps every translation (``H`` then has the two global
+    :class:`Assembly`. ``pin=False`` keeps every translation (``H`` then has the d global
     translations as null vectors, orthogonal to ``F``: what an iterative solver wants, since
     pinning one particle breaks the cell's symmetry). ``spin_arm``: ``"contact"`` (default) or
     ``"radius"`` (the module docstring)."""
@@ -203,6 +246,8 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
     if network.cell is None:
         raise ValueError("the stiffness problem needs a periodic network (cell is None)")
     N = network.n_particles
+    dim = network.dim
+    rot = rotational_dofs(dim)
     ratt, keep_c = rattlers(network, min_contacts)
     net = network.select_contacts(keep_c)
     m = contact_matrices(net, prestress, spin_arm)
@@ -213,25 +258,28 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
     has_t = ~ratt & (np.bincount(net.pairs.ravel(), minlength=N) > 0)
     fric = (net.effective_kt > 0).astype(np.int64)
     has_s = (np.bincount(i, weights=fric, minlength=N) + np.bincount(j, weights=fric, minlength=N)) > 0
-    active = np.zeros(3 * N, dtype=bool)
-    active[0:2 * N:2] = has_t
-    active[1:2 * N:2] = has_t
-    active[2 * N:] = has_s & has_t
+    active = np.zeros((dim + rot) * N, dtype=bool)
+    for a in range(dim):
+        active[a:dim * N:dim] = has_t
+    for b in range(rot):
+        active[dim * N + b::rot] = has_s & has_t
     pinned = -1
     if pin and has_t.any():    # pin the global translation: the best-connected particle's u
         cnt = np.bincount(net.pairs.ravel(), minlength=N)
         pinned = int(np.argmax(np.where(has_t, cnt, -1)))
-        active[2 * pinned] = active[2 * pinned + 1] = False
-    dof = np.full(3 * N, -1, dtype=np.int64)
+        active[dim * pinned:dim * pinned + dim] = False
+    dof = np.full((dim + rot) * N, -1, dtype=np.int64)
     dof[active] = np.arange(int(active.sum()))
     ndof = int(active.sum())
-    gl = np.stack([2 * i, 2 * i + 1, 2 * N + i, 2 * j, 2 * j + 1, 2 * N + j], axis=1)
-    ldof = dof[gl]                                              # (C, 6), -1 = fixed/absent
+    gl = np.stack([dim * i + a for a in range(dim)] + [dim * N + rot * i + b for b in range(rot)]
+                  + [dim * j + a for a in range(dim)] + [dim * N + rot * j + b for b in range(rot)],
+                  axis=1)
+    ldof = dof[gl]                                              # (C, 2(d + r)), -1 = fixed/absent
 
     Bs = sparse_rows(m.B, ldof, ndof)
     Ks = block_diag(m.K)
     H = (Bs.T @ (Ks @ Bs)).tocsc()
-    Df = m.D.reshape(-1, 3)
+    Df = m.D.reshape(-1, m.D.shape[2])
     KDf = Ks @ Df
     F = np.asarray(Bs.T @ KDf)
     # load scale: norm of the per-contact element loads before they cancel in the assembly
@@ -239,8 +287,9 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
     F_scale = float(np.sqrt(rown2 @ (KDf ** 2)).max()) if nc else 0.0
     Bcs = Kgs = None
     if m.Kg is not None:
-        Bc = m.B.copy()
-        Bc[:, :, 2] = Bc[:, :, 5] = 0.0
+        Bc = m.B.copy()                     # centre-to-centre displacement: no rotation columns
+        Bc[:, :, dim:dim + rot] = 0.0
+        Bc[:, :, 2 * dim + rot:] = 0.0
         Bcs = sparse_rows(Bc, ldof, ndof)
         Kgs = block_diag(m.Kg)
         H = (H + Bcs.T @ (Kgs @ Bcs)).tocsc()

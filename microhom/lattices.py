@@ -1,11 +1,19 @@
-"""Perfect periodic lattices of identical disks: the exact cases every measurement is checked on.
+"""Perfect periodic lattices of identical disks and spheres: the exact cases every measurement is
+checked on.
 
-Each function returns a periodic :class:`~microhom.network.ContactNetwork` of touching disks of
-diameter ``diameter`` [m] with contact stiffnesses ``kn``, ``kt`` [N/m].
+Each function returns a periodic :class:`~microhom.network.ContactNetwork` of touching particles
+of diameter ``diameter`` [m] with contact stiffnesses ``kn``, ``kt`` [N/m].
+
+Disks (2D):
 
 * triangular (hexagonal close packing): 6 contacts each, phi = pi / (2 sqrt 3);
 * square: 4 contacts each, phi = pi / 4;
 * honeycomb: 3 contacts each, phi = pi / (3 sqrt 3).
+
+Spheres (3D):
+
+* simple_cubic: 6 contacts each, phi = pi / 6;
+* fcc (face-centred cubic): 12 contacts each, phi = pi / (3 sqrt 2).
 """
 from __future__ import annotations
 
@@ -13,7 +21,7 @@ import numpy as np
 
 from .network import ContactNetwork, from_overlaps
 
-__all__ = ["triangular", "square", "honeycomb"]
+__all__ = ["triangular", "square", "honeycomb", "simple_cubic", "fcc"]
 
 
 def _check(nx, ny, diameter, even_ny=False):
@@ -67,3 +75,36 @@ def _rotated(pos, d, cell, kn, kt, sliding, angle):
     pos = pos @ rot.T
     cell = rot @ cell
     return from_overlaps(pos, 0.5 * d, cell, kn=kn, kt=kt, sliding=sliding, tolerance=1e-9)
+
+
+def _check3(n, diameter):
+    if int(n) != n or n < 3:
+        raise ValueError(f"n must be an integer >= 3 (cells per side), got {n}")
+    if not (np.isfinite(diameter) and diameter > 0):
+        raise ValueError(f"diameter must be > 0, got {diameter}")
+
+
+def simple_cubic(n=3, *, diameter=1.0, kn=1.0, kt=None, sliding=False) -> ContactNetwork:
+    """Simple cubic lattice of ``n``^3 spheres in a cubic periodic cell of side ``n D``."""
+    _check3(n, diameter)
+    d = float(diameter)
+    g = np.arange(n) * d
+    pos = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    return from_overlaps(pos, 0.5 * d, np.eye(3) * n * d, kn=kn, kt=kt, sliding=sliding,
+                         tolerance=1e-9)
+
+
+def fcc(n=2, *, diameter=1.0, kn=1.0, kt=None, sliding=False) -> ContactNetwork:
+    """Face-centred cubic lattice: ``n``^3 cubic cells of side ``a = sqrt2 D`` with 4 spheres each
+    (``n`` >= 2: the cell must be wider than two diameters)."""
+    if int(n) != n or n < 2:
+        raise ValueError(f"n must be an integer >= 2 (cubic cells per side), got {n}")
+    _check3(3, diameter)
+    d = float(diameter)
+    a = np.sqrt(2.0) * d
+    basis = np.array([[0, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0.5], [0, 0.5, 0.5]]) * a
+    g = np.arange(n) * a
+    corners = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    pos = (corners[:, None, :] + basis[None, :, :]).reshape(-1, 3)
+    return from_overlaps(pos, 0.5 * d, np.eye(3) * n * a, kn=kn, kt=kt, sliding=sliding,
+                         tolerance=1e-9)

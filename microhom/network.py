@@ -6,17 +6,20 @@ tangential stiffnesses, a sliding flag and (optionally) the contact forces.
 
 Conventions (see ``docs/theory.md``):
 
-* 2D, SI units or any consistent set (``docs/theory.md``, "Conventions"): lengths in m, contact
-  forces in N, contact stiffnesses in N/m, 2D stresses and moduli in N/m (force per length).
+* 2D disks or 3D spheres (the dimension d is taken from the data: positions (N, d), d = 2 or 3),
+  SI units or any consistent set (``docs/theory.md``, "Conventions"): lengths in m, contact
+  forces in N, contact stiffnesses in N/m, 2D stresses and moduli in N/m (force per length), 3D
+  ones in Pa.
 * Contact ``k`` joins particles ``i = pairs[k, 0]`` and ``j = pairs[k, 1]``; its branch vector is
   ``c = x_j - x_i`` taken to the periodic image that touches (paper: ``c^{mu nu} = x^nu - x^mu``).
   The unit normal is ``n = c / |c|``, pointing from ``i`` to ``j``.
 * The contact stiffness tensor is ``K = kn n n + kt (I - n n)`` (paper eq. 35); a sliding contact
   is treated as ``kt = 0`` wherever a tangent stiffness is formed (``effective_kt``).
-* ``fn`` is the normal force magnitude, compression positive; ``ft`` the tangential force on ``j``
-  along ``t = (-n_y, n_x)``. Both optional (needed for stress and for geometric stiffness terms).
-* ``cell`` is the 2x2 shape matrix ``h`` whose *columns* are the periodic cell vectors; the cell
-  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^2. ``None`` means no periodicity
+* ``fn`` is the normal force magnitude, compression positive; ``ft`` the tangential force on ``j``:
+  in 2D a scalar along ``t = (-n_y, n_x)``, in 3D a vector (C, 3) normal to ``n``. Both optional
+  (needed for stress and for geometric stiffness terms).
+* ``cell`` is the d x d shape matrix ``h`` whose *columns* are the periodic cell vectors; the cell
+  spans ``origin + h @ s`` for fractional ``s`` in [0, 1)^d. ``None`` means no periodicity
   (periodic geometry: :mod:`microhom.periodic`).
 
 Builders: :func:`from_overlaps` (contacts found from positions and radii) and :func:`from_pairs`
@@ -75,20 +78,23 @@ def _resolve(name, value, i, j, radii, overlap):
 
 @dataclass(frozen=True, eq=False)
 class ContactNetwork:
-    """A 2D contact network of disks. All arrays are read-only views after construction.
+    """A contact network of disks (2D) or spheres (3D). All arrays are read-only after construction.
+
+    The dimension ``d`` (2 or 3) is the number of columns of ``positions``; every other array
+    follows it.
 
     Parameters
     ----------
-    positions : (N, 2) float, particle centres [m].
+    positions : (N, d) float, particle centres [m].
     radii : (N,) float, particle radii [m], > 0.
-    cell : (2, 2) float or None, periodic shape matrix, columns = cell vectors [m].
+    cell : (d, d) float or None, periodic shape matrix, columns = cell vectors [m].
     pairs : (C, 2) int, particle indices of each contact.
-    branch : (C, 2) float, branch vectors ``x_j - x_i`` (periodic image resolved) [m].
+    branch : (C, d) float, branch vectors ``x_j - x_i`` (periodic image resolved) [m].
     kn, kt : (C,) float, normal and tangential contact stiffness [N/m], kn > 0, kt >= 0.
     sliding : (C,) bool, contacts at the Coulomb limit (their tangent ``kt`` is taken as 0).
     fn : (C,) float or None, normal force, compression positive [N].
-    ft : (C,) float or None, tangential force on j along t = (-n_y, n_x).
-    origin : (2,) float, lower-left corner of the periodic cell [m].
+    ft : tangential force on j [N] or None: (C,) along t = (-n_y, n_x) in 2D, (C, 3) in 3D.
+    origin : (d,) float, lower-left corner of the periodic cell [m] (default zeros).
     """
 
     positions: np.ndarray
@@ -101,10 +107,15 @@ class ContactNetwork:
     sliding: np.ndarray
     fn: np.ndarray | None = None
     ft: np.ndarray | None = None
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    origin: np.ndarray | None = None
 
     def __post_init__(self):
-        pos = _as_float("positions", self.positions, (2,))
+        shape = np.shape(self.positions)
+        if len(shape) != 2 or shape[1] not in (2, 3):
+            raise ValueError(f"positions must have shape (N, 2) for disks or (N, 3) for spheres, "
+                             f"got {shape}")
+        dim = shape[1]
+        pos = _as_float("positions", self.positions, (dim,))
         rad = _as_float("radii", self.radii, ())
         if rad.shape[0] != pos.shape[0]:
             raise ValueError(f"radii has {rad.shape[0]} entries but positions has {pos.shape[0]}")
@@ -113,25 +124,27 @@ class ContactNetwork:
         cell = None
         if self.cell is not None:
             cell = np.array(self.cell, dtype=np.float64)
-            if cell.shape != (2, 2) or not np.all(np.isfinite(cell)):
-                raise ValueError("cell must be a finite 2x2 matrix (columns = cell vectors) or None")
+            if cell.shape != (dim, dim) or not np.all(np.isfinite(cell)):
+                raise ValueError(f"cell must be a finite {dim}x{dim} matrix (columns = cell vectors) "
+                                 f"or None, got shape {cell.shape}")
             if abs(np.linalg.det(cell)) <= 0:
-                raise ValueError("cell must have a positive area (non-singular shape matrix)")
+                raise ValueError("cell must have a positive area/volume (non-singular shape matrix)")
         pairs = np.ascontiguousarray(self.pairs, dtype=np.int64).reshape(-1, 2)
         nc = pairs.shape[0]
         if nc and (pairs.min() < 0 or pairs.max() >= pos.shape[0]):
             raise ValueError("pairs contains particle indices outside [0, N)")
         if nc and np.any(pairs[:, 0] == pairs[:, 1]):
             raise ValueError("pairs contains a particle in contact with itself")
-        branch = _as_float("branch", np.reshape(self.branch, (-1, 2)), (2,))
+        branch = _as_float("branch", np.reshape(self.branch, (-1, dim)), (dim,))
         if branch.shape[0] != nc:
             raise ValueError(f"branch has {branch.shape[0]} rows but pairs has {nc}")
-        zero = np.flatnonzero(np.hypot(branch[:, 0], branch[:, 1]) <= 0) if nc else []
+        zero = np.flatnonzero(_norms(branch) <= 0) if nc else []
         if len(zero):
             k = int(zero[0])
             a, b = (int(v) for v in pairs[k])
+            where = ", ".join(f"{v:.6g}" for v in pos[a])
             raise ValueError(f"contact {k} between particles {a} and {b}: branch vector of zero "
-                             f"length (the centres coincide at ({pos[a, 0]:.6g}, {pos[a, 1]:.6g})"
+                             f"length (the centres coincide at ({where})"
                              f"{'' if len(zero) == 1 else f'; {len(zero)} such contacts'}): "
                              "coincident particles have no contact direction; remove duplicates")
         kn = _as_float("kn", _per_contact("kn", self.kn, nc), ())
@@ -142,8 +155,17 @@ class ContactNetwork:
             raise ValueError("kt must be >= 0 for every contact (allowed range: [0, inf) N/m)")
         sliding = _per_contact("sliding", self.sliding, nc, dtype=bool)
         fn = None if self.fn is None else _as_float("fn", _per_contact("fn", self.fn, nc), ())
-        ft = None if self.ft is None else _as_float("ft", _per_contact("ft", self.ft, nc), ())
-        origin = _as_float("origin", np.reshape(self.origin, (1, 2)), (2,))[0]
+        if self.ft is None:
+            ft = None
+        elif dim == 2:
+            ft = _as_float("ft", _per_contact("ft", self.ft, nc), ())
+        else:
+            ft = _as_float("ft", np.reshape(self.ft, (-1, 3)), (3,))
+            if ft.shape[0] != nc:
+                raise ValueError(f"ft has {ft.shape[0]} rows but the network has {nc} contacts "
+                                 "(3D: one tangential force vector per contact, shape (C, 3))")
+        origin = np.zeros(dim) if self.origin is None else self.origin
+        origin = _as_float("origin", np.reshape(origin, (1, -1)), (dim,))[0]
         for name, arr in (("positions", pos), ("radii", rad), ("cell", cell), ("pairs", pairs),
                           ("branch", branch), ("kn", kn), ("kt", kt), ("sliding", sliding),
                           ("fn", fn), ("ft", ft), ("origin", origin)):
@@ -153,6 +175,11 @@ class ContactNetwork:
             object.__setattr__(self, name, arr)
 
     # ---- sizes -------------------------------------------------------------------------------
+    @property
+    def dim(self) -> int:
+        """Dimension d: 2 for disks, 3 for spheres."""
+        return self.positions.shape[1]
+
     @property
     def n_particles(self) -> int:
         """Number of particles N."""
@@ -172,11 +199,11 @@ class ContactNetwork:
     @property
     def lengths(self) -> np.ndarray:
         """(C,) branch lengths ``|c|`` [m]."""
-        return np.hypot(self.branch[:, 0], self.branch[:, 1])
+        return _norms(self.branch)
 
     @property
     def normals(self) -> np.ndarray:
-        """(C, 2) unit contact normals ``n = c/|c|``, from particle i to particle j."""
+        """(C, d) unit contact normals ``n = c/|c|``, from particle i to particle j."""
         return self.branch / self.lengths[:, None]
 
     @property
@@ -190,11 +217,11 @@ class ContactNetwork:
         return np.where(self.sliding, 0.0, self.kt)
 
     def stiffness_tensors(self) -> np.ndarray:
-        """(C, 2, 2) contact stiffness tensors K = kn n n + kt_eff (I - n n) [N/m] (eq. 35)."""
+        """(C, d, d) contact stiffness tensors K = kn n n + kt_eff (I - n n) [N/m] (eq. 35)."""
         n = self.normals
         nn = n[:, :, None] * n[:, None, :]
         kt = self.effective_kt
-        return (self.kn - kt)[:, None, None] * nn + kt[:, None, None] * np.eye(2)
+        return (self.kn - kt)[:, None, None] * nn + kt[:, None, None] * np.eye(self.dim)
 
     # ---- per-particle counts -----------------------------------------------------------------
     def contact_counts(self) -> np.ndarray:
@@ -203,8 +230,9 @@ class ContactNetwork:
 
     # ---- cell -------------------------------------------------------------------------------
     @property
-    def area(self) -> float:
-        """Area of the periodic cell [m^2]; for a non-periodic network, of the particles' bounding box."""
+    def volume(self) -> float:
+        """Measure of the periodic cell: area in 2D [m^2], volume in 3D [m^3]; for a non-periodic
+        network, of the particles' bounding box."""
         if self.cell is not None:
             return float(abs(np.linalg.det(self.cell)))
         lo = (self.positions - self.radii[:, None]).min(axis=0)
@@ -212,14 +240,24 @@ class ContactNetwork:
         return float(np.prod(hi - lo))
 
     @property
+    def area(self) -> float:
+        """Area of the periodic cell [m^2] of a 2D network (its :attr:`volume`); for a
+        non-periodic network, of the particles' bounding box. A 3D network has a volume instead."""
+        if self.dim != 2:
+            raise AttributeError("a 3D network has no area: use ContactNetwork.volume [m^3]")
+        return self.volume
+
+    @property
     def solid_fraction(self) -> float:
-        """Solid (area) fraction phi = sum(pi r^2) / area."""
-        return float(np.pi * np.sum(self.radii ** 2) / self.area)
+        """Solid fraction phi: sum(pi r^2) / area in 2D, sum(4/3 pi r^3) / volume in 3D."""
+        if self.dim == 3:
+            return float(4.0 / 3.0 * np.pi * np.sum(self.radii ** 3) / self.volume)
+        return float(np.pi * np.sum(self.radii ** 2) / self.volume)
 
     def image_shifts(self) -> np.ndarray:
-        """(C, 2) integer image shifts s with c = x_j + h s - x_i (zeros if not periodic)."""
+        """(C, d) integer image shifts s with c = x_j + h s - x_i (zeros if not periodic)."""
         if self.cell is None:
-            return np.zeros((self.n_contacts, 2), dtype=np.int64)
+            return np.zeros((self.n_contacts, self.dim), dtype=np.int64)
         direct = self.positions[self.pairs[:, 1]] - self.positions[self.pairs[:, 0]]
         return periodic.image_shifts(self.branch, direct, self.cell)
 
@@ -261,13 +299,20 @@ class ContactNetwork:
                        ft=None if self.ft is None else self.ft[mask])
 
     def translated(self, shift) -> "ContactNetwork":
-        """The same network with every position moved by ``shift`` (2,) [m]; branches unchanged."""
+        """The same network with every position moved by ``shift`` (d,) [m]; branches unchanged."""
         return replace(self, positions=self.positions + np.asarray(shift, dtype=float))
 
     def __repr__(self):
         cell = "periodic" if self.periodic else "open"
         return (f"ContactNetwork(N={self.n_particles}, contacts={self.n_contacts}, {cell}, "
                 f"phi={self.solid_fraction:.4f})")
+
+
+def _norms(v):
+    """(M,) Euclidean norms of (M, d) rows (``np.hypot`` in 2D, as every 2D result was computed)."""
+    if v.shape[1] == 2:
+        return np.hypot(v[:, 0], v[:, 1])
+    return np.sqrt(np.einsum("ij,ij->i", v, v))
 
 
 def _candidate_pairs(positions, cell, origin, cutoff):
@@ -290,9 +335,9 @@ def _candidate_pairs(positions, cell, origin, cutoff):
             f"periodic cell too small: its heights {heights} must exceed twice the contact cutoff "
             f"{cutoff:.6g} (a particle would touch two images of the same neighbour)")
     n = positions.shape[0]
-    if abs(cell[0, 1]) == 0 and abs(cell[1, 0]) == 0:
+    if not np.any(cell - np.diag(np.diag(cell))):      # orthogonal cell
         wrapped, _ = periodic.wrap(positions, cell, origin)
-        box = np.array([cell[0, 0], cell[1, 1]])
+        box = np.diag(cell).copy()
         local = np.mod(wrapped - origin, box)
         local = np.where(local >= box, 0.0, local)  # guard against round-off at the upper edge
         tree = cKDTree(local, boxsize=box)
@@ -315,10 +360,13 @@ def _candidate_pairs(positions, cell, origin, cutoff):
 
 
 def _check_geometry(positions, radii):
-    positions = _as_float("positions", positions, (2,))
+    shape = np.shape(positions)
+    if len(shape) != 2 or shape[1] not in (2, 3):
+        raise ValueError(f"positions must have shape (N, 2) for disks or (N, 3) for spheres, got {shape}")
+    positions = _as_float("positions", positions, (shape[1],))
     n = positions.shape[0]
     if n == 0:
-        raise ValueError("positions holds no particles (shape (0, 2)): a network needs at least "
+        raise ValueError(f"positions holds no particles (shape {shape}): a network needs at least "
                          "one particle")
     radii = as_float_array("radii", radii, unit=" [m]")
     if radii.ndim and radii.shape != (n,):
@@ -330,24 +378,27 @@ def _check_geometry(positions, radii):
     return positions, radii
 
 
-def _check_cell(cell):
-    """The periodic shape matrix as a finite, non-singular (2, 2) float array (None stays None)."""
+def _check_cell(cell, dim=2):
+    """The periodic shape matrix as a finite, non-singular (d, d) float array (None stays None)."""
     if cell is None:
         return None
     cell = as_float_array("cell", cell, unit=" [m]")
-    if cell.shape != (2, 2) or not np.all(np.isfinite(cell)):
-        raise ValueError(f"cell must be a finite 2x2 matrix whose columns are the periodic vectors "
-                         f"[m], or None (open boundaries); got shape {cell.shape}")
-    area = abs(float(np.linalg.det(cell)))
-    if not area > 1e-12 * float(np.abs(cell).max()) ** 2:
-        raise ValueError(f"cell must have a positive area (non-singular shape matrix, columns = "
-                         f"periodic vectors); got {cell.tolist()} with area {area:.3g}")
+    if cell.shape != (dim, dim) or not np.all(np.isfinite(cell)):
+        raise ValueError(f"cell must be a finite {dim}x{dim} matrix whose columns are the periodic "
+                         f"vectors [m], or None (open boundaries); got shape {cell.shape}")
+    size = abs(float(np.linalg.det(cell)))
+    if not size > 1e-12 * float(np.abs(cell).max()) ** dim:
+        raise ValueError(f"cell must have a positive {'area' if dim == 2 else 'volume'} (non-singular "
+                         f"shape matrix, columns = periodic vectors); got {cell.tolist()} with "
+                         f"{'area' if dim == 2 else 'volume'} {size:.3g}")
     return cell
 
 
 def _finish(positions, radii, cell, origin, i, j, d, *, kn, kt, sliding, law, fn=None, ft=None):
     """The network of contacts (i, j, branch d), stiffness and forces resolved per contact."""
-    dist = np.hypot(d[:, 0], d[:, 1])
+    dim = positions.shape[1]
+    d = d.reshape(-1, dim)
+    dist = _norms(d)
     overlap = radii[i] + radii[j] - dist
     if law is not None:
         if kn is not None:
@@ -363,14 +414,14 @@ def _finish(positions, radii, cell, origin, i, j, d, *, kn, kt, sliding, law, fn
         if fn is not None:
             fn = _resolve("fn", fn, i, j, radii, overlap)
     return ContactNetwork(positions=positions, radii=radii, cell=cell,
-                          pairs=np.stack([i, j], axis=1).reshape(-1, 2), branch=d.reshape(-1, 2),
+                          pairs=np.stack([i, j], axis=1).reshape(-1, 2), branch=d,
                           kn=kn, kt=kt, sliding=_per_contact("sliding", sliding, i.shape[0], bool),
-                          fn=fn, ft=None if ft is None else _per_contact("ft", ft, i.shape[0]),
+                          fn=fn, ft=None if ft is None else ft if dim == 3 else _per_contact("ft", ft, i.shape[0]),
                           origin=origin)
 
 
 def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=False, law=None,
-                  branch_length="distance", tolerance=None, origin=(0.0, 0.0)) -> ContactNetwork:
+                  branch_length="distance", tolerance=None, origin=None) -> ContactNetwork:
     """Build a :class:`ContactNetwork` from particle positions, radii and an optional periodic cell.
 
     Contacts are the pairs whose centre distance ``d`` satisfies ``d <= (r_i + r_j)(1 + tolerance)``
@@ -379,9 +430,9 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
 
     Parameters
     ----------
-    positions : (N, 2) particle centres [m].
-    radii : (N,) radii [m], or a scalar for identical disks.
-    cell : (2, 2) periodic shape matrix (columns = cell vectors) [m], or None (open boundaries).
+    positions : (N, d) particle centres [m] (d = 2 disks, d = 3 spheres).
+    radii : (N,) radii [m], or a scalar for identical particles.
+    cell : (d, d) periodic shape matrix (columns = cell vectors) [m], or None (open boundaries).
     kn, kt : contact stiffnesses [N/m]: scalars, (C,) arrays in the order of the result, or
         functions ``f(i, j, r_i, r_j, overlap)`` of (C,) arrays returning (C,) values (overlap
         ``r_i + r_j - d`` [m]), e.g. ``kn=lambda i, j, ri, rj, ov: 1 / (ri + rj)**2``.
@@ -396,7 +447,7 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
         vector; ``"radii"`` keeps its direction but sets its length to ``r_i + r_j`` (the
         undeformed-contact convention of the paper, where ``|c| = D``).
     tolerance : relative gap still counted as contact, in [0, 0.5); default 1e-9 (0 with a law).
-    origin : (2,) lower-left corner of the periodic cell [m].
+    origin : (d,) lower-left corner of the periodic cell [m] (default zeros).
     """
     positions, radii = _check_geometry(positions, radii)
     if tolerance is None:
@@ -407,13 +458,14 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
         raise ValueError(f"branch_length must be 'distance' or 'radii', got {branch_length!r}")
     if law is not None and branch_length != "distance":
         raise ValueError("a law needs the actual overlaps: use branch_length='distance'")
-    cell_arr = _check_cell(cell)
-    origin = as_float_array("origin", origin, unit=" [m]")
-    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
-        raise ValueError(f"origin must be a finite (2,) point [m], got shape {origin.shape}")
+    dim = positions.shape[1]
+    cell_arr = _check_cell(cell, dim)
+    origin = np.zeros(dim) if origin is None else as_float_array("origin", origin, unit=" [m]")
+    if origin.shape != (dim,) or not np.all(np.isfinite(origin)):
+        raise ValueError(f"origin must be a finite ({dim},) point [m], got shape {origin.shape}")
     cutoff = 2.0 * radii.max() * (1.0 + tolerance)
     i, j, d = _candidate_pairs(positions, cell_arr, origin, cutoff)
-    dist = np.hypot(d[:, 0], d[:, 1])
+    dist = _norms(d)
     rs = radii[i] + radii[j]
     touch = dist < rs if law is not None else dist <= rs * (1.0 + tolerance)
     i, j, d, dist = i[touch], j[touch], d[touch], dist[touch]
@@ -425,7 +477,7 @@ def from_overlaps(positions, radii, cell=None, *, kn=None, kt=None, sliding=Fals
 
 
 def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, sliding=False,
-               fn=None, ft=None, law=None, origin=(0.0, 0.0)) -> ContactNetwork:
+               fn=None, ft=None, law=None, origin=None) -> ContactNetwork:
     """Build a :class:`ContactNetwork` on the caller's contact list, in the caller's order.
 
     Use it when per-contact data (stiffness, forces) come from another code aligned with its own
@@ -436,12 +488,12 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
     positions, radii, cell, origin : as :func:`from_overlaps`.
     pairs : (C, 2) int particle indices ``(i, j)``, ``i != j``; the branch vector is
         ``x_j - x_i``.
-    shifts : (C, 2) int image counts ``k`` with branch ``x_j + h k - x_i``; default: the minimum
+    shifts : (C, d) int image counts ``k`` with branch ``x_j + h k - x_i``; default: the minimum
         image (requires both cell heights to exceed twice the largest ``r_i + r_j``).
     kn, kt, sliding, law : as :func:`from_overlaps` (arrays of length C in the order of ``pairs``,
         or functions of ``(i, j, r_i, r_j, overlap)``).
     fn, ft : normal (compression positive) and tangential forces [N], scalars, (C,) arrays or
-        functions; ``fn`` is set by ``law`` if one is given.
+        functions (3D: ``ft`` a (C, 3) array); ``fn`` is set by ``law`` if one is given.
     """
     positions, radii = _check_geometry(positions, radii)
     pairs = np.asarray(pairs)
@@ -451,15 +503,17 @@ def from_pairs(positions, radii, cell, pairs, *, shifts=None, kn=None, kt=None, 
     n = positions.shape[0]
     if i.size and (min(i.min(), j.min()) < 0 or max(i.max(), j.max()) >= n):
         raise ValueError(f"pairs contains particle indices outside [0, {n})")
-    cell_arr = _check_cell(cell)
-    origin = as_float_array("origin", origin, unit=" [m]")
+    dim = positions.shape[1]
+    cell_arr = _check_cell(cell, dim)
+    origin = np.zeros(dim) if origin is None else as_float_array("origin", origin, unit=" [m]")
     d = positions[j] - positions[i]
     if shifts is not None:
         if cell_arr is None:
             raise ValueError("shifts need a periodic cell")
         shifts = np.asarray(shifts)
-        if shifts.shape != pairs.shape:
-            raise ValueError(f"shifts must have the shape of pairs {pairs.shape}, got {shifts.shape}")
+        if shifts.shape != (pairs.shape[0], positions.shape[1]):
+            raise ValueError(f"shifts must have shape {(pairs.shape[0], positions.shape[1])} (one "
+                             f"image count per contact and cell vector), got {shifts.shape}")
         d = d + shifts @ cell_arr.T
     elif cell_arr is not None:
         reach = float((radii[i] + radii[j]).max(initial=0.0))

@@ -118,9 +118,17 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     """Iteratively flag rattlers: particles with fewer than ``min_contacts`` load-bearing contacts.
 
     Removing a rattler removes its contacts, which may make neighbours rattlers; iterate to a fixed
-    point. Default ``min_contacts=None`` decides per particle: 2 if any of its remaining contacts
-    has tangent stiffness (a frictional disk is held by 2 contacts), else 3 (frictionless disks
-    need d + 1 contacts, the jamming convention).
+    point. Default ``min_contacts=None`` decides per particle: d if any of its remaining contacts
+    has tangent stiffness (2 for frictional disks, 3 for frictional spheres), else d + 1 (3 for
+    frictionless disks, 4 for frictionless spheres: the jamming convention).
+
+    The frictional rule is one rule in both dimensions: d is the fewest contacts that hold a
+    particle rigid, translations and rotations, against its neighbours' springs. A contact at arm
+    ``a_k`` along ``n_k`` is undeformed when ``u + a_k omega x n_k = 0``; two such contacts give
+    ``omega x (a_1 n_1 - a_2 n_2) = 0``. In 2D ``omega`` is normal to the plane, so
+    ``omega = 0`` and two contacts hold the disk; in 3D ``omega`` parallel to
+    ``a_1 n_1 - a_2 n_2`` with ``u = -a_1 omega x n_1`` moves neither contact point (a sphere
+    rolls between two contacts), and a third contact off that line removes the mode.
 
     Returns (is_rattler (N,) bool, active (C,) bool: contacts between non-rattlers).
     """
@@ -137,7 +145,7 @@ def rattlers(network: ContactNetwork, min_contacts=None):
         if min_contacts is None:
             fa = fric[active]
             n_fric = np.bincount(ia, weights=fa, minlength=n) + np.bincount(ja, weights=fa, minlength=n)
-            threshold = np.where(n_fric > 0, 2, 3)
+            threshold = np.where(n_fric > 0, network.dim, network.dim + 1)
         else:
             threshold = int(min_contacts)
         new = (~rattler) & (counts < threshold)

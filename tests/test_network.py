@@ -54,7 +54,7 @@ def test_from_pairs_rejects_bad_input():
         from_pairs(lat.positions, 0.5, lat.cell, np.array([0, 1]))
     with pytest.raises(ValueError, match="outside"):
         from_pairs(lat.positions, 0.5, lat.cell, [[0, 99]])
-    with pytest.raises(ValueError, match="shifts must have the shape"):
+    with pytest.raises(ValueError, match="shifts must have shape"):
         from_pairs(lat.positions, 0.5, lat.cell, [[0, 1]], shifts=[[0, 0], [0, 0]])
     with pytest.raises(ValueError, match="ambiguous"):     # 1.5 x 1.5 cell, disks of diameter 1
         from_pairs([[0.0, 0.0], [1.0, 0.0]], 0.5, np.eye(2) * 1.5, [[0, 1]])
