@@ -385,7 +385,9 @@ def _check_cell(cell, dim=2):
     cell = as_float_array("cell", cell, unit=" [m]")
     if cell.shape != (dim, dim) or not np.all(np.isfinite(cell)):
         raise ValueError(f"cell must be a finite {dim}x{dim} matrix whose columns are the periodic "
-                         f"vectors [m], or None (open boundaries); got shape {cell.shape}")
+                         f"vectors [m] (positions have {dim} columns: "
+                         f"{'disks, 2D' if dim == 2 else 'spheres, 3D'}), or None (open "
+                         f"boundaries); got shape {cell.shape}")
     size = abs(float(np.linalg.det(cell)))
     if not size > 1e-12 * float(np.abs(cell).max()) ** dim:
         raise ValueError(f"cell must have a positive {'area' if dim == 2 else 'volume'} (non-singular "
