@@ -95,15 +95,28 @@ def _arr(name, v, lo=None, lo_open=False, hi=None):
 def invert_seed_correction(drop_K, drop_G, *, kt_over_kn, nc, r, nbar, rho) -> SeedInversion:
     """The x, r, rho and N̄ the seed's correction (50)-(51) needs to give ``drop_K`` and ``drop_G``.
 
-    Parameters (array_like, broadcast together; all dimensionless)
+    All array arguments broadcast together; everything is dimensionless.
+
+    Parameters
     ----------
-    drop_K, drop_G : fraction changes ``1 - modulus / mean field`` to reproduce (e.g. the exact
-        DEM moduli over the theory's mean field at the measured Nc and phi), each < 1.
-    kt_over_kn : tangential over normal contact stiffness t, >= 0 (the effective one for sliding).
-    nc : mean coordination number Nc, > 0.
-    r : measured contact-number fluctuation ``var(Nc)/Nc^2``, >= 0.
-    nbar : mean number of near neighbours N̄, > 0.
-    rho : measured correlation factor ``Nc sum V.W / sum V^2`` (any sign).
+    drop_K, drop_G : array_like
+        Fraction changes ``1 - modulus / mean field`` to reproduce (e.g. the exact DEM moduli over
+        the theory's mean field at the measured Nc and phi), each < 1.
+    kt_over_kn : array_like
+        Tangential over normal contact stiffness t, >= 0 (the effective one for sliding contacts).
+    nc : array_like
+        Mean coordination number Nc, > 0.
+    r : array_like
+        Measured contact-number fluctuation ``var(Nc)/Nc^2``, >= 0.
+    nbar : array_like
+        Mean number of near neighbours N̄, > 0.
+    rho : array_like
+        Measured correlation factor ``Nc sum V.W / sum V^2`` (any sign, finite).
+
+    Returns
+    -------
+    SeedInversion
+        The needed x, r, rho, N̄ per modulus, the growth factor and the mismatch ``x_G / x_K``.
     """
     dK = _arr("drop_K", drop_K, hi=1.0)
     dG = _arr("drop_G", drop_G, hi=1.0)

@@ -19,7 +19,7 @@ def shared_cache(tmp_path_factory):
 def test_kuhn_quick(tmp_path, capsys):
     from studies import kuhn
 
-    kuhn.main(["--quick", "--out", str(tmp_path)])
+    kuhn.main(["--quick", "--out", str(tmp_path), "--invert"])
     out = capsys.readouterr().out
     assert "0.189 (bulk), 0.284 (shear)" in out  # the seed's table reproduced by the theory
     t = pd.read_csv(tmp_path / "table.csv")
@@ -33,6 +33,12 @@ def test_kuhn_quick(tmp_path, capsys):
     assert len(up) == 2 and (up.error_vs_DEM >= -1e-9).all()  # the hierarchy's bound holds
     assert (t[t.method.str.contains("closure")].error_vs_DEM.abs() < 0.3).all()
     assert (tmp_path / "moduli.png").stat().st_size > 10_000
+    # the closed-form inversion beside the table, and --invert's full study on the same packing
+    inv = pd.read_csv(tmp_path / "inversion.csv")
+    assert list(inv.parameter) == ["x = r (Nbar/Nc) rho", "r", "rho", "Nbar (rho fixed)"]
+    ratio = inv["needed for G"] / inv["needed for K"]       # r, rho, Nbar enter only through x:
+    assert ratio.max() == pytest.approx(ratio.min(), rel=1e-12)  # one mismatch factor for all rows
+    assert (tmp_path / "inversion_full.md").exists() and "mismatch" in out
 
 
 def test_error_vs_runtime_quick(tmp_path):
