@@ -1,139 +1,323 @@
-"""Refit the statistics-only closure (``microhom.closure``) and measure its error on packings it
-was not built from.
+"""Fit the statistics-only closure (``microhom.closure``) on the corpus of ``studies.corpus`` and
+measure it honestly: leave one protocol out, the candidate statistics, the collapse plots.
 
-    python -m studies.closure_fit [--out DIR] [--quick]
+    python -m studies.closure_fit [--cache DIR] [--out DIR] [--quick] [--no-build] [--bench]
 
-Training set: 16 DEM packings of N = 500 disks (identical and polydisperse 0.2; preparation
-friction 0, 0.05, 0.2, 1; p/kn = 1e-4 and 1e-2; seed 11; kt = kn, mu = 0.488), each analysed with
-kt/kn in {0.1, 0.25, 0.5, 1} (the geometry and sliding flags of the packing, only the tangent
-stiffness changes, as ``studies.sweep`` does): 64 rows. Validation set: the 10 packings of
-``studies.bench_hierarchy`` (N = 3000, other seeds and protocols), each at its own kt/kn; the
-frictionless one lies outside the closure's range and must come out flagged.
-
-For each row: the statistics a user can know (load-bearing coordination Z, solid fraction phi,
-contact-number fluctuation r, rho, dispersity, kt/kn, p/kn), the exact moduli (``dem.stiffness``,
-without pre-stress, as the theory), and the normalised moments of the relaxation
-(``mu_1/mu_0``, ``mu_2/mu_0``, ``mu_3/mu_0`` of the bulk load, in units of the block-preconditioned
-spectrum) for the record. The closure is a least-squares fit of ``log(K/K_mf)`` and
-``log(G/G_mf)`` on the features of ``microhom.closure.features``; the coefficients printed here are
-the ones stored in ``microhom/closure.py``.
+1. The corpus (``studies.corpus.load_corpus``: built where the cache lacks it, unless
+   ``--no-build``); ``--quick`` reads the committed corpus summary ``studies/closure_corpus.csv``
+   instead and builds one small packing end to end (CI).
+2. Rows used: exact response jammed (no flag from ``dem.stiffness``), ``Z - Z_iso >= DZ_MIN``.
+3. Fit: nonlinear least squares of ``log K`` and ``log G`` of the closure's form (module docstring
+   of ``microhom.closure``) on its features; the printed coefficients are the ones stored.
+4. Leave one protocol out (LOPO): for each protocol, fit on the others, predict it; relative
+   errors, leverages; the error scale ``Q`` is the 90th percentile of
+   ``|err| / sqrt(1 + h / h_mean)`` over all held-out cases, and the table gives per protocol the
+   rms and max error and the fraction inside the stated error.
+5. Candidate statistics: LOPO rms of ``log(K/K_mf)`` and ``log(G/G_mf)`` when each candidate is
+   added to the base features (how much of the spread across protocols it removes).
+6. Plots under ``--out`` (collapse of G/G_mf and K/K_mf against Z - Z_iso by protocol; predicted
+   against exact).
 """
 from __future__ import annotations
 
 import argparse
-import itertools
-import os
+import json
 import time
-import warnings
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import least_squares
 
-from dem.stiffness import stiffness
-from microhom.closure import COEF_G, COEF_K, FEATURES, RANGES, features, predict_closure
-from microhom.hierarchy import moments
-from microhom.kinematics import assemble
-from microhom.structural_sums import network_statistics
-from studies.bench_hierarchy import CASES, case_dict
-from studies.cases import get_packing
+from microhom import closure
+from microhom.closure import DZ_MIN, FEATURES, features, predict_closure
 from studies.common import out_dir, write_table
 
-TRAIN = [dict(n=500, p_over_kn=p, kt_over_kn=1.0, mu=0.4877, mu_prep=mp, dispersity=d, seed=11)
-         for d, mp, p in itertools.product((0.0, 0.2), (0.0, 0.05, 0.2, 1.0), (1e-4, 1e-2))]
-KT_RATIOS = (0.1, 0.25, 0.5, 1.0)
+SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
+COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob_mu_prep", "knob_dispersity",
+           "knob_phi", "knob_radii", "Z", "Z_all", "Z_iso", "dZ", "r", "phi", "rattler_fraction",
+           "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "fabric_anisotropy",
+           "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
+           "flags"]
+#: candidate statistics tried on top of the base features (item 2 of issue 25)
+CANDIDATES = ("phi", "z_size_corr", "Z_size_minus_Z", "f_min", "rattler_fraction", "fabric_anisotropy",
+              "force_anisotropy", "log_p_over_kn", "fn_cv", "sliding_fraction")
 
 
-def measure(net, case, kt_ratio):
-    """One row: statistics, exact moduli (no pre-stress), normalised moments."""
-    if kt_ratio is not None:
-        net = net.with_stiffness(kt=kt_ratio)
-    st = network_statistics(net).as_dict()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        ex = stiffness(net)
-    kt = float(np.mean(net.kt)) if kt_ratio is None else kt_ratio
-    row = dict(n=case["n"], dispersity=case["dispersity"], mu_prep=case["mu_prep"],
-               p_over_kn=case["p_over_kn"], seed=case["seed"], kt_over_kn=kt, nc=st["nc"], r=st["r"],
-               rho=st["rho"], phi=st["phi"], rattler_fraction=st["rattler_fraction"],
-               sliding_fraction=st["sliding_fraction"], exact_K=ex.K, exact_G=ex.G,
-               affine_K=ex.K_affine, affine_G=ex.G_affine, n_floppy=ex.n_floppy)
-    if ex.n_dof:
-        asm = assemble(net, pin=False)
-        mu = moments(asm, [0.5, 0.5, 0.0], j_max=3)
-        row.update({f"mK{j}": mu[j] / mu[0] for j in (1, 2, 3)})
-        row["mu0_over_KA"] = mu[0] / (ex.K_affine * net.area)
-    return row
+def usable(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows with a jammed exact response and Z - Z_iso >= DZ_MIN (the closure's domain)."""
+    f = df["flags"].fillna("").astype(str)
+    ok = (f == "") & (df.K > 0) & (df.G > 0) & (df.dZ >= DZ_MIN)
+    out = df[ok].copy()
+    out["Z_size_minus_Z"] = out.Z_size - out.Z
+    out["log_p_over_kn"] = np.log10(out.p_over_kn)
+    return out.reset_index(drop=True)
 
 
-def collect(cases, kt_ratios):
+def design(df, extra=()):
+    X, dz = features(df.Z.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy(),
+                     df.sliding_fraction.to_numpy())
+    if extra:
+        X = np.concatenate([X, df[list(extra)].to_numpy(float)], axis=1)
+    return X, dz
+
+
+def mean_field(df):
+    K_mf = df.Z.to_numpy() * df.phi.to_numpy() / (2 * np.pi)
+    G_mf = df.Z.to_numpy() * df.phi.to_numpy() * (1 + df.kt_over_kn.to_numpy()) / (4 * np.pi)
+    return K_mf, G_mf
+
+
+def _model_logs(cK, cG, X, dz, K_mf, G_mf):
+    lK = np.log(K_mf) - np.logaddexp(0.0, X @ cK)
+    lG = np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), X @ cG)
+    return lK, lG
+
+
+def fit(df, extra=()):
+    """Coefficients (c_K, c_G) and (F^T F)^-1 of the closure's form on ``df`` (kn = 1)."""
+    X, dz = design(df, extra)
+    K_mf, G_mf = mean_field(df)
+    lK, lG = np.log(df.K.to_numpy()), np.log(df.G.to_numpy())
+    # linear start in the transformed targets, then least squares on log K, log G
+    tK = np.log(np.clip(K_mf / df.K.to_numpy() - 1, 1e-3, None))
+    tG = np.log(dz * np.clip(G_mf / df.G.to_numpy() - 1, 1e-3, None))
+    c0K, *_ = np.linalg.lstsq(X, tK, rcond=None)
+    c0G, *_ = np.linalg.lstsq(X, tG, rcond=None)
+    rK = least_squares(lambda c: np.log(K_mf) - np.logaddexp(0.0, X @ c) - lK, c0K, method="lm")
+    rG = least_squares(lambda c: np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), X @ c) - lG, c0G,
+                       method="lm")
+    cov = np.linalg.pinv(X.T @ X)
+    return rK.x, rG.x, cov
+
+
+def predict_rows(df, cK, cG, extra=()):
+    X, dz = design(df, extra)
+    K_mf, G_mf = mean_field(df)
+    lK, lG = _model_logs(cK, cG, X, np.maximum(dz, 1e-12), K_mf, G_mf)
+    return np.exp(lK), np.exp(lG), X
+
+
+def lopo(df, extra=()):
+    """Leave one protocol out: per held-out row, the relative errors and the leverage in the
+    design of the other protocols (and its mean leverage there)."""
     rows = []
-    for case in cases:
-        res, _, _ = get_packing(case)
-        net = res.to_network()
-        for kr in kt_ratios:
-            try:
-                rows.append(measure(net, case, kr))
-            except ValueError as exc:      # e.g. no load-bearing backbone at this kt
-                print(f"skipped {case} kt {kr}: {exc}")
+    for prot in sorted(df.protocol.unique()):
+        tr, te = df[df.protocol != prot], df[df.protocol == prot]
+        cK, cG, cov = fit(tr, extra)
+        Kp, Gp, X = predict_rows(te, cK, cG, extra)
+        Xtr, _ = design(tr, extra)
+        h = np.einsum("ij,jk,ik->i", X, cov, X)
+        htr = np.einsum("ij,jk,ik->i", Xtr, cov, Xtr)
+        rows.append(pd.DataFrame(dict(protocol=prot, key=te.key.to_numpy(), kt_over_kn=te.kt_over_kn.to_numpy(),
+                                      err_K=Kp / te.K.to_numpy() - 1, err_G=Gp / te.G.to_numpy() - 1,
+                                      h=h, h_mean=htr.mean(), h_train_max=htr.max())))
+    return pd.concat(rows, ignore_index=True)
+
+
+def calibrate(lo, coverage=0.9, h_factor=3.0):
+    """Error scale Q (relative) per modulus so that ``coverage`` of the held-out cases whose
+    leverage is below ``h_factor`` times the largest training leverage lie within
+    ``Q sqrt(1 + h / h_mean)``; those above are flagged."""
+    inside = lo.h <= h_factor * lo.h_train_max
+    s = np.sqrt(1 + lo.h / lo.h_mean)
+    q = {m: float(np.quantile(np.abs(lo[f"err_{m}"][inside]) / s[inside], coverage)) for m in ("K", "G")}
+    return q, inside
+
+
+def lopo_table(lo, q, inside):
+    s = np.sqrt(1 + lo.h / lo.h_mean)
+    rows = []
+    for prot, g in lo.groupby("protocol"):
+        v = inside[g.index]
+        gv = g[v]
+        sv = s[g.index][v]
+        rows.append(dict(protocol=prot, cases=len(g), valid=int(v.sum()),
+                         rms_K=float(np.sqrt(np.mean(gv.err_K ** 2))) if len(gv) else np.nan,
+                         max_K=float(gv.err_K.abs().max()) if len(gv) else np.nan,
+                         inside_K=float(np.mean(gv.err_K.abs() <= q["K"] * sv)) if len(gv) else np.nan,
+                         rms_G=float(np.sqrt(np.mean(gv.err_G ** 2))) if len(gv) else np.nan,
+                         max_G=float(gv.err_G.abs().max()) if len(gv) else np.nan,
+                         inside_G=float(np.mean(gv.err_G.abs() <= q["G"] * sv)) if len(gv) else np.nan))
     return pd.DataFrame(rows)
 
 
-def fit(df):
-    """Least squares of log(modulus / mean field) on the closure's features."""
-    X = features(df.nc.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy())
-    mf_K = df.nc * df.phi / (2 * np.pi)
-    mf_G = df.nc * df.phi * (1 + df.kt_over_kn) / (4 * np.pi)
-    cK, *_ = np.linalg.lstsq(X, np.log(df.exact_K / mf_K), rcond=None)
-    cG, *_ = np.linalg.lstsq(X, np.log(df.exact_G / mf_G), rcond=None)
-    return cK, cG
+def candidates(df):
+    """LOPO rms of log K and log G, base features alone and with each candidate added; plus the
+    spread of log(K/K_mf), log(G/G_mf) with no model (the mean field alone)."""
+    K_mf, G_mf = mean_field(df)
+    out = [dict(features="mean field only (no fit)", rms_logK=float(np.std(np.log(df.K / K_mf))),
+                rms_logG=float(np.std(np.log(df.G / G_mf))))]
+    for extra in [()] + [(c,) for c in CANDIDATES]:
+        lo = lopo(df, extra)
+        out.append(dict(features="base" + (" + " + extra[0] if extra else ""),
+                        rms_logK=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
+                        rms_logG=float(np.sqrt(np.mean(np.log1p(lo.err_G) ** 2)))))
+    return pd.DataFrame(out)
 
 
-def errors(df, cK=None, cG=None):
-    p = predict_closure(nc=df.nc.to_numpy(), r=df.r.to_numpy(), phi=df.phi.to_numpy(), kt_over_kn=df.kt_over_kn.to_numpy(),
-                        dispersity=df.dispersity.to_numpy(), coef_K=cK, coef_G=cG)
-    out = df.copy()
-    out["closure_K"], out["closure_G"] = p.K, p.G
-    out["err_K"], out["err_G"] = p.K / df.exact_K - 1, p.G / df.exact_G - 1
-    out["closure_valid"], out["closure_reason"] = p.valid, p.reason
-    return out
+def plots(df, lo, folder):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    K_mf, G_mf = mean_field(df)
+    prots = sorted(df.protocol.unique())
+    marks = dict(zip(prots, "osD^v<>"))
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    for p in prots:
+        m = (df.protocol == p).to_numpy()
+        for fr, col in ((True, "C0"), (False, "C3")):
+            mm = m & ((df.kt_over_kn > 0).to_numpy() == fr)
+            if not mm.any():
+                continue
+            lab = f"{p}, {'kt>0' if fr else 'kt=0'}"
+            ax[0].scatter(df.dZ[mm], (df.G / G_mf)[mm], marker=marks[p], s=14, c=np.log10(df.kt_over_kn[mm] + 1e-2)
+                          if fr else "k", cmap="viridis", vmin=-2, vmax=0, label=lab)
+            ax[1].scatter(df.dZ[mm], (df.K / K_mf)[mm], marker=marks[p], s=14, c=np.log10(df.kt_over_kn[mm] + 1e-2)
+                          if fr else "k", cmap="viridis", vmin=-2, vmax=0)
+    x = np.logspace(-2, 0.7)
+    ax[0].plot(x, x / (x + 1), "r:", lw=1, label="dZ/(dZ+1)")
+    for a, yl in ((ax[0], "G / G_mf"), (ax[1], "K / K_mf")):
+        a.set_xscale("log")
+        a.set_xlabel("Z - Z_iso (Z_iso: 4 frictionless, 6/(2-s) frictional)")
+        a.set_ylabel(yl)
+    ax[0].set_yscale("log")
+    ax[0].legend(fontsize=6)
+    ax[0].set_title("collapse of G (colour: log10 kt/kn; black: kt = 0)")
+    ax[1].set_title("K")
+    e = lo.merge(df[["key", "kt_over_kn", "G"]], on=["key", "kt_over_kn"])
+    for p in prots:
+        m = e.protocol == p
+        ax[2].scatter(e.G[m], e.G[m] * (1 + e.err_G[m]), marker=marks[p], s=14, label=p)
+    lim = [e.G.min() * 0.8, e.G.max() * 1.2]
+    ax[2].plot(lim, lim, "k-", lw=0.8)
+    ax[2].set_xscale("log"); ax[2].set_yscale("log")
+    ax[2].set_xlabel("exact G / kn"); ax[2].set_ylabel("closure G / kn (protocol left out)")
+    ax[2].legend(fontsize=7)
+    ax[2].set_title("leave one protocol out")
+    fig.tight_layout()
+    fig.savefig(folder / "closure_collapse.png", dpi=110)
+    plt.close(fig)
+
+
+def bench(n=1_000_000):
+    rng = np.random.default_rng(0)
+    args = dict(nc=rng.uniform(3.3, 5.3, n), r=rng.uniform(0.02, 0.06, n), phi=rng.uniform(0.82, 0.9, n),
+                kt_over_kn=rng.uniform(0.05, 1, n), dispersity=rng.uniform(0, 0.5, n))
+    predict_closure(**{k: v[:10] for k, v in args.items()})
+    t0 = time.perf_counter()
+    predict_closure(**args)
+    dt = time.perf_counter() - t0
+    print(f"predict_closure: {n} sets in {dt:.3f} s = {n / dt:.3g} sets/s")
+    return n / dt
+
+
+def stored_model_text(cK, cG, cov, q, h_mean, h_max):
+    f = lambda a: np.array2string(np.asarray(a), precision=6, separator=", ", max_line_width=100,
+                                  floatmode="maxprec")
+    return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = COV_G = np.array({f(cov)})\n"
+            f"Q = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\nH_MEAN = {h_mean:.6g}\nH_MAX = {h_max:.6g}\n")
+
+
+def quick_end_to_end():
+    """One small frictionless packing, built and measured, against the stored closure (CI)."""
+    from studies.corpus import _row, build_network, measure_network
+    import tempfile
+    row = _row("pack_frictionless", 200, 5, p_over_kn=1e-2, dispersity=0.3)
+    with tempfile.TemporaryDirectory() as tmp:
+        net, _ = build_network(row, Path(tmp))
+        m = pd.DataFrame(measure_network(net, row, (0.0, 1.0)))
+    p = predict_closure(nc=m.Z.to_numpy(), r=m.r.to_numpy(), phi=m.phi.to_numpy(), kt_over_kn=m.kt_over_kn.to_numpy(),
+                        dispersity=m.dispersity.to_numpy(), sliding_fraction=m.sliding_fraction.to_numpy())
+    m["closure_G"], m["err_G"], m["stated_G"], m["valid"] = p.G, p.G / m.G - 1, p.rel_error_G, p.valid
+    print(m[["kt_over_kn", "Z", "dZ", "r", "K", "G", "closure_G", "err_G", "stated_G", "valid"]].to_string(index=False))
+    return m
+
+
+def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
+    """Packing files made elsewhere (any ``dem.io`` format: DEMPLA/OVAL D-file, LAMMPS data/dump,
+    npz, CSV), never in the fit: contacts from the overlaps (kn = 1), exact response and closure
+    at each kt/kn."""
+    from dem.analyse import load_network
+    from studies.corpus import CorpusRow, measure_network
+    frames = []
+    for path in paths:
+        net, _ = load_network(path, kn=1.0, kt_ratio=1.0)
+        net = net.with_stiffness(kn=1.0, kt=1.0, sliding=False)
+        row = CorpusRow("heldout", (("file", str(path)),), 0, net.n_particles)
+        m = pd.DataFrame(measure_network(net, row, kt_ratios))
+        frames.append(m)
+    df = pd.concat(frames, ignore_index=True)
+    ok = df.K.notna() & (df.Z > 0)
+    p = predict_closure(nc=np.where(ok, df.Z, 4.0), r=np.where(ok, df.r, 0.0), phi=df.phi.to_numpy(),
+                        kt_over_kn=df.kt_over_kn.to_numpy(), dispersity=df.dispersity.to_numpy(),
+                        sliding_fraction=np.where(ok, df.sliding_fraction, 0.0))
+    df["closure_K"], df["closure_G"] = p.K, p.G
+    df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
+    df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G
+    df["valid"], df["reason"] = p.valid & ok.to_numpy(), np.where(ok, p.reason, "no exact response")
+    return df
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", default="out/closure/cache")
     ap.add_argument("--out", default="out/closure")
-    ap.add_argument("--quick", action="store_true", help="4 training packings, 2 validation packings")
+    ap.add_argument("--quick", action="store_true", help="the committed corpus summary + one small packing")
+    ap.add_argument("--no-build", action="store_true", help="use only the cached rows of the corpus")
+    ap.add_argument("--bench", action="store_true", help="measure predict_closure's throughput")
+    ap.add_argument("--no-candidates", action="store_true")
+    ap.add_argument("--heldout", nargs="*", default=[], help="packing files from other codes (held out)")
     args = ap.parse_args(argv)
     out = out_dir(args.out)
     t0 = time.perf_counter()
-    train = collect(TRAIN[:4] if args.quick else TRAIN, KT_RATIOS)
-    val_cases = [case_dict(*c) for c in (CASES[:2] if args.quick else CASES)]
-    val = collect(val_cases, [None])
-    cK, cG = fit(train)
     pd.set_option("display.width", 220)
+    if args.quick:
+        raw = pd.read_csv(SUMMARY, keep_default_na=False, na_values=[""])
+    else:
+        from studies.corpus import load_corpus
+        raw = load_corpus(args.cache, build=not args.no_build, verbose=False)
+        raw = raw[[c for c in COLUMNS if c in raw.columns]]
+        raw.to_csv(out / "corpus.csv", index=False)
+    df = usable(raw)
+    print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
+          f"(jammed, Z - Z_iso >= {DZ_MIN}); per protocol: {df.groupby('protocol').key.nunique().to_dict()}")
+    cK, cG, cov = fit(df)
+    X, _ = design(df)
+    h_train = np.einsum("ij,jk,ik->i", X, cov, X)
+    lo = lopo(df)
+    q, inside = calibrate(lo)
+    h_mean, h_max = float(h_train.mean()), float(3.0 * h_train.max())
+    tab = lopo_table(lo, q, inside)
     print("features:", FEATURES)
-    print("COEF_K =", np.array2string(cK, precision=6, separator=", "))
-    print("COEF_G =", np.array2string(cG, precision=6, separator=", "))
-    print("stored: K", COEF_K, "G", COEF_G)
-    print(f"training ranges: dZ {train.nc.min() - 3:.3f}-{train.nc.max() - 3:.3f}, kt/kn {train.kt_over_kn.min()}-"
-          f"{train.kt_over_kn.max()}, dispersity {train.dispersity.min()}-{train.dispersity.max()}, "
-          f"r {train.r.min():.4f}-{train.r.max():.4f}, phi {train.phi.min():.3f}-{train.phi.max():.3f}; "
-          f"stored RANGES {RANGES}")
-    tr = errors(train, cK, cG)
-    va = errors(val, cK, cG)
-    for name, d in (("training (fit)", tr), ("validation (not fitted)", va)):
-        v = d[d.closure_valid]
-        print(f"{name}: {len(v)}/{len(d)} valid; rms err K {np.sqrt((v.err_K ** 2).mean()):.3f}, "
-              f"G {np.sqrt((v.err_G ** 2).mean()):.3f}; max |err| K {v.err_K.abs().max():.3f}, "
-              f"G {v.err_G.abs().max():.3f}")
-    va.to_csv(out / "validation_full.csv", index=False)
-    cols = ["dispersity", "mu_prep", "p_over_kn", "kt_over_kn", "nc", "r", "phi", "exact_K", "closure_K",
-            "err_K", "exact_G", "closure_G", "err_G", "closure_valid", "mK1", "mK2", "mK3"]
-    print(va[cols].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    tr.to_csv(out / "training.csv", index=False)
-    write_table(va[cols], out, "validation", "Statistics-only closure on packings it was not built from",
-                f"Fit on {len(tr)} rows (16 packings x 4 kt/kn); wall {time.perf_counter() - t0:.0f} s; "
-                f"load {os.getloadavg()[0]:.1f}.")
-    print(f"written {out}")
+    print(stored_model_text(cK, cG, cov, q, h_mean, h_max))
+    print("leave one protocol out (relative errors; stated error Q sqrt(1 + h/h_mean)):")
+    print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    write_table(tab, out, "lopo", "Closure, leave one protocol out",
+                f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
+    (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov=cov.tolist(), Q=q,
+                                                    h_mean=h_mean, h_max=h_max)))
+    lo.to_csv(out / "lopo_cases.csv", index=False)
+    if not args.quick:
+        raw.to_csv(out / "closure_corpus.csv", index=False)
+        if not args.no_candidates:
+            cand = candidates(df)
+            print(cand.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
+            write_table(cand, out, "candidates", "Candidate statistics: LOPO rms of log K, log G")
+        plots(df, lo, out)
+    else:
+        quick_end_to_end()
+    if args.heldout:
+        ho = heldout(args.heldout)
+        cols = ["key", "n", "kt_over_kn", "Z", "dZ", "r", "phi", "dispersity", "K", "closure_K", "err_K",
+                "stated_K", "G", "closure_G", "err_G", "stated_G", "valid", "reason"]
+        print("held-out packings (not in the fit):")
+        print(ho[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+        write_table(ho[cols], out, "heldout", "Closure on held-out packing files")
+    if args.bench:
+        bench()
+    print(f"written {out} ({time.perf_counter() - t0:.0f} s)")
+    return tab
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ __all__ = ["CorpusRow", "PROTOCOLS", "KT_RATIOS", "corpus_rows", "build_network"
 #: tangent over normal stiffness at which every packing is analysed
 KT_RATIOS = (0.0, 0.05, 0.2, 0.5, 1.0)
 #: bump when the measurement changes (invalidates the cached measurement CSVs, not the packings)
-MEASURE_VERSION = 3
+MEASURE_VERSION = 4
 PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped")
 
 
@@ -108,7 +108,7 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
         for mp in (0.1, 0.3, 1.0):
             for p in (1e-4, 1e-2):
                 rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.2))
-        for d in (0.2, 0.5):
+        for d in (0.2, 0.45):     # dem.packing takes dispersity < 0.5
             for p in (1e-4, 1e-3, 1e-2):
                 rows.append(_row("pack_frictionless", 1000, seed, p_over_kn=p, dispersity=d))
         for radii in ("bidisperse", "uniform0.5"):
@@ -238,8 +238,8 @@ def build_network(row: CorpusRow, cache: Path):
             kw.update(damping_compaction=None, fire=False)
         res = pack(row.n, **kw)
         net = res.to_network()
-        if row.protocol == "pack_frictionless":
-            net = net.with_stiffness(kt=1.0)
+        if row.protocol == "pack_frictionless":   # no contact is at a Coulomb limit: tangent springs act
+            net = net.with_stiffness(kt=1.0, sliding=False)
         meta.update(converged=bool(res.report["converged"]), steps=int(res.report["steps"]))
     else:
         if row.protocol == "minimise":
@@ -304,6 +304,10 @@ def measure_network(net, row: CorpusRow, kt_ratios=KT_RATIOS) -> list[dict]:
     """One dict per kt/kn: the row's description, the candidate statistics, the exact moduli."""
     from dem.stiffness import stiffness
     rows = []
+    if row.protocol == "pack_frictionless":
+        # the frictionless law flags every contact sliding (mu = 0); the corpus analyses the
+        # lubricated geometry with tangential springs, none at a Coulomb limit
+        net = net.with_stiffness(sliding=False)
     for kr in kt_ratios:
         nk = net.with_stiffness(kt=kr * np.asarray(net.kn))
         d = dict(protocol=row.protocol, key=row.key, seed=row.seed, n=row.n, kt_over_kn=kr,

@@ -115,7 +115,8 @@ def test_hierarchy_and_closure_sections(packing_npz):
     assert h["G_upper"] == pytest.approx(lib.G.upper, rel=1e-10) and h["order"] == lib.order
     st = network_statistics(net)
     cl = predict_closure(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=c["kt_over_kn"],
-                         dispersity=c["dispersity"], kn=float(np.mean(net.kn)))
+                         dispersity=c["dispersity"], kn=float(np.mean(net.kn)),
+                         sliding_fraction=c["sliding_fraction"])
     assert c["K"] == pytest.approx(float(cl.K), rel=1e-12) and c["error_G"] == pytest.approx(float(cl.error_G))
     q = run(path, "--no-hierarchy", "--json")
     assert json.loads(q.stdout)["hierarchy"] == {"error": "not computed"}
