@@ -10,7 +10,10 @@ docs/results/closure.md). It is an empirical closure with the known limits built
 
     G = G_mf  dZ / (dZ + a),        a = exp(c_G . f)
     K = K_mf  / (1 + b),            b = exp(c_K . f)
-    K_mf = Z phi kn / (2 pi),       G_mf = Z phi (kn + kt) / (4 pi)            (mean field (37))
+    K_mf = Z phi (1 - x_r) kn / (2 pi),   G_mf = Z phi (1 - x_r) (kn + kt) / (4 pi)
+
+the mean field (37) of the load-bearing particles (x_r: rattler fraction; it reproduces the affine
+moduli of the corpus to 3 % rms, 1.6 % with the dispersity and the size-coordination),
 
 with ``dZ = Z - Z_iso`` the distance to the isostatic point that the mobilised contacts imply
 (counting constraints: a non-sliding frictional contact fixes 2 relative motions, a sliding or
@@ -43,19 +46,27 @@ import numpy as np
 
 from .results import Result
 
-__all__ = ["features", "isostatic_point", "predict_closure", "ClosurePrediction", "FEATURES", "COEF_K",
+__all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_point", "predict_closure", "predict_network", "closure_inputs", "size_coordination",
+           "dispersity", "ClosurePrediction", "FEATURES", "COEF_K",
            "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR"]
 
-FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * (Z - 4)", "log dZ",
-            "dispersity", "r", "frictionless * log dZ")
+#: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
+ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * (Z - 4)", "log dZ",
+                "frictionless * log dZ", "dispersity", "r", "size-coordination", "rattler fraction",
+                "log10 p/kn")
+FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
+              "rattler fraction", "log10 p/kn")
+FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * (Z - 4)", "log dZ",
+              "frictionless * log dZ", "dispersity", "r", "size-coordination")
+FEATURES = {"K": FEATURES_K, "G": FEATURES_G}
 # --- fitted by python -m studies.closure_fit (data: docs/results/closure.md) ---------------------
-COEF_K = np.zeros(len(FEATURES))
-COEF_G = np.zeros(len(FEATURES))
-COV_K = np.eye(len(FEATURES))        # (F^T F)^-1 of the fitted design
-COV_G = np.eye(len(FEATURES))
-Q = {"K": 0.1, "G": 0.2}            # relative error at the mean leverage (90 % LOPO coverage)
-H_MEAN = 1.0
-H_MAX = 1.0
+COEF_K = np.zeros(len(FEATURES_K))
+COEF_G = np.zeros(len(FEATURES_G))
+COV_K = np.eye(len(FEATURES_K))        # (F^T F)^-1 of the fitted design
+COV_G = np.eye(len(FEATURES_G))
+Q = {"K": 0.1, "G": 0.2}            # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
+H_MEAN = {"K": 1.0, "G": 1.0}
+H_MAX = {"K": 1.0, "G": 1.0}
 RANGES = {"Z": (3.0, 6.0), "kt_over_kn": (0.05, 1.0), "dispersity": (0.0, 0.5), "r": (0.0, 0.1),
           "phi": (0.8, 0.92)}
 DZ_MIN = 0.05
@@ -66,6 +77,8 @@ _REASONS = (
     (1, "outside the data the closure was fitted on (feature-space distance or range)"),
     (2, "at or below the isostatic point of its mobilised contacts (Z - Z_iso below DZ_MIN): G -> 0, "
         "relative error unbounded"),
+    (4, "size_coordination not given for a polydisperse packing (dispersity > 0.05)"),
+    (8, "p_over_kn not given"),
 )
 
 
@@ -77,22 +90,81 @@ def isostatic_point(kt_over_kn, sliding_fraction=0.0):
     return np.where(kr > 0, 6.0 / (2.0 - s), 4.0)
 
 
-def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0):
-    """(..., len(FEATURES)) feature matrix of the closure and dZ = Z - Z_iso (...,).
+def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0, size_coordination=0.0, rattler_fraction=0.0,
+             p_over_kn=1e-3, names=ALL_FEATURES):
+    """(..., len(names)) feature matrix of the closure (columns named in ``ALL_FEATURES``) and
+    dZ = Z - Z_iso (...,).
 
     nc: mean contacts per load-bearing particle; kt_over_kn >= 0; dispersity >= 0 (sqrt(3) times
     the relative standard deviation of the radii: the half-width of a uniform law); r =
-    var(Nc)/Nc^2 over the load-bearing particles; sliding_fraction in [0, 1]. dZ is floored at
-    1e-3 inside the logarithm so that the matrix stays finite for flagged inputs.
+    var(Nc)/Nc^2 over the load-bearing particles; sliding_fraction in [0, 1]; size_coordination
+    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn).
+    dZ is floored at 1e-3 inside the logarithm so that the matrix stays finite for flagged inputs.
     """
-    nc, kr, d, r, s = np.broadcast_arrays(*(np.asarray(a, dtype=float)
-                                            for a in (nc, kt_over_kn, dispersity, r, sliding_fraction)))
+    nc, kr, d, r, s, zs, xr, p = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
+                                                       (nc, kt_over_kn, dispersity, r, sliding_fraction,
+                                                        size_coordination, rattler_fraction, p_over_kn)))
     dz = nc - isostatic_point(kr, s)
     fl = (kr <= 0).astype(float)
     lk = np.where(kr > 0, np.log(np.maximum(kr, 1e-12)), 0.0)
     lz = np.log(np.maximum(dz, 1e-3))
-    X = np.stack([np.ones_like(lz), fl, lk, lk * lk, lk * (nc - 4.0), lz, d, r, fl * lz], axis=-1)
-    return X, dz
+    cols = {"1": np.ones_like(lz), "frictionless": fl, "log kt/kn": lk, "(log kt/kn)^2": lk * lk,
+            "log kt/kn * (Z - 4)": lk * (nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
+            "dispersity": d, "r": r, "size-coordination": zs, "rattler fraction": xr,
+            "log10 p/kn": np.log10(np.maximum(p, 1e-300))}
+    return np.stack([cols[n] for n in names], axis=-1), dz
+
+
+def size_coordination(network, min_contacts=None) -> float:
+    """How contacts go with size: the radius-weighted mean contact number of the load-bearing
+    particles minus their plain mean, ``sum_i z_i R_i / sum_i R_i - Z = cov(z, R) / mean(R)``
+    [-] (0 for identical disks; rattlers removed as in
+    :func:`microhom.structural_sums.rattlers`)."""
+    from .structural_sums import rattlers
+    rat, active = rattlers(network, min_contacts)
+    n = network.n_particles
+    z = (np.bincount(network.pairs[active, 0], minlength=n)
+         + np.bincount(network.pairs[active, 1], minlength=n)).astype(float)[~rat]
+    R = np.asarray(network.radii)[~rat]
+    if len(z) == 0:
+        return 0.0
+    return float(np.sum(z * R) / np.sum(R) - z.mean())
+
+
+def dispersity(network) -> float:
+    """Radius spread of a network, ``sqrt(3) std(R) / mean(R)`` [-] (the half-width of the
+    equivalent uniform law; 0.289 for the 50:50 bidisperse 1:1.4 mixture)."""
+    R = np.asarray(network.radii, dtype=float)
+    return float(np.sqrt(3.0) * R.std() / R.mean())
+
+
+def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
+    """The keyword arguments of :func:`predict_closure` measured on a
+    :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
+    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
+    and p/kn (from the normal forces ``fn``; absent without them); kt/kn the mean tangent
+    stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
+    unless given."""
+    from .structural_sums import network_statistics
+    st = network_statistics(network)
+    stuck = ~np.asarray(network.sliding)
+    kn_mean = float(np.mean(network.kn))
+    if kt_over_kn is None:
+        kt_over_kn = float(np.mean(network.kt[stuck]) / kn_mean) if stuck.any() else 0.0
+    out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
+               kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
+               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+    if network.fn is not None and network.n_contacts:
+        sig = -np.einsum("c,ci,cj->ij", network.fn, network.branch, network.normals) / network.area
+        p = float(-np.trace(sig) / 2 / kn_mean)
+        if p > 0:
+            out["p_over_kn"] = p
+    return out
+
+
+def predict_network(network, kt_over_kn=None, kn=None, model=None) -> "ClosurePrediction":
+    """:func:`predict_closure` with the inputs measured on a network (:func:`closure_inputs`)."""
+    return predict_closure(**closure_inputs(network, kt_over_kn, kn), model=model)
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,7 +176,7 @@ class ClosurePrediction(Result):
     K, G : ndarray
         Predicted bulk and shear moduli [N/m].
     K_mf, G_mf : ndarray
-        Mean field (37) at the same Z, phi [N/m].
+        Mean field (37) of the load-bearing particles, ``Z phi (1 - x_r)`` [N/m].
     error_K, error_G : ndarray
         Stated error of this prediction [N/m]: ``Q sqrt(1 + h / H_MEAN)`` times the modulus, with
         ``h`` the input's leverage; 90 % of the leave-one-protocol-out cases of the corpus lie
@@ -118,7 +190,8 @@ class ClosurePrediction(Result):
     valid : ndarray of bool
         False where a flag applies.
     flags : ndarray of int8
-        Bit mask: 1 outside the data, 2 at or below the isostatic point.
+        Bit mask: 1 outside the data, 2 at or below the isostatic point, 4 size_coordination
+        missing for a polydisperse packing, 8 p_over_kn missing.
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -159,6 +232,7 @@ def _leverage(X, cov):
 
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
+                    size_coordination=None, rattler_fraction=None, p_over_kn=None,
                     model=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
@@ -181,6 +255,16 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         Normal contact stiffness [N/m], > 0.
     sliding_fraction : array_like, optional
         Fraction of the load-bearing contacts at the Coulomb limit, in [0, 1) (default 0).
+    rattler_fraction : array_like, optional
+        Fraction of the particles that are rattlers, in [0, 1) (default 0): the mean field is
+        that of the load-bearing particles, ``Z phi (1 - x_r)``.
+    p_over_kn : array_like, optional
+        Pressure over the normal stiffness (``-tr(sigma)/2 / kn``), > 0. Not given: 1e-3, and the
+        prediction is flagged (K depends on it at fixed Z: ~4 % per decade on the corpus).
+    size_coordination : array_like, optional
+        ``sum z_i R_i / sum R_i - Z`` over the load-bearing particles (:func:`size_coordination`),
+        finite. Not given: 0 (exact for identical disks); for ``dispersity > 0.05`` the prediction
+        is then flagged (it changes G by up to ~20 % on the corpus).
     model : dict, optional
         Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
         ``h_mean``, ``h_max``; used by the refit study).
@@ -200,6 +284,8 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         nc, r, phi = st.nc, st.r, st.phi
         if sliding_fraction is None:
             sliding_fraction = st.sliding_fraction
+        if rattler_fraction is None:
+            rattler_fraction = st.rattler_fraction
     if r is None:
         raise ValueError("r (contact-number fluctuation, >= 0) is required")
     nc = _check("nc", nc, 0.0, lo_open=True)
@@ -211,6 +297,9 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     s = _check("sliding_fraction", 0.0 if sliding_fraction is None else sliding_fraction, 0.0, 1.0)
     if np.any(s >= 1):
         raise ValueError("sliding_fraction must be in [0, 1); got 1")
+    xr = _check("rattler_fraction", 0.0 if rattler_fraction is None else rattler_fraction, 0.0, 1.0)
+    if np.any(xr >= 1):
+        raise ValueError("rattler_fraction must be in [0, 1); got 1")
     m = model or {}
     cK = np.asarray(m.get("coef_K", COEF_K), dtype=float)
     cG = np.asarray(m.get("coef_G", COEF_G), dtype=float)
@@ -218,26 +307,34 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     covG = np.asarray(m.get("cov_G", COV_G), dtype=float)
     q = m.get("Q", Q)
     h_mean, h_max = m.get("h_mean", H_MEAN), m.get("h_max", H_MAX)
-    X, dz = features(nc, kr, d, r, s)
-    K_mf = nc * phi * kn / (2 * np.pi)
-    G_mf = nc * phi * kn * (1 + kr) / (4 * np.pi)
+    missing_zs = size_coordination is None
+    zs = np.asarray(0.0 if missing_zs else size_coordination, dtype=float)
+    if not np.all(np.isfinite(zs)):
+        raise ValueError(f"size_coordination must be finite; got {zs!r}")
+    missing_p = p_over_kn is None
+    pk = _check("p_over_kn", 1e-3 if missing_p else p_over_kn, 0.0, lo_open=True)
+    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_K)
+    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_G)
+    K_mf = nc * phi * (1 - xr) * kn / (2 * np.pi)
+    G_mf = nc * phi * (1 - xr) * kn * (1 + kr) / (4 * np.pi)
     with np.errstate(over="ignore"):
-        b = np.exp(np.clip(X @ cK, -50, 50))
-        a = np.exp(np.clip(X @ cG, -50, 50))
+        b = np.exp(np.clip(XK @ cK, -50, 50))
+        a = np.exp(np.clip(XG @ cG, -50, 50))
     dzp = np.maximum(dz, 0.0)
     K = K_mf / (1 + b)
     G = G_mf * dzp / (dzp + a)
-    hK, hG = _leverage(X, covK), _leverage(X, covG)
-    eK = q["K"] * np.sqrt(1 + hK / h_mean)
-    eG = q["G"] * np.sqrt(1 + hG / h_mean)
+    hK, hG = _leverage(XK, covK), _leverage(XG, covG)
+    eK = q["K"] * np.sqrt(1 + hK / h_mean["K"])
+    eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
     box = np.zeros(K.shape, dtype=bool)
     for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi)):
         lo, hi = RANGES[name]
         box |= (v < lo - 1e-9) | (v > hi + 1e-9)
     klo, khi = RANGES["kt_over_kn"]
     box |= (kr > 0) & ((kr < klo - 1e-12) | (kr > khi + 1e-12))
-    out = box | (np.maximum(hK, hG) > h_max)
-    flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)).astype(np.int8)
+    out = box | (hK > h_max["K"]) | (hG > h_max["G"])
+    flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
+             | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)).astype(np.int8)
     flags = np.broadcast_to(flags, K.shape)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
                              error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,

@@ -30,7 +30,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 from microhom import closure
-from microhom.closure import DZ_MIN, FEATURES, features, predict_closure
+from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, features, predict_closure
 from studies.common import out_dir, write_table
 
 SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
@@ -40,118 +40,151 @@ COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob
            "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
            "flags"]
 #: candidate statistics tried on top of the base features (item 2 of issue 25)
-CANDIDATES = ("phi", "z_size_corr", "Z_size_minus_Z", "f_min", "rattler_fraction", "fabric_anisotropy",
-              "force_anisotropy", "log_p_over_kn", "fn_cv", "sliding_fraction")
+CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
+              "sliding_fraction")
+
+
+#: protocols whose packings are in force balance without tangential forces (kt = 0 is physical)
+FRICTIONLESS_PREP = ("pack_frictionless", "minimise")
 
 
 def usable(df: pd.DataFrame) -> pd.DataFrame:
-    """Rows with a jammed exact response and Z - Z_iso >= DZ_MIN (the closure's domain)."""
+    """Rows with a jammed exact response and Z - Z_iso >= DZ_MIN (the closure's domain). kt = 0
+    rows only for packings prepared without friction: a packing prepared with friction carries
+    tangential forces and is not an equilibrium of frictionless contacts."""
     f = df["flags"].fillna("").astype(str)
     ok = (f == "") & (df.K > 0) & (df.G > 0) & (df.dZ >= DZ_MIN)
+    ok &= (df.kt_over_kn > 0) | df.protocol.isin(FRICTIONLESS_PREP)
     out = df[ok].copy()
     out["Z_size_minus_Z"] = out.Z_size - out.Z
     out["log_p_over_kn"] = np.log10(out.p_over_kn)
     return out.reset_index(drop=True)
 
 
-def design(df, extra=()):
+def design(df, names, extra=()):
+    """Feature matrix of the rows of ``df`` (columns ``names`` of ``ALL_FEATURES``, then the
+    corpus columns ``extra``) and dZ."""
     X, dz = features(df.Z.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy(),
-                     df.sliding_fraction.to_numpy())
+                     df.sliding_fraction.to_numpy(), (df.Z_size - df.Z).to_numpy(), df.rattler_fraction.to_numpy(),
+                     df.p_over_kn.to_numpy(), names=names)
     if extra:
         X = np.concatenate([X, df[list(extra)].to_numpy(float)], axis=1)
     return X, dz
 
 
 def mean_field(df):
-    K_mf = df.Z.to_numpy() * df.phi.to_numpy() / (2 * np.pi)
-    G_mf = df.Z.to_numpy() * df.phi.to_numpy() * (1 + df.kt_over_kn.to_numpy()) / (4 * np.pi)
+    """Mean field (37) of the load-bearing particles, Z phi (1 - x_r) (kn = 1)."""
+    w = df.Z.to_numpy() * df.phi.to_numpy() * (1 - df.rattler_fraction.to_numpy())
+    K_mf = w / (2 * np.pi)
+    G_mf = w * (1 + df.kt_over_kn.to_numpy()) / (4 * np.pi)
     return K_mf, G_mf
 
 
-def _model_logs(cK, cG, X, dz, K_mf, G_mf):
-    lK = np.log(K_mf) - np.logaddexp(0.0, X @ cK)
-    lG = np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), X @ cG)
-    return lK, lG
-
-
-def fit(df, extra=()):
-    """Coefficients (c_K, c_G) and (F^T F)^-1 of the closure's form on ``df`` (kn = 1)."""
-    X, dz = design(df, extra)
+def fit(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    """Coefficients c_K, c_G of the closure's form on ``df`` (kn = 1), nonlinear least squares on
+    log K and log G from a linear start in the transformed targets, and (F^T F)^-1 per modulus."""
+    XK, dz = design(df, names_K, extra)
+    XG, _ = design(df, names_G, extra)
     K_mf, G_mf = mean_field(df)
     lK, lG = np.log(df.K.to_numpy()), np.log(df.G.to_numpy())
-    # linear start in the transformed targets, then least squares on log K, log G
     tK = np.log(np.clip(K_mf / df.K.to_numpy() - 1, 1e-3, None))
     tG = np.log(dz * np.clip(G_mf / df.G.to_numpy() - 1, 1e-3, None))
-    c0K, *_ = np.linalg.lstsq(X, tK, rcond=None)
-    c0G, *_ = np.linalg.lstsq(X, tG, rcond=None)
-    rK = least_squares(lambda c: np.log(K_mf) - np.logaddexp(0.0, X @ c) - lK, c0K, method="lm")
-    rG = least_squares(lambda c: np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), X @ c) - lG, c0G,
+    c0K, *_ = np.linalg.lstsq(XK, tK, rcond=None)
+    c0G, *_ = np.linalg.lstsq(XG, tG, rcond=None)
+    rK = least_squares(lambda c: np.log(K_mf) - np.logaddexp(0.0, XK @ c) - lK, c0K, method="lm")
+    rG = least_squares(lambda c: np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), XG @ c) - lG, c0G,
                        method="lm")
-    cov = np.linalg.pinv(X.T @ X)
-    return rK.x, rG.x, cov
+    return rK.x, rG.x, np.linalg.pinv(XK.T @ XK), np.linalg.pinv(XG.T @ XG)
 
 
-def predict_rows(df, cK, cG, extra=()):
-    X, dz = design(df, extra)
+def predict_rows(df, cK, cG, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    XK, dz = design(df, names_K, extra)
+    XG, _ = design(df, names_G, extra)
     K_mf, G_mf = mean_field(df)
-    lK, lG = _model_logs(cK, cG, X, np.maximum(dz, 1e-12), K_mf, G_mf)
-    return np.exp(lK), np.exp(lG), X
+    dz = np.maximum(dz, 1e-12)
+    K = K_mf / (1 + np.exp(XK @ cK))
+    G = G_mf * dz / (dz + np.exp(XG @ cG))
+    return K, G, XK, XG
 
 
-def lopo(df, extra=()):
-    """Leave one protocol out: per held-out row, the relative errors and the leverage in the
-    design of the other protocols (and its mean leverage there)."""
+def lopo(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    """Leave one protocol out: per held-out row, the relative errors and the leverages in the
+    designs of the other protocols (with their mean and largest training leverage)."""
     rows = []
     for prot in sorted(df.protocol.unique()):
         tr, te = df[df.protocol != prot], df[df.protocol == prot]
-        cK, cG, cov = fit(tr, extra)
-        Kp, Gp, X = predict_rows(te, cK, cG, extra)
-        Xtr, _ = design(tr, extra)
-        h = np.einsum("ij,jk,ik->i", X, cov, X)
-        htr = np.einsum("ij,jk,ik->i", Xtr, cov, Xtr)
-        rows.append(pd.DataFrame(dict(protocol=prot, key=te.key.to_numpy(), kt_over_kn=te.kt_over_kn.to_numpy(),
-                                      err_K=Kp / te.K.to_numpy() - 1, err_G=Gp / te.G.to_numpy() - 1,
-                                      h=h, h_mean=htr.mean(), h_train_max=htr.max())))
+        cK, cG, covK, covG = fit(tr, extra, names_K, names_G)
+        Kp, Gp, XK, XG = predict_rows(te, cK, cG, extra, names_K, names_G)
+        d = dict(protocol=prot, key=te.key.to_numpy(), kt_over_kn=te.kt_over_kn.to_numpy(),
+                 err_K=Kp / te.K.to_numpy() - 1, err_G=Gp / te.G.to_numpy() - 1)
+        for m, X, cov, names in (("K", XK, covK, names_K), ("G", XG, covG, names_G)):
+            Xtr, _ = design(tr, names, extra)
+            htr = np.einsum("ij,jk,ik->i", Xtr, cov, Xtr)
+            d.update({f"h_{m}": np.einsum("ij,jk,ik->i", X, cov, X), f"hmean_{m}": htr.mean(),
+                      f"hmax_{m}": htr.max()})
+        rows.append(pd.DataFrame(d))
     return pd.concat(rows, ignore_index=True)
 
 
-def calibrate(lo, coverage=0.9, h_factor=3.0):
-    """Error scale Q (relative) per modulus so that ``coverage`` of the held-out cases whose
-    leverage is below ``h_factor`` times the largest training leverage lie within
-    ``Q sqrt(1 + h / h_mean)``; those above are flagged."""
-    inside = lo.h <= h_factor * lo.h_train_max
-    s = np.sqrt(1 + lo.h / lo.h_mean)
-    q = {m: float(np.quantile(np.abs(lo[f"err_{m}"][inside]) / s[inside], coverage)) for m in ("K", "G")}
+def scale(lo, m):
+    return np.sqrt(1 + lo[f"h_{m}"] / lo[f"hmean_{m}"])
+
+
+def calibrate(lo, coverage=0.9, h_factor=3.0, exclude=None):
+    """Error scale Q (relative) per modulus: the largest, over the held-out protocols, of the
+    ``coverage`` quantile of ``|err| / sqrt(1 + h / h_mean)`` of its cases inside the data
+    (leverage at most ``h_factor`` times the largest training leverage, for K and G; the others
+    are flagged). So the stated error covers ``coverage`` of the cases of *every* protocol.
+    ``exclude``: a protocol left out of the calibration (the nested check)."""
+    inside = (lo.h_K <= h_factor * lo.hmax_K) & (lo.h_G <= h_factor * lo.hmax_G)
+    q = {}
+    for m in ("K", "G"):
+        z = np.abs(lo[f"err_{m}"]) / scale(lo, m)
+        sel = inside if exclude is None else inside & (lo.protocol != exclude)
+        q[m] = float(max(np.quantile(z[sel & (lo.protocol == p)], coverage, method="higher")
+                         for p in lo.protocol[sel].unique()))
     return q, inside
 
 
 def lopo_table(lo, q, inside):
-    s = np.sqrt(1 + lo.h / lo.h_mean)
+    """Per held-out protocol: cases, valid (inside the data), rms and max relative error of the
+    valid ones, the fraction inside the stated error, and the same fraction with Q calibrated
+    without that protocol (``nested_*``: the out-of-sample check of the error statement)."""
     rows = []
     for prot, g in lo.groupby("protocol"):
-        v = inside[g.index]
+        v = inside[g.index].to_numpy()
         gv = g[v]
-        sv = s[g.index][v]
-        rows.append(dict(protocol=prot, cases=len(g), valid=int(v.sum()),
-                         rms_K=float(np.sqrt(np.mean(gv.err_K ** 2))) if len(gv) else np.nan,
-                         max_K=float(gv.err_K.abs().max()) if len(gv) else np.nan,
-                         inside_K=float(np.mean(gv.err_K.abs() <= q["K"] * sv)) if len(gv) else np.nan,
-                         rms_G=float(np.sqrt(np.mean(gv.err_G ** 2))) if len(gv) else np.nan,
-                         max_G=float(gv.err_G.abs().max()) if len(gv) else np.nan,
-                         inside_G=float(np.mean(gv.err_G.abs() <= q["G"] * sv)) if len(gv) else np.nan))
-    return pd.DataFrame(rows)
+        qn, _ = calibrate(lo, exclude=prot)
+        d = dict(protocol=prot, cases=len(g), valid=int(v.sum()))
+        for m in ("K", "G"):
+            e = gv[f"err_{m}"].abs()
+            d.update({f"rms_{m}": float(np.sqrt(np.mean(e ** 2))) if len(gv) else np.nan,
+                      f"max_{m}": float(e.max()) if len(gv) else np.nan,
+                      f"inside_{m}": float(np.mean(e <= q[m] * scale(gv, m) * (1 + 1e-12))) if len(gv) else np.nan,
+                      f"nested_{m}": float(np.mean(e <= qn[m] * scale(gv, m))) if len(gv) else np.nan})
+        rows.append(d)
+    return pd.DataFrame(rows)[["protocol", "cases", "valid", "rms_K", "max_K", "inside_K", "nested_K", "rms_G",
+                               "max_G", "inside_G", "nested_G"]]
 
 
 def candidates(df):
-    """LOPO rms of log K and log G, base features alone and with each candidate added; plus the
-    spread of log(K/K_mf), log(G/G_mf) with no model (the mean field alone)."""
+    """LOPO rms of log K and log G, the chosen features alone and with each candidate added to
+    both moduli; plus the spread of log(K/K_mf), log(G/G_mf) with no model (the mean field alone)
+    and the base without the statistics beyond Z, kt/kn."""
     K_mf, G_mf = mean_field(df)
     out = [dict(features="mean field only (no fit)", rms_logK=float(np.std(np.log(df.K / K_mf))),
                 rms_logG=float(np.std(np.log(df.G / G_mf))))]
-    for extra in [()] + [(c,) for c in CANDIDATES]:
-        lo = lopo(df, extra)
-        out.append(dict(features="base" + (" + " + extra[0] if extra else ""),
-                        rms_logK=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
+    core = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ")
+    trials = [("Z - Z_iso and kt/kn only", (), core, core + ("log kt/kn * (Z - 4)",)),
+              ("closure (K: + rattler fraction, log p; G: + dispersity, r, size-coordination)", (), FEATURES_K,
+               FEATURES_G)]
+    for name in ("dispersity", "r", "size-coordination", "rattler fraction", "log10 p/kn"):
+        trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * (Z - 4)", name)))
+    for c in CANDIDATES:
+        trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
+    for name, extra, nK, nG in trials:
+        lo = lopo(df, extra, nK, nG)
+        out.append(dict(features=name, rms_logK=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
                         rms_logG=float(np.sqrt(np.mean(np.log1p(lo.err_G) ** 2)))))
     return pd.DataFrame(out)
 
@@ -203,7 +236,9 @@ def plots(df, lo, folder):
 def bench(n=1_000_000):
     rng = np.random.default_rng(0)
     args = dict(nc=rng.uniform(3.3, 5.3, n), r=rng.uniform(0.02, 0.06, n), phi=rng.uniform(0.82, 0.9, n),
-                kt_over_kn=rng.uniform(0.05, 1, n), dispersity=rng.uniform(0, 0.5, n))
+                kt_over_kn=rng.uniform(0.05, 1, n), dispersity=rng.uniform(0, 0.5, n),
+                size_coordination=rng.uniform(0, 0.1, n), rattler_fraction=rng.uniform(0, 0.1, n),
+                p_over_kn=10 ** rng.uniform(-4, -2, n))
     predict_closure(**{k: v[:10] for k, v in args.items()})
     t0 = time.perf_counter()
     predict_closure(**args)
@@ -212,11 +247,13 @@ def bench(n=1_000_000):
     return n / dt
 
 
-def stored_model_text(cK, cG, cov, q, h_mean, h_max):
-    f = lambda a: np.array2string(np.asarray(a), precision=6, separator=", ", max_line_width=100,
+def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
+    f = lambda a: np.array2string(np.asarray(a), precision=8, separator=", ", max_line_width=100,
                                   floatmode="maxprec")
-    return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = COV_G = np.array({f(cov)})\n"
-            f"Q = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\nH_MEAN = {h_mean:.6g}\nH_MAX = {h_max:.6g}\n")
+    return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = np.array({f(covK)})\n"
+            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\n"
+            f"H_MEAN = {{'K': {h_mean['K']:.6g}, 'G': {h_mean['G']:.6g}}}\n"
+            f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n")
 
 
 def quick_end_to_end():
@@ -228,7 +265,9 @@ def quick_end_to_end():
         net, _ = build_network(row, Path(tmp))
         m = pd.DataFrame(measure_network(net, row, (0.0, 1.0)))
     p = predict_closure(nc=m.Z.to_numpy(), r=m.r.to_numpy(), phi=m.phi.to_numpy(), kt_over_kn=m.kt_over_kn.to_numpy(),
-                        dispersity=m.dispersity.to_numpy(), sliding_fraction=m.sliding_fraction.to_numpy())
+                        dispersity=m.dispersity.to_numpy(), sliding_fraction=m.sliding_fraction.to_numpy(),
+                        size_coordination=(m.Z_size - m.Z).to_numpy(), rattler_fraction=m.rattler_fraction.to_numpy(),
+                        p_over_kn=m.p_over_kn.to_numpy())
     m["closure_G"], m["err_G"], m["stated_G"], m["valid"] = p.G, p.G / m.G - 1, p.rel_error_G, p.valid
     print(m[["kt_over_kn", "Z", "dZ", "r", "K", "G", "closure_G", "err_G", "stated_G", "valid"]].to_string(index=False))
     return m
@@ -282,21 +321,24 @@ def main(argv=None):
     df = usable(raw)
     print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
           f"(jammed, Z - Z_iso >= {DZ_MIN}); per protocol: {df.groupby('protocol').key.nunique().to_dict()}")
-    cK, cG, cov = fit(df)
-    X, _ = design(df)
-    h_train = np.einsum("ij,jk,ik->i", X, cov, X)
+    cK, cG, covK, covG = fit(df)
+    XK, _ = design(df, FEATURES_K)
+    XG, _ = design(df, FEATURES_G)
+    hK = np.einsum("ij,jk,ik->i", XK, covK, XK)
+    hG = np.einsum("ij,jk,ik->i", XG, covG, XG)
     lo = lopo(df)
     q, inside = calibrate(lo)
-    h_mean, h_max = float(h_train.mean()), float(3.0 * h_train.max())
+    h_mean = {"K": float(hK.mean()), "G": float(hG.mean())}
+    h_max = {"K": float(3.0 * hK.max()), "G": float(3.0 * hG.max())}
     tab = lopo_table(lo, q, inside)
-    print("features:", FEATURES)
-    print(stored_model_text(cK, cG, cov, q, h_mean, h_max))
+    print("features K:", FEATURES_K, "\nfeatures G:", FEATURES_G)
+    print(stored_model_text(cK, cG, covK, covG, q, h_mean, h_max))
     print("leave one protocol out (relative errors; stated error Q sqrt(1 + h/h_mean)):")
     print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     write_table(tab, out, "lopo", "Closure, leave one protocol out",
                 f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
-    (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov=cov.tolist(), Q=q,
-                                                    h_mean=h_mean, h_max=h_max)))
+    (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov_K=covK.tolist(),
+                                                    cov_G=covG.tolist(), Q=q, h_mean=h_mean, h_max=h_max)))
     lo.to_csv(out / "lopo_cases.csv", index=False)
     if not args.quick:
         raw.to_csv(out / "closure_corpus.csv", index=False)
