@@ -51,24 +51,59 @@ __all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_po
            "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR"]
 
 #: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
-ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * (Z - 4)", "log dZ",
+ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
                 "frictionless * log dZ", "dispersity", "r", "size-coordination", "rattler fraction",
                 "log10 p/kn")
 FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
               "rattler fraction", "log10 p/kn")
-FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * (Z - 4)", "log dZ",
+FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
               "frictionless * log dZ", "dispersity", "r", "size-coordination")
 FEATURES = {"K": FEATURES_K, "G": FEATURES_G}
 # --- fitted by python -m studies.closure_fit (data: docs/results/closure.md) ---------------------
-COEF_K = np.zeros(len(FEATURES_K))
-COEF_G = np.zeros(len(FEATURES_G))
-COV_K = np.eye(len(FEATURES_K))        # (F^T F)^-1 of the fitted design
-COV_G = np.eye(len(FEATURES_G))
-Q = {"K": 0.1, "G": 0.2}            # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
-H_MEAN = {"K": 1.0, "G": 1.0}
-H_MAX = {"K": 1.0, "G": 1.0}
-RANGES = {"Z": (3.0, 6.0), "kt_over_kn": (0.05, 1.0), "dispersity": (0.0, 0.5), "r": (0.0, 0.1),
-          "phi": (0.8, 0.92)}
+COEF_K = np.array([-1.2084769908, -0.0111447566, -0.2622438095,  0.0296417354, -1.27511483  ,  0.7142999376, -6.8924187609,
+  0.2401495023])
+COEF_G = np.array([-1.7012271770e+00,  9.7039175893e-01,  1.6711460145e-01,  1.8667609686e-01, -1.1245033386e-01,
+  3.5659951104e-02,  4.0552511432e-03,  7.4985257010e-02,  2.6129157789e+01, -3.8106046982e+00])
+COV_K = np.array([[ 7.0640455102e-02, -3.9597519932e-02,  2.1718818543e-02,  5.3920582163e-03, -2.0045605065e-02,
+   1.1076427333e-03, -1.3094366041e-02,  2.1851049593e-02],
+ [-3.9597519932e-02,  2.0274656881e-01, -2.1718818543e-02, -5.3920582163e-03,  3.4727172626e-02,
+   7.5392523343e-02,  5.3769855307e-01, -1.1544052090e-03],
+ [ 2.1718818543e-02, -2.1718818543e-02,  5.2069458652e-02,  1.5691391165e-02,  1.0516458094e-15,
+  -1.1960871562e-15,  1.7491087482e-14,  1.0171047612e-16],
+ [ 5.3920582163e-03, -5.3920582163e-03,  1.5691391165e-02,  5.1115769044e-03,  3.1733061694e-16,
+  -3.6659155604e-16,  4.9770653018e-15,  2.3277240555e-17],
+ [-2.0045605065e-02,  3.4727172626e-02,  1.0890704181e-15,  2.9899335838e-16,  1.1560216971e-01,
+  -1.0670423210e-01,  1.7776931030e+00,  1.7105289995e-02],
+ [ 1.1076427333e-03,  7.5392523343e-02, -9.2898304183e-16, -2.4148683846e-16, -1.0670423210e-01,
+   2.0350106387e-01, -1.7539197010e+00, -2.4643143198e-02],
+ [-1.3094366041e-02,  5.3769855307e-01,  1.9786704562e-14,  5.4139121466e-15,  1.7776931030e+00,
+  -1.7539197010e+00,  3.4129726168e+01,  4.9965134827e-01],
+ [ 2.1851049593e-02, -1.1544052090e-03,  2.0020378357e-16,  5.1628727106e-17,  1.7105289995e-02,
+  -2.4643143198e-02,  4.9965134827e-01,  1.6497947049e-02]])   # (F^T F)^-1 of the fitted design
+COV_G = np.array([[ 6.0305169213e-01, -2.1769266938e-01,  2.2123713922e-02,  5.3920582163e-03,  3.9595274567e-02,
+  -1.7108071486e-01,  8.1958399187e-02, -6.6737135052e-01, -1.1984579664e+01,  2.3070184207e+00],
+ [-2.1769266938e-01,  2.7211215733e-01, -2.1921660339e-02, -5.3920582163e-03, -1.9836177477e-02,
+   6.4437078597e-02,  7.6038981549e-02,  1.7689204270e-01,  4.4823716579e+00, -9.2168140860e-01],
+ [ 2.2123713922e-02, -2.1921660339e-02,  5.2072288718e-02,  1.5691391165e-02,  2.7675602736e-04,
+   4.7684493640e-05, -1.2511441801e-04, -2.1318961676e-04, -9.0037173381e-03,  1.6452857230e-03],
+ [ 5.3920582163e-03, -5.3920582163e-03,  1.5691391165e-02,  5.1115769044e-03, -5.1073633192e-16,
+   2.2848170385e-15, -1.0923758800e-15,  6.8591964576e-15,  1.5863431536e-13, -2.7477291761e-14],
+ [ 3.9595274567e-02, -1.9836177477e-02,  2.7675602736e-04, -6.9227055439e-16,  2.7064351599e-02,
+   4.6631320510e-03, -1.2235110582e-02, -2.0848105102e-02, -8.8048587082e-01,  1.6089474804e-01],
+ [-1.7108071486e-01,  6.4437078597e-02,  4.7684493642e-05,  3.0456261970e-15,  4.6631320510e-03,
+   8.4648411264e-02, -5.4241627456e-02,  1.6820410039e-01,  3.7924283653e+00, -7.3769446492e-01],
+ [ 8.1958399187e-02,  7.6038981549e-02, -1.2511441801e-04, -1.4945021647e-15, -1.2235110582e-02,
+  -5.4241627456e-02,  1.4022101735e-01, -6.2998920519e-02, -1.8631178132e+00,  2.6834903487e-01],
+ [-6.6737135052e-01,  1.7689204270e-01, -2.1318961675e-04,  1.0060319870e-14, -2.0848105102e-02,
+   1.6820410039e-01, -6.2998920519e-02,  2.8594210264e+00,  7.3697090584e+00, -6.6719608798e+00],
+ [-1.1984579664e+01,  4.4823716579e+00, -9.0037173380e-03,  2.1166867754e-13, -8.8048587082e-01,
+   3.7924283653e+00, -1.8631178132e+00,  7.3697090584e+00,  2.6777811245e+02, -3.8382328928e+01],
+ [ 2.3070184207e+00, -9.2168140860e-01,  1.6452857230e-03, -3.8224759676e-14,  1.6089474804e-01,
+  -7.3769446492e-01,  2.6834903487e-01, -6.6719608798e+00, -3.8382328928e+01,  2.0043807064e+01]])
+Q = {'K': 0.068403, 'G': 0.120053}   # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
+H_MEAN = {'K': 0.036363636, 'G': 0.045454545}   # mean leverage of the corpus
+H_MAX = {'K': 1.3302802, 'G': 1.3349483}   # 3 x the largest leverage of the corpus: beyond, flagged
+RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8082, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2349], 'rattler_fraction': [0.0, 0.163]}   # the box of the corpus (usable rows)
 DZ_MIN = 0.05
 # -------------------------------------------------------------------------------------------------
 ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
@@ -109,7 +144,7 @@ def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0, size_coordinat
     lk = np.where(kr > 0, np.log(np.maximum(kr, 1e-12)), 0.0)
     lz = np.log(np.maximum(dz, 1e-3))
     cols = {"1": np.ones_like(lz), "frictionless": fl, "log kt/kn": lk, "(log kt/kn)^2": lk * lk,
-            "log kt/kn * (Z - 4)": lk * (nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
+            "log kt/kn * tanh(Z - 4)": lk * np.tanh(nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
             "dispersity": d, "r": r, "size-coordination": zs, "rattler fraction": xr,
             "log10 p/kn": np.log10(np.maximum(p, 1e-300))}
     return np.stack([cols[n] for n in names], axis=-1), dz
@@ -327,7 +362,8 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     eK = q["K"] * np.sqrt(1 + hK / h_mean["K"])
     eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
     box = np.zeros(K.shape, dtype=bool)
-    for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi)):
+    for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi), ("p_over_kn", pk),
+                    ("size_coordination", zs), ("rattler_fraction", xr)):
         lo, hi = RANGES[name]
         box |= (v < lo - 1e-9) | (v > hi + 1e-9)
     klo, khi = RANGES["kt_over_kn"]

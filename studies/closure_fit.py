@@ -175,11 +175,11 @@ def candidates(df):
     out = [dict(features="mean field only (no fit)", rms_logK=float(np.std(np.log(df.K / K_mf))),
                 rms_logG=float(np.std(np.log(df.G / G_mf))))]
     core = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ")
-    trials = [("Z - Z_iso and kt/kn only", (), core, core + ("log kt/kn * (Z - 4)",)),
+    trials = [("Z - Z_iso and kt/kn only", (), core, core + ("log kt/kn * tanh(Z - 4)",)),
               ("closure (K: + rattler fraction, log p; G: + dispersity, r, size-coordination)", (), FEATURES_K,
                FEATURES_G)]
     for name in ("dispersity", "r", "size-coordination", "rattler fraction", "log10 p/kn"):
-        trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * (Z - 4)", name)))
+        trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * tanh(Z - 4)", name)))
     for c in CANDIDATES:
         trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
     for name, extra, nK, nG in trials:
@@ -245,6 +245,18 @@ def bench(n=1_000_000):
     dt = time.perf_counter() - t0
     print(f"predict_closure: {n} sets in {dt:.3f} s = {n / dt:.3g} sets/s")
     return n / dt
+
+
+def data_ranges(df) -> dict:
+    """The box of the corpus's usable rows (the closure flags inputs outside it)."""
+    fr = df[df.kt_over_kn > 0]
+    zs = df.Z_size - df.Z
+    rd = lambda a, b: (float(np.floor(a * 1e4) / 1e4), float(np.ceil(b * 1e4) / 1e4))
+    return {"Z": rd(df.Z.min(), df.Z.max()), "kt_over_kn": rd(fr.kt_over_kn.min(), fr.kt_over_kn.max()),
+            "dispersity": rd(df.dispersity.min(), df.dispersity.max()), "r": rd(df.r.min(), df.r.max()),
+            "phi": rd(df.phi.min(), df.phi.max()), "p_over_kn": (float(df.p_over_kn.min()), float(df.p_over_kn.max())),
+            "size_coordination": rd(zs.min(), zs.max()),
+            "rattler_fraction": rd(df.rattler_fraction.min(), df.rattler_fraction.max())}
 
 
 def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
@@ -337,8 +349,11 @@ def main(argv=None):
     print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     write_table(tab, out, "lopo", "Closure, leave one protocol out",
                 f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
+    ranges = data_ranges(df)
+    print("RANGES =", ranges)
     (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov_K=covK.tolist(),
-                                                    cov_G=covG.tolist(), Q=q, h_mean=h_mean, h_max=h_max)))
+                                                    cov_G=covG.tolist(), Q=q, h_mean=h_mean, h_max=h_max,
+                                                    ranges=ranges)))
     lo.to_csv(out / "lopo_cases.csv", index=False)
     if not args.quick:
         raw.to_csv(out / "closure_corpus.csv", index=False)
