@@ -263,7 +263,7 @@ def _check(name, a, lo, hi=np.inf, lo_open=False):
 
 
 def _leverage(X, cov):
-    return np.einsum("...i,ij,...j->...", X, cov, X)
+    return np.sum((X @ cov) * X, axis=-1)
 
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,

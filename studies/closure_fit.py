@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -240,11 +241,12 @@ def bench(n=1_000_000):
                 size_coordination=rng.uniform(0, 0.1, n), rattler_fraction=rng.uniform(0, 0.1, n),
                 p_over_kn=10 ** rng.uniform(-4, -2, n))
     predict_closure(**{k: v[:10] for k, v in args.items()})
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     predict_closure(**args)
-    dt = time.perf_counter() - t0
-    print(f"predict_closure: {n} sets in {dt:.3f} s = {n / dt:.3g} sets/s")
-    return n / dt
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    print(f"predict_closure: {n} sets in {dc:.3f} s of CPU = {n / dc:.3g} sets/s per core "
+          f"(wall {dt:.3f} s at load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    return n / dc
 
 
 def data_ranges(df) -> dict:
