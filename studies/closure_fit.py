@@ -191,46 +191,51 @@ def candidates(df):
 
 
 def plots(df, lo, folder):
+    """closure_collapse.png: G/G_mf and K/K_mf against Z - Z_iso (marker: protocol; colour: kt/kn,
+    black: kt = 0), and the leave-one-protocol-out predictions of G and K against the exact ones."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     K_mf, G_mf = mean_field(df)
     prots = sorted(df.protocol.unique())
     marks = dict(zip(prots, "osD^v<>"))
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, ax = plt.subplots(1, 4, figsize=(19, 4.6))
+    fr = (df.kt_over_kn > 0).to_numpy()
     for p in prots:
         m = (df.protocol == p).to_numpy()
-        for fr, col in ((True, "C0"), (False, "C3")):
-            mm = m & ((df.kt_over_kn > 0).to_numpy() == fr)
-            if not mm.any():
-                continue
-            lab = f"{p}, {'kt>0' if fr else 'kt=0'}"
-            ax[0].scatter(df.dZ[mm], (df.G / G_mf)[mm], marker=marks[p], s=14, c=np.log10(df.kt_over_kn[mm] + 1e-2)
-                          if fr else "k", cmap="viridis", vmin=-2, vmax=0, label=lab)
-            ax[1].scatter(df.dZ[mm], (df.K / K_mf)[mm], marker=marks[p], s=14, c=np.log10(df.kt_over_kn[mm] + 1e-2)
-                          if fr else "k", cmap="viridis", vmin=-2, vmax=0)
-    x = np.logspace(-2, 0.7)
-    ax[0].plot(x, x / (x + 1), "r:", lw=1, label="dZ/(dZ+1)")
-    for a, yl in ((ax[0], "G / G_mf"), (ax[1], "K / K_mf")):
-        a.set_xscale("log")
-        a.set_xlabel("Z - Z_iso (Z_iso: 4 frictionless, 6/(2-s) frictional)")
-        a.set_ylabel(yl)
+        for a_, y in ((ax[0], df.G / G_mf), (ax[1], df.K / K_mf)):
+            sc = a_.scatter(df.dZ[m & fr], y[m & fr], marker=marks[p], s=16, c=np.log10(df.kt_over_kn[m & fr]),
+                            cmap="viridis", vmin=np.log10(0.05), vmax=0, label=p)
+            if (m & ~fr).any():
+                a_.scatter(df.dZ[m & ~fr], y[m & ~fr], marker=marks[p], s=22, facecolors="none", edgecolors="k")
+    x = np.logspace(-1.5, 0.5)
+    ax[0].plot(x, x / (x + 1), "r:", lw=1, label="dZ / (dZ + 1)")
+    for a_, yl in ((ax[0], "G / G_mf"), (ax[1], "K / K_mf")):
+        a_.set_xscale("log")
+        a_.set_xlabel("Z - Z_iso   (Z_iso = 4 if kt = 0, else 6/(2 - s))")
+        a_.set_ylabel(yl + "   (mean field of the load-bearing particles)")
     ax[0].set_yscale("log")
-    ax[0].legend(fontsize=6)
-    ax[0].set_title("collapse of G (colour: log10 kt/kn; black: kt = 0)")
+    ax[0].legend(fontsize=7, loc="lower right")
+    ax[0].set_title("G: colour log10 kt/kn, open black: kt = 0")
     ax[1].set_title("K")
-    e = lo.merge(df[["key", "kt_over_kn", "G"]], on=["key", "kt_over_kn"])
-    for p in prots:
-        m = e.protocol == p
-        ax[2].scatter(e.G[m], e.G[m] * (1 + e.err_G[m]), marker=marks[p], s=14, label=p)
-    lim = [e.G.min() * 0.8, e.G.max() * 1.2]
-    ax[2].plot(lim, lim, "k-", lw=0.8)
-    ax[2].set_xscale("log"); ax[2].set_yscale("log")
-    ax[2].set_xlabel("exact G / kn"); ax[2].set_ylabel("closure G / kn (protocol left out)")
+    fig.colorbar(sc, ax=ax[1], label="log10 kt/kn")
+    e = lo.merge(df[["key", "kt_over_kn", "G", "K"]], on=["key", "kt_over_kn"])
+    for a_, m in ((ax[2], "G"), (ax[3], "K")):
+        for p in prots:
+            sel = e.protocol == p
+            a_.scatter(e[m][sel], e[m][sel] * (1 + e[f"err_{m}"][sel]), marker=marks[p], s=14, label=p)
+        lim = np.array([e[m].min() * 0.8, e[m].max() * 1.2])
+        a_.plot(lim, lim, "k-", lw=0.8)
+        a_.plot(lim, lim * 1.1, "k:", lw=0.6)
+        a_.plot(lim, lim / 1.1, "k:", lw=0.6)
+        a_.set_xscale("log")
+        a_.set_yscale("log")
+        a_.set_xlabel(f"exact {m} / kn")
+        a_.set_ylabel(f"closure {m} / kn, its protocol left out")
+        a_.set_title(f"leave one protocol out: {m} (dotted: +-10 %)")
     ax[2].legend(fontsize=7)
-    ax[2].set_title("leave one protocol out")
     fig.tight_layout()
-    fig.savefig(folder / "closure_collapse.png", dpi=110)
+    fig.savefig(folder / "closure_collapse.png", dpi=100)
     plt.close(fig)
 
 
@@ -297,6 +302,9 @@ def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
     for path in paths:
         net, _ = load_network(path, kn=1.0, kt_ratio=1.0)
         net = net.with_stiffness(kn=1.0, kt=1.0, sliding=False)
+        if net.fn is None:   # positions only: linear contacts, forces from the overlaps
+            from dataclasses import replace
+            net = replace(net, fn=np.maximum(net.overlaps, 0.0) * net.kn, ft=np.zeros(net.n_contacts))
         row = CorpusRow("heldout", (("file", str(path)),), 0, net.n_particles)
         m = pd.DataFrame(measure_network(net, row, kt_ratios))
         frames.append(m)
@@ -304,7 +312,10 @@ def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
     ok = df.K.notna() & (df.Z > 0)
     p = predict_closure(nc=np.where(ok, df.Z, 4.0), r=np.where(ok, df.r, 0.0), phi=df.phi.to_numpy(),
                         kt_over_kn=df.kt_over_kn.to_numpy(), dispersity=df.dispersity.to_numpy(),
-                        sliding_fraction=np.where(ok, df.sliding_fraction, 0.0))
+                        sliding_fraction=np.where(ok, df.sliding_fraction, 0.0),
+                        size_coordination=np.where(ok, df.Z_size - df.Z, 0.0),
+                        rattler_fraction=np.where(ok, df.rattler_fraction, 0.0),
+                        p_over_kn=np.where(ok & (df.p_over_kn > 0), df.p_over_kn, 1e-3))
     df["closure_K"], df["closure_G"] = p.K, p.G
     df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
     df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G
