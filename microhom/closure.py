@@ -13,7 +13,7 @@ docs/results/closure.md). It is an empirical closure with the known limits built
     K_mf = Z phi (1 - x_r) kn / (2 pi),   G_mf = Z phi (1 - x_r) (kn + kt) / (4 pi)
 
 the mean field (37) of the load-bearing particles (x_r: rattler fraction; it reproduces the affine
-moduli of the corpus to 3 % rms, 1.6 % with the dispersity and the size-coordination),
+moduli of the corpus to 2.7 % rms),
 
 with ``dZ = Z - Z_iso`` the distance to the isostatic point that the mobilised contacts imply
 (counting constraints: a non-sliding frictional contact fixes 2 relative motions, a sliding or

@@ -376,7 +376,7 @@ def main(argv=None):
             write_table(cand, out, "candidates", "Candidate statistics: LOPO rms of log K, log G")
         plots(df, lo, out)
     else:
-        quick_end_to_end()
+        quick_end_to_end().to_csv(out / "quick.csv", index=False)
     if args.heldout:
         ho = heldout(args.heldout)
         cols = ["key", "n", "kt_over_kn", "Z", "dZ", "r", "phi", "dispersity", "K", "closure_K", "err_K",
