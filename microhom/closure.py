@@ -1,42 +1,49 @@
 """Statistics-only closure: the moduli of a random disk packing from numbers a user can know
-(Z, phi, the contact-number fluctuation r, kt/kn, the radius dispersity, the sliding fraction),
-with an error stated per prediction and a flag wherever the input is far from the data.
+(Z, phi, the contact-number fluctuation r, kt/kn, the radius dispersity, the sliding and rattler
+fractions, the size-coordination, p/kn), with an error stated per prediction and a flag wherever
+the input is far from the data.
 
 Where the seed's first-order formula (:func:`microhom.moduli.predict_moduli`, kept unchanged)
 misses the non-affine relaxation (docs/results/kuhn.md, sweep.md), this closure is fitted to the
-exact linear response (``dem.stiffness``, without pre-stress) of a corpus of packings made by five
-protocols (``studies.corpus``; results, leave-one-protocol-out errors and what fails in
-docs/results/closure.md). It is an empirical closure with the known limits built into its form:
+exact linear response (``dem.stiffness``, without pre-stress) of a corpus of 63 packings made by
+five protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
+heavily damped one, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000 and 4000, three
+seeds, kt/kn 0-1, dispersity 0-0.5). Results, leave-one-protocol-out errors and what fails:
+docs/results/closure.md. It is an empirical closure with the known limits built into its form:
 
-    G = G_mf  dZ / (dZ + a),        a = exp(c_G . f)
-    K = K_mf  / (1 + b),            b = exp(c_K . f)
+    G = G_mf  dZ / (dZ + a),        a = exp(c_G . f_G)
+    K = K_mf  / (1 + b),            b = exp(c_K . f_K)
     K_mf = Z phi (1 - x_r) kn / (2 pi),   G_mf = Z phi (1 - x_r) (kn + kt) / (4 pi)
 
 the mean field (37) of the load-bearing particles (x_r: rattler fraction; it reproduces the affine
-moduli of the corpus to 2.7 % rms),
-
-with ``dZ = Z - Z_iso`` the distance to the isostatic point that the mobilised contacts imply
-(counting constraints: a non-sliding frictional contact fixes 2 relative motions, a sliding or
-frictionless one 1; a frictional disk has 3 degrees of freedom, a frictionless one 2):
+moduli of the corpus to 2.7 % rms), with ``dZ = Z - Z_iso`` the distance to the isostatic point
+that the mobilised contacts imply (Maxwell counting: a sticking frictional contact fixes 2
+relative motions, a sliding or frictionless one 1; a frictional disk has 3 degrees of freedom, a
+frictionless one 2):
 
     Z_iso = 6 / (2 - s)     (kt > 0, s = sliding fraction of the load-bearing contacts; 3 if none)
     Z_iso = 4               (kt = 0, frictionless)
 
-So G vanishes linearly at the isostatic point (the scaling G ~ dZ of the jamming literature) and
-tends to the mean field at high Z (``a`` is bounded); K stays finite at the isostatic point. The
-features ``f`` are those of :func:`features` (named in ``FEATURES``).
+So G vanishes linearly at the isostatic point of either branch (the scaling G ~ dZ of the jamming
+literature; the fitted exponent of dZ in ``a`` is below 0.1 and log dZ is floored at 1e-3) and G,
+K tend to the mean field at high Z (``a`` bounded, ``b`` -> 0). K's value near the isostatic point
+is fitted, not imposed. The features (``FEATURES_K``, ``FEATURES_G``, columns of
+:func:`features`) are those that removed most of the spread across protocols
+(docs/results/closure.md, section 2).
 
-Error (``error_K``, ``error_G``): stated per prediction, from the leave-one-protocol-out residuals
-of the corpus, growing with the distance of the input from the data: the leverage
-``h = f (F^T F)^-1 f^T`` of the input's features in the fitted design ``F`` (a Mahalanobis distance
-in feature space), ``error = Q sqrt(1 + h / h_mean)`` (relative), with ``Q`` set so that 90 % of the
-held-out cases lie within it. Inputs with ``h > H_MAX`` (beyond the corpus) are flagged.
+Error (``error_K``, ``error_G``): stated per prediction, growing with the distance of the input
+from the data: the leverage ``h = f (F^T F)^-1 f^T`` of the input's features in the fitted design
+``F`` (a Mahalanobis distance in feature space), ``error = Q sqrt(1 + h / H_MEAN)`` (relative),
+with ``Q`` set on the leave-one-protocol-out residuals so that at least 90 % of the held-out cases
+of every protocol lie within it.
 
 Flags (``valid = False`` with a reason, never silent): 1 outside the data (leverage above
-``H_MAX`` or outside the box ``RANGES``), 2 at or below the isostatic point (``dZ < DZ_MIN``:
-G -> 0, relative error unbounded).
+``H_MAX`` = 3x the largest of the corpus, or outside the box ``RANGES``), 2 at or below the
+isostatic point (``dZ < DZ_MIN``: G -> 0, relative error unbounded), 4 size-coordination not
+given for a polydisperse packing, 8 p/kn not given.
 
-Vectorised numpy: >= 1e6 parameter sets per second (``python -m studies.closure_fit --bench``).
+Vectorised numpy: >= 1e6 parameter sets per second per core (``python -m studies.closure_fit
+--quick --bench``: 1.2-1.3e6 measured).
 """
 from __future__ import annotations
 
