@@ -166,3 +166,38 @@ def test_vectorised_and_json_ready():
     X, dz = features(4.2, 0.5, 0.1, 0.04)
     assert X.shape == (len(ALL_FEATURES),) and dz == pytest.approx(1.2)
     json.dumps(predict_closure(nc=4.2, r=0.04).as_dict())
+
+
+def test_size_coordination_and_dispersity_exact():
+    """Hand-computed: radii (1, 1, 2), the big disk touching both small ones: z = (1, 1, 2),
+    sum z R / sum R - mean z = 6/4 - 4/3 = 1/6; dispersity sqrt(3) std/mean."""
+    from microhom.closure import dispersity, size_coordination
+    from microhom.network import from_pairs
+    pos = np.array([[3.0, 0.0], [-3.0, 0.0], [0.0, 0.0]])
+    rad = np.array([1.0, 1.0, 2.0])
+    net = from_pairs(pos, rad, None, np.array([[0, 2], [1, 2]]))
+    assert size_coordination(net, min_contacts=0) == pytest.approx(1 / 6, rel=1e-14)
+    assert dispersity(net) == pytest.approx(np.sqrt(3) * np.std(rad) / np.mean(rad), rel=1e-14)
+    assert size_coordination(net.with_stiffness(kt=0.0), min_contacts=0) == pytest.approx(1 / 6)
+
+
+def test_minimise_protocol_is_a_force_balanced_energy_minimum(tmp_path):
+    """The corpus's energy-minimisation protocol (harmonic, frictionless) on a small cell: every
+    disk in force balance to the minimiser's tolerance, the packing cached and reloaded identical,
+    and the closure's inputs measured on it (frictionless: Z_iso = 4)."""
+    from microhom.closure import closure_inputs, isostatic_point
+    from studies.corpus import _row, build_network
+    row = _row("minimise", 64, 3, phi=0.9, radii="bidisperse")
+    net, meta = build_network(row, tmp_path)
+    f = net.fn[:, None] * net.normals
+    res = np.zeros((net.n_particles, 2))
+    np.add.at(res, net.pairs[:, 0], -f)
+    np.add.at(res, net.pairs[:, 1], f)
+    # the residual recomputed from the network agrees with the minimiser's, and is 1e-6 of the forces
+    assert np.abs(res).max() == pytest.approx(meta["grad_max"], rel=1e-6, abs=1e-13)
+    assert np.abs(res).max() < 1e-6 * net.fn.mean()
+    again, _ = build_network(row, tmp_path)
+    np.testing.assert_array_equal(again.positions, net.positions)
+    x = closure_inputs(net.with_stiffness(kt=0.0))
+    assert x["kt_over_kn"] == 0.0 and x["nc"] > float(isostatic_point(0.0))
+    assert x["dispersity"] == pytest.approx(np.sqrt(3) * 0.1 / 0.6, rel=1e-12)   # radii 0.5, 0.7
