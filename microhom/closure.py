@@ -184,7 +184,8 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     """The keyword arguments of :func:`predict_closure` measured on a
     :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
     (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
-    and p/kn (from the normal forces ``fn``; absent without them); kt/kn the mean tangent
+    and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
+    ``kn * overlap``; absent if not positive); kt/kn the mean tangent
     stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
     unless given."""
     from .structural_sums import network_statistics
@@ -196,8 +197,9 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
                kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
                rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
-    if network.fn is not None and network.n_contacts:
-        sig = -np.einsum("c,ci,cj->ij", network.fn, network.branch, network.normals) / network.area
+    if network.n_contacts:
+        fn = network.fn if network.fn is not None else np.asarray(network.kn) * np.maximum(network.overlaps, 0.0)
+        sig = -np.einsum("c,ci,cj->ij", fn, network.branch, network.normals) / network.area
         p = float(-np.trace(sig) / 2 / kn_mean)
         if p > 0:
             out["p_over_kn"] = p
