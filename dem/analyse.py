@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from microhom.closure import predict_closure
+from microhom.closure import closure_inputs, predict_closure
 from microhom.hierarchy import DEFAULT_TOL, relaxation_hierarchy
 from microhom.moduli import predict_from_network
 from microhom.results import Result
@@ -88,9 +88,11 @@ class AnalysisResult(Result):
         measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment model
         ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
     closure : dict
-        :func:`microhom.closure.predict_closure` from the measured Z, r, phi, mean kt/kn and
-        radius spread: ``K``, ``G`` [N/m], their stated errors ``error_K``, ``error_G`` [N/m]
-        (the measured validation rms), ``valid`` and ``reason``.
+        :func:`microhom.closure.predict_closure` on the inputs measured by
+        :func:`microhom.closure.closure_inputs` (Z as ``nc``, r, phi, kt/kn, dispersity, sliding
+        and rattler fractions, size-coordination, p/kn; all in the dict too): ``K``, ``G`` [N/m],
+        their stated errors ``error_K``, ``error_G`` [N/m] (per prediction, from the
+        leave-one-protocol-out residuals, docs/results/closure.md), ``valid`` and ``reason``.
     hierarchy : dict
         :func:`microhom.hierarchy.relaxation_hierarchy` (same pre-stress choice as the exact
         stiffness; tolerance 1e-3, at most 16 CG steps): ``K``, ``G`` (best values), ``K_upper``,
@@ -309,12 +311,10 @@ def _theory(net, alpha, min_contacts, rho_neighbours="near"):
 
 
 def _closure(net, structural):
-    kt = float(np.mean(net.effective_kt) / np.mean(net.kn))
-    disp = float(np.std(net.radii) / np.mean(net.radii) * np.sqrt(3.0))   # uniform r(1 +- d): std = d/sqrt3
-    p = predict_closure(nc=structural["nc"], r=structural["r"], phi=structural["phi"],
-                        kt_over_kn=kt, dispersity=disp, kn=float(np.mean(net.kn)))
+    x = closure_inputs(net)       # Z, r, phi, sliding and rattler fractions, dispersity, size-coordination, p/kn
+    p = predict_closure(**x)
     return {"K": float(p.K), "G": float(p.G), "error_K": float(p.error_K), "error_G": float(p.error_G),
-            "valid": bool(p.valid), "reason": str(p.reason), "kt_over_kn": kt, "dispersity": disp}
+            "valid": bool(p.valid), "reason": str(p.reason), **{k: float(v) for k, v in x.items()}}
 
 
 def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
@@ -567,7 +567,7 @@ def format_table(res) -> str:
         flag = "" if cl["valid"] else "  FLAGGED: " + cl["reason"]
         L.append(f"  {'closure (statistics only)':44}{_g(cl['K']):>14}{_g(cl['G']):>14}"
                  f"{_g(cmp.get('K_closure_over_exact'), '.4f'):>10}{_g(cmp.get('G_closure_over_exact'), '.4f'):>10}{flag}")
-        L.append(f"  {'  stated error (validation rms)':44}{_g(cl['error_K'], '.3g'):>14}{_g(cl['error_G'], '.3g'):>14}")
+        L.append(f"  {'  stated error (this prediction)':44}{_g(cl['error_K'], '.3g'):>14}{_g(cl['error_G'], '.3g'):>14}")
     elif cl:
         L.append(f"  closure: n/a ({cl['error']})")
     if hi and "error" not in hi:

@@ -1,26 +1,49 @@
-"""Statistics-only closure: the moduli of a frictional random disk packing from numbers a user
-can know, with the closure's measured error returned with every prediction.
+"""Statistics-only closure: the moduli of a random disk packing from numbers a user can know
+(Z, phi, the contact-number fluctuation r, kt/kn, the radius dispersity, the sliding and rattler
+fractions, the size-coordination, p/kn), with an error stated per prediction and a flag wherever
+the input is far from the data.
 
 Where the seed's first-order formula (:func:`microhom.moduli.predict_moduli`, kept unchanged)
 misses the non-affine relaxation (docs/results/kuhn.md, sweep.md), this closure is fitted to the
-exact linear response of our own DEM packings. It is an empirical closure, not a derivation:
+exact linear response (``dem.stiffness``, without pre-stress) of a corpus of 63 packings made by
+five protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
+heavily damped one, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000 and 4000, three
+seeds, kt/kn 0-1, dispersity 0-0.5). Results, leave-one-protocol-out errors and what fails:
+docs/results/closure.md. It is an empirical closure with the known limits built into its form:
 
-    log(K / K_mf) = c_K . f,     log(G / G_mf) = c_G . f,
-    K_mf = Z phi kn / (2 pi),    G_mf = Z phi (kn + kt) / (4 pi)          (mean field (37))
+    G = G_mf  dZ / (dZ + a),        a = exp(c_G . f_G)
+    K = K_mf  / (1 + b),            b = exp(c_K . f_K)
+    K_mf = Z phi (1 - x_r) kn / (2 pi),   G_mf = Z phi (1 - x_r) (kn + kt) / (4 pi)
 
-with the features ``f`` of :func:`features` — the distance to frictional isostaticity
-``dZ = Z - 3`` (``Z``: mean contacts per load-bearing particle, rattlers excluded), ``kt/kn``, the
-radius dispersity and the seed's contact-number fluctuation ``r`` — because the relaxation is controlled by how far the contact network is
-from isostaticity (G vanishes there) and by the tangent stiffness. ``COEF_K``, ``COEF_G``,
-``RANGES`` and ``ERROR`` are produced by ``python -m studies.closure_fit`` (data and provenance in
-docs/results/hierarchy.md): fitted on 16 packings x 4 kt/kn (N = 500), validated on 10 other
-packings (N = 3000).
+the mean field (37) of the load-bearing particles (x_r: rattler fraction; it reproduces the affine
+moduli of the corpus to 2.7 % rms), with ``dZ = Z - Z_iso`` the distance to the isostatic point
+that the mobilised contacts imply (Maxwell counting: a sticking frictional contact fixes 2
+relative motions, a sliding or frictionless one 1; a frictional disk has 3 degrees of freedom, a
+frictionless one 2):
 
-Flags (``valid = False`` with a reason, never silent): inputs outside the fitted range
-(``RANGES``), near-isostatic packings (``dZ < RANGES['dz'][0]``, where G -> 0 and the relative error
-is unbounded), frictionless contacts (kt = 0: a different isostatic point, not fitted).
+    Z_iso = 6 / (2 - s)     (kt > 0, s = sliding fraction of the load-bearing contacts; 3 if none)
+    Z_iso = 4               (kt = 0, frictionless)
 
-Vectorised numpy: >= 1e6 parameter sets per second (``studies.bench_hierarchy stats``).
+So G vanishes linearly at the isostatic point of either branch (the scaling G ~ dZ of the jamming
+literature; the fitted exponent of dZ in ``a`` is below 0.1 and log dZ is floored at 1e-3) and G,
+K tend to the mean field at high Z (``a`` bounded, ``b`` -> 0). K's value near the isostatic point
+is fitted, not imposed. The features (``FEATURES_K``, ``FEATURES_G``, columns of
+:func:`features`) are those that removed most of the spread across protocols
+(docs/results/closure.md, section 2).
+
+Error (``error_K``, ``error_G``): stated per prediction, growing with the distance of the input
+from the data: the leverage ``h = f (F^T F)^-1 f^T`` of the input's features in the fitted design
+``F`` (a Mahalanobis distance in feature space), ``error = Q sqrt(1 + h / H_MEAN)`` (relative),
+with ``Q`` set on the leave-one-protocol-out residuals so that at least 90 % of the held-out cases
+of every protocol lie within it.
+
+Flags (``valid = False`` with a reason, never silent): 1 outside the data (leverage above
+``H_MAX`` = 3x the largest of the corpus, or outside the box ``RANGES``), 2 at or below the
+isostatic point (``dZ < DZ_MIN``: G -> 0, relative error unbounded), 4 size-coordination not
+given for a polydisperse packing, 8 p/kn not given.
+
+Vectorised numpy: >= 1e6 parameter sets per second per core (``python -m studies.closure_fit
+--quick --bench``: 1.2-1.3e6 measured).
 """
 from __future__ import annotations
 
@@ -31,41 +54,167 @@ import numpy as np
 from .limits import as_float_array
 from .results import Result
 
-__all__ = ["features", "predict_closure", "ClosurePrediction", "FEATURES", "COEF_K", "COEF_G",
-           "RANGES", "ERROR"]
+__all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_point", "predict_closure", "predict_network", "closure_inputs", "size_coordination",
+           "dispersity", "ClosurePrediction", "FEATURES", "COEF_K",
+           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR"]
 
-FEATURES = ("1", "log dZ", "log kt/kn", "(log kt/kn)^2", "dispersity", "log dZ * log kt/kn", "r",
-            "(log dZ)^2")
-# --- fitted by studies.closure_fit (see docs/results/hierarchy.md for the data) ---------------
-COEF_K = np.array([-0.088102, 0.080908, 0.030167, -0.013855, 0.188994, -0.028783, -2.484779, -0.035279])
-COEF_G = np.array([-0.015899, 0.367636, -0.154042, -0.122054, -0.008414, -0.014654, -10.392498, -0.284773])
-RANGES = {"dz": (0.2, 2.52), "kt_over_kn": (0.1, 1.0), "dispersity": (0.0, 0.2), "r": (0.015, 0.07)}
-ERROR = {"K": 0.034, "G": 0.055}   # rms relative error on the 9 validation packings in range
+#: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
+ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
+                "frictionless * log dZ", "dispersity", "r", "size-coordination", "rattler fraction",
+                "log10 p/kn")
+FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
+              "rattler fraction", "log10 p/kn")
+FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
+              "frictionless * log dZ", "dispersity", "r", "size-coordination")
+FEATURES = {"K": FEATURES_K, "G": FEATURES_G}
+# --- fitted by python -m studies.closure_fit (data: docs/results/closure.md) ---------------------
+COEF_K = np.array([-1.1819842241, -0.0539255135, -0.2761512026,  0.0262850602, -1.3922509229,  0.7790928027, -8.3674545971,
+  0.2431649865])
+COEF_G = np.array([-1.7648418832,  0.9794369596,  0.1626074337,  0.1851163754, -0.1076899239,  0.0682762048, -0.0401103333,
+  0.2346526977, 27.5623006531, -4.5180758562])
+COV_K = np.array([[ 5.8682103187e-02, -3.1169615187e-02,  1.7581900725e-02,  4.3649995084e-03, -1.4645440124e-02,
+  -1.2481266761e-03,  5.1952852904e-02,  1.9558892644e-02],
+ [-3.1169615187e-02,  1.4736234841e-01, -1.7581900725e-02, -4.3649995084e-03,  2.8777356070e-02,
+   5.4687265741e-02,  4.5838286153e-01, -1.8325621792e-04],
+ [ 1.7581900725e-02, -1.7581900725e-02,  4.2151466528e-02,  1.2702554753e-02,  1.2016531045e-15,
+  -9.2007962303e-16,  1.8622665402e-14, -2.5531459591e-17],
+ [ 4.3649995084e-03, -4.3649995084e-03,  1.2702554753e-02,  4.1379432083e-03,  3.6526496611e-16,
+  -2.5331440909e-16,  5.0571419680e-15, -2.6547702512e-17],
+ [-1.4645440124e-02,  2.8777356070e-02,  1.1454728566e-15,  3.3166049947e-16,  8.7627240396e-02,
+  -7.7440828807e-02,  1.3767039344e+00,  1.4398258941e-02],
+ [-1.2481266761e-03,  5.4687265741e-02, -8.6452132047e-16, -2.4659360477e-16, -7.7440828807e-02,
+   1.4799598594e-01, -1.3022370264e+00, -1.9966821427e-02],
+ [ 5.1952852904e-02,  4.5838286153e-01,  1.6926278132e-14,  4.6027606993e-15,  1.3767039344e+00,
+  -1.3022370264e+00,  2.8131505187e+01,  4.5037724273e-01],
+ [ 1.9558892644e-02, -1.8325621792e-04, -1.0941150676e-16, -5.2654767773e-17,  1.4398258941e-02,
+  -1.9966821427e-02,  4.5037724273e-01,  1.5108164861e-02]])   # (F^T F)^-1 of the fitted design
+COV_G = np.array([[ 4.9091607896e-01, -1.7519194184e-01,  1.6331180087e-02,  4.3649995084e-03,  3.0753404907e-02,
+  -1.4737714791e-01,  6.9940723085e-02, -4.6840198695e-01, -1.0077342350e+01,  1.8250096629e+00],
+ [-1.7519194184e-01,  2.0068185116e-01, -1.6977853733e-02, -4.3649995084e-03, -1.4852638684e-02,
+   5.6314641650e-02,  5.1140184052e-02,  1.4094649396e-01,  3.6555791251e+00, -7.3991743838e-01],
+ [ 1.6331180087e-02, -1.6977853733e-02,  4.2188237276e-02,  1.2702554753e-02, -9.0413931618e-04,
+  -1.6343498096e-04,  4.1472982952e-04,  6.8533326390e-04,  2.9198982666e-02, -5.3963621938e-03],
+ [ 4.3649995084e-03, -4.3649995084e-03,  1.2702554753e-02,  4.1379432083e-03, -4.9831911350e-16,
+   2.1713296976e-15, -1.0860963301e-15,  5.0570382585e-15,  1.5044687028e-13, -2.3981465348e-14],
+ [ 3.0753404907e-02, -1.4852638684e-02, -9.0413931618e-04, -3.2026142061e-16,  2.2231473308e-02,
+   4.0186289347e-03, -1.0197604474e-02, -1.6851350108e-02, -7.1796059759e-01,  1.3268871282e-01],
+ [-1.4737714791e-01,  5.6314641650e-02, -1.6343498096e-04,  1.2984506834e-15,  4.0186289347e-03,
+   7.6740264523e-02, -4.9727919711e-02,  1.1685011678e-01,  3.3581418386e+00, -6.0332502187e-01],
+ [ 6.9940723085e-02,  5.1140184052e-02,  4.1472982953e-04, -6.3485579975e-16, -1.0197604474e-02,
+  -4.9727919711e-02,  1.1287018680e-01, -1.7134680244e-02, -1.7081474047e+00,  1.9674490997e-01],
+ [-4.6840198695e-01,  1.4094649396e-01,  6.8533326389e-04,  2.4478286242e-15, -1.6851350108e-02,
+   1.1685011678e-01, -1.7134680244e-02,  2.0771762718e+00,  4.9024618326e+00, -4.7578056345e+00],
+ [-1.0077342350e+01,  3.6555791251e+00,  2.9198982665e-02,  9.0841198139e-14, -7.1796059759e-01,
+   3.3581418386e+00, -1.7081474047e+00,  4.9024618326e+00,  2.3149618642e+02, -3.1737176707e+01],
+ [ 1.8250096629e+00, -7.3991743838e-01, -5.3963621938e-03, -1.3547249776e-14,  1.3268871282e-01,
+  -6.0332502187e-01,  1.9674490997e-01, -4.7578056345e+00, -3.1737176707e+01,  1.4226615345e+01]])
+Q = {'K': 0.075184, 'G': 0.124554}   # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
+H_MEAN = {'K': 0.028985507, 'G': 0.036231884}   # mean leverage of the corpus
+H_MAX = {'K': 1.0366164, 'G': 1.0280924}   # 3 x the largest leverage of the corpus: beyond, flagged
+RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8082, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163]}   # the box of the corpus (usable rows)
+DZ_MIN = 0.05
 # -------------------------------------------------------------------------------------------------
+ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
 
 #: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
 #: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
 PHI_INFLATED_MAX = 1.1
 
 _REASONS = (
-    (1, "outside the fitted range of Z - 3, kt/kn, dispersity or r"),
-    (2, "near isostatic (Z - 3 below the fitted range): G -> 0, relative error unbounded"),
-    (4, "frictionless contacts (kt = 0): not covered by the closure"),
-    (8, "phi above 1 (overlaps inflate it): outside the fitted range; the moduli scale with phi"),
+    (1, "outside the data the closure was fitted on (feature-space distance or range)"),
+    (2, "at or below the isostatic point of its mobilised contacts (Z - Z_iso below DZ_MIN): G -> 0, "
+        "relative error unbounded"),
+    (4, "size_coordination not given for a polydisperse packing (dispersity > 0.05)"),
+    (8, "p_over_kn not given"),
+    (16, "phi above 1 (overlaps inflate it): outside the data; the moduli scale with phi"),
 )
 
 
-def features(nc, kt_over_kn, dispersity, r):
-    """(..., 8) design matrix of the closure (columns named in ``FEATURES``).
+def isostatic_point(kt_over_kn, sliding_fraction=0.0):
+    """Z_iso: 4 for frictionless contacts (kt = 0), 6 / (2 - s) for frictional ones with a sliding
+    fraction s of the load-bearing contacts (3 without sliding) [-]."""
+    kr = np.asarray(kt_over_kn, dtype=float)
+    s = np.asarray(sliding_fraction, dtype=float)
+    return np.where(kr > 0, 6.0 / (2.0 - s), 4.0)
 
-    nc: mean contacts per load-bearing particle; kt_over_kn > 0; dispersity >= 0; r = var(Nc)/Nc^2
-    over the load-bearing particles (the seed's contact-number fluctuation). dZ = nc - 3 is
-    floored at 1e-3 and kt/kn at 1e-6 so that the matrix stays finite for flagged inputs.
+
+def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0, size_coordination=0.0, rattler_fraction=0.0,
+             p_over_kn=1e-3, names=ALL_FEATURES):
+    """(..., len(names)) feature matrix of the closure (columns named in ``ALL_FEATURES``) and
+    dZ = Z - Z_iso (...,).
+
+    nc: mean contacts per load-bearing particle; kt_over_kn >= 0; dispersity >= 0 (sqrt(3) times
+    the relative standard deviation of the radii: the half-width of a uniform law); r =
+    var(Nc)/Nc^2 over the load-bearing particles; sliding_fraction in [0, 1]; size_coordination
+    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn).
+    dZ is floored at 1e-3 inside the logarithm so that the matrix stays finite for flagged inputs.
     """
-    nc, kr, d, r = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (nc, kt_over_kn, dispersity, r)))
-    lz = np.log(np.maximum(nc - 3.0, 1e-3))
-    lk = np.log(np.maximum(kr, 1e-6))
-    return np.stack([np.ones_like(lz), lz, lk, lk * lk, d, lz * lk, r, lz * lz], axis=-1)
+    nc, kr, d, r, s, zs, xr, p = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
+                                                       (nc, kt_over_kn, dispersity, r, sliding_fraction,
+                                                        size_coordination, rattler_fraction, p_over_kn)))
+    dz = nc - isostatic_point(kr, s)
+    fl = (kr <= 0).astype(float)
+    lk = np.where(kr > 0, np.log(np.maximum(kr, 1e-12)), 0.0)
+    lz = np.log(np.maximum(dz, 1e-3))
+    cols = {"1": np.ones_like(lz), "frictionless": fl, "log kt/kn": lk, "(log kt/kn)^2": lk * lk,
+            "log kt/kn * tanh(Z - 4)": lk * np.tanh(nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
+            "dispersity": d, "r": r, "size-coordination": zs, "rattler fraction": xr,
+            "log10 p/kn": np.log10(np.maximum(p, 1e-300))}
+    return np.stack([cols[n] for n in names], axis=-1), dz
+
+
+def size_coordination(network, min_contacts=None) -> float:
+    """How contacts go with size: the radius-weighted mean contact number of the load-bearing
+    particles minus their plain mean, ``sum_i z_i R_i / sum_i R_i - Z = cov(z, R) / mean(R)``
+    [-] (0 for identical disks; rattlers removed as in
+    :func:`microhom.structural_sums.rattlers`)."""
+    from .structural_sums import rattlers
+    rat, active = rattlers(network, min_contacts)
+    n = network.n_particles
+    z = (np.bincount(network.pairs[active, 0], minlength=n)
+         + np.bincount(network.pairs[active, 1], minlength=n)).astype(float)[~rat]
+    R = np.asarray(network.radii)[~rat]
+    if len(z) == 0:
+        return 0.0
+    return float(np.sum(z * R) / np.sum(R) - z.mean())
+
+
+def dispersity(network) -> float:
+    """Radius spread of a network, ``sqrt(3) std(R) / mean(R)`` [-] (the half-width of the
+    equivalent uniform law; 0.289 for the 50:50 bidisperse 1:1.4 mixture)."""
+    R = np.asarray(network.radii, dtype=float)
+    return float(np.sqrt(3.0) * R.std() / R.mean())
+
+
+def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
+    """The keyword arguments of :func:`predict_closure` measured on a
+    :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
+    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
+    and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
+    ``kn * overlap``; absent if not positive); kt/kn the mean tangent
+    stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
+    unless given."""
+    from .structural_sums import network_statistics
+    st = network_statistics(network)
+    stuck = ~np.asarray(network.sliding)
+    kn_mean = float(np.mean(network.kn))
+    if kt_over_kn is None:
+        kt_over_kn = float(np.mean(network.kt[stuck]) / kn_mean) if stuck.any() else 0.0
+    out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
+               kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
+               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+    if network.n_contacts:
+        fn = network.fn if network.fn is not None else np.asarray(network.kn) * np.maximum(network.overlaps, 0.0)
+        sig = -np.einsum("c,ci,cj->ij", fn, network.branch, network.normals) / network.area
+        p = float(-np.trace(sig) / 2 / kn_mean)
+        if p > 0:
+            out["p_over_kn"] = p
+    return out
+
+
+def predict_network(network, kt_over_kn=None, kn=None, model=None) -> "ClosurePrediction":
+    """:func:`predict_closure` with the inputs measured on a network (:func:`closure_inputs`)."""
+    return predict_closure(**closure_inputs(network, kt_over_kn, kn), model=model)
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,15 +226,23 @@ class ClosurePrediction(Result):
     K, G : ndarray
         Predicted bulk and shear moduli [N/m].
     K_mf, G_mf : ndarray
-        Mean field (37) at the same Z, phi [N/m].
+        Mean field (37) of the load-bearing particles, ``Z phi (1 - x_r)`` [N/m].
     error_K, error_G : ndarray
-        The closure's measured rms relative error on packings it was not fitted to (``ERROR``), as
-        absolute values (``ERROR * modulus``) [N/m].
+        Stated error of this prediction [N/m]: ``Q sqrt(1 + h / H_MEAN)`` times the modulus, with
+        ``h`` the input's leverage; 90 % of the leave-one-protocol-out cases of the corpus lie
+        within it.
+    rel_error_K, rel_error_G : ndarray
+        The same, relative [-].
+    leverage_K, leverage_G : ndarray
+        The input's leverage in the fitted design (feature-space distance from the data) [-].
+    dz : ndarray
+        Z - Z_iso [-].
     valid : ndarray of bool
         False where a flag applies.
     flags : ndarray of int8
-        Bit mask: 1 outside the fitted range, 2 near-isostatic, 4 frictionless (kt = 0),
-        8 phi above 1 (overlap-inflated, as ``predict_from_network`` flags it).
+        Bit mask: 1 outside the data, 2 at or below the isostatic point, 4 size_coordination
+        missing for a polydisperse packing, 8 p_over_kn missing, 16 phi above 1 (overlap-inflated,
+        as ``predict_from_network`` flags it).
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -96,6 +253,11 @@ class ClosurePrediction(Result):
     G_mf: np.ndarray
     error_K: np.ndarray
     error_G: np.ndarray
+    rel_error_K: np.ndarray
+    rel_error_G: np.ndarray
+    leverage_K: np.ndarray
+    leverage_G: np.ndarray
+    dz: np.ndarray
     valid: np.ndarray
     flags: np.ndarray
 
@@ -116,29 +278,50 @@ def _check(name, a, lo, hi=np.inf, lo_open=False):
     return a
 
 
-def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
-                    coef_K=None, coef_G=None) -> ClosurePrediction:
+def _leverage(X, cov):
+    return np.sum((X @ cov) * X, axis=-1)
+
+
+def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
+                    size_coordination=None, rattler_fraction=None, p_over_kn=None,
+                    model=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
     Parameters
     ----------
-    nc : array_like
-        Mean contacts per load-bearing particle (rattlers excluded), > 0.
+    nc : array_like or NetworkStatistics
+        Mean contacts per load-bearing particle (rattlers excluded), > 0; or the
+        :class:`microhom.structural_sums.NetworkStatistics` of a network (``nc``, ``r``, ``phi`` and
+        ``sliding_fraction`` are taken from it; ``kt_over_kn`` and ``dispersity`` stay arguments).
     r : array_like
         Contact-number fluctuation ``var(Nc)/Nc^2`` of the load-bearing particles, >= 0.
     phi : array_like
         Solid fraction, in (0, 1.1]; in (1, 1.1] (overlap-inflated, as packings squeezed to
         p/kn ~ 1e-2 measure it) the result is flagged (bit 8) rather than refused.
     kt_over_kn : array_like
-        Tangential over normal contact stiffness, >= 0.
+        Tangential over normal contact stiffness, >= 0 (0: frictionless, Z_iso = 4).
     dispersity : array_like
-        Radius spread (radii uniform in r (1 +- dispersity)), >= 0.
+        Radius spread: sqrt(3) std(R)/mean(R) (radii uniform in R (1 +- dispersity); the 50:50
+        1:1.4 bidisperse mixture is 0.289), >= 0.
     kn : array_like
         Normal contact stiffness [N/m], > 0.
-    coef_K, coef_G : array_like, optional
-        Override the stored coefficients (used by the refit study).
+    sliding_fraction : array_like, optional
+        Fraction of the load-bearing contacts at the Coulomb limit, in [0, 1) (default 0).
+    rattler_fraction : array_like, optional
+        Fraction of the particles that are rattlers, in [0, 1) (default 0): the mean field is
+        that of the load-bearing particles, ``Z phi (1 - x_r)``.
+    p_over_kn : array_like, optional
+        Pressure over the normal stiffness (``-tr(sigma)/2 / kn``), > 0. Not given: 1e-3, and the
+        prediction is flagged (K depends on it at fixed Z: ~4 % per decade on the corpus).
+    size_coordination : array_like, optional
+        ``sum z_i R_i / sum R_i - Z`` over the load-bearing particles (:func:`size_coordination`),
+        finite. Not given: 0 (exact for identical disks); for ``dispersity > 0.05`` the prediction
+        is then flagged (it changes G by up to ~20 % on the corpus).
+    model : dict, optional
+        Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
+        ``h_mean``, ``h_max``; used by the refit study).
 
-    The pressure enters through nc (fitted and validated for p/kn in [1e-4, 5e-2]).
+    The pressure enters through nc (the corpus spans p/kn from 1e-4 to 3e-2).
 
     Returns
     -------
@@ -146,27 +329,68 @@ def predict_closure(nc, r, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0,
         Arrays of the broadcast input shape [N/m]. Raises ``ValueError`` naming the parameter for
         input outside its range.
     """
+    if hasattr(nc, "nc") and hasattr(nc, "r"):   # a NetworkStatistics
+        st = nc
+        if r is not None:
+            raise ValueError("r must not be given with a NetworkStatistics (it carries its own r)")
+        nc, r, phi = st.nc, st.r, st.phi
+        if sliding_fraction is None:
+            sliding_fraction = st.sliding_fraction
+        if rattler_fraction is None:
+            rattler_fraction = st.rattler_fraction
+    if r is None:
+        raise ValueError("r (contact-number fluctuation, >= 0) is required")
     nc = _check("nc", nc, 0.0, lo_open=True)
     r = _check("r", r, 0.0)
-    phi = _check("phi", phi, 0.0, PHI_INFLATED_MAX, lo_open=True)   # (1, 1.1]: flagged (8)
+    phi = _check("phi", phi, 0.0, PHI_INFLATED_MAX, lo_open=True)   # (1, 1.1]: flagged (16)
     kr = _check("kt_over_kn", kt_over_kn, 0.0)
     d = _check("dispersity", dispersity, 0.0)
     kn = _check("kn", kn, 0.0, lo_open=True)
-    cK = COEF_K if coef_K is None else np.asarray(coef_K, dtype=float)
-    cG = COEF_G if coef_G is None else np.asarray(coef_G, dtype=float)
-    X = features(nc, kr, d, r)
-    K_mf = nc * phi * kn / (2 * np.pi)
-    G_mf = nc * phi * kn * (1 + kr) / (4 * np.pi)
-    K = K_mf * np.exp(X @ cK)
-    G = G_mf * np.exp(X @ cG)
-    dz = nc - 3.0
-    (zlo, zhi), (klo, khi), (dlo, dhi), (rlo, rhi) = (RANGES[k] for k in ("dz", "kt_over_kn", "dispersity", "r"))
-    tol = 1e-9
-    out = ((dz > zhi + tol) | (kr < klo - tol) | (kr > khi + tol) | (d < dlo - tol) | (d > dhi + tol)
-           | (r < rlo - tol) | (r > rhi + tol))
-    flags = (np.where(out & (kr > 0), 1, 0) | np.where(dz < zlo, 2, 0) | np.where(kr == 0, 4, 0)
-             | np.where(phi > 1.0, 8, 0))
-    flags = np.broadcast_to(flags, K.shape).astype(np.int8)
+    s = _check("sliding_fraction", 0.0 if sliding_fraction is None else sliding_fraction, 0.0, 1.0)
+    if np.any(s >= 1):
+        raise ValueError("sliding_fraction must be in [0, 1); got 1")
+    xr = _check("rattler_fraction", 0.0 if rattler_fraction is None else rattler_fraction, 0.0, 1.0)
+    if np.any(xr >= 1):
+        raise ValueError("rattler_fraction must be in [0, 1); got 1")
+    m = model or {}
+    cK = np.asarray(m.get("coef_K", COEF_K), dtype=float)
+    cG = np.asarray(m.get("coef_G", COEF_G), dtype=float)
+    covK = np.asarray(m.get("cov_K", COV_K), dtype=float)
+    covG = np.asarray(m.get("cov_G", COV_G), dtype=float)
+    q = m.get("Q", Q)
+    h_mean, h_max = m.get("h_mean", H_MEAN), m.get("h_max", H_MAX)
+    missing_zs = size_coordination is None
+    zs = np.asarray(0.0 if missing_zs else size_coordination, dtype=float)
+    if not np.all(np.isfinite(zs)):
+        raise ValueError(f"size_coordination must be finite; got {zs!r}")
+    missing_p = p_over_kn is None
+    pk = _check("p_over_kn", 1e-3 if missing_p else p_over_kn, 0.0, lo_open=True)
+    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_K)
+    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_G)
+    K_mf = nc * phi * (1 - xr) * kn / (2 * np.pi)
+    G_mf = nc * phi * (1 - xr) * kn * (1 + kr) / (4 * np.pi)
+    with np.errstate(over="ignore"):
+        b = np.exp(np.clip(XK @ cK, -50, 50))
+        a = np.exp(np.clip(XG @ cG, -50, 50))
+    dzp = np.maximum(dz, 0.0)
+    K = K_mf / (1 + b)
+    G = G_mf * dzp / (dzp + a)
+    hK, hG = _leverage(XK, covK), _leverage(XG, covG)
+    eK = q["K"] * np.sqrt(1 + hK / h_mean["K"])
+    eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
+    box = np.zeros(K.shape, dtype=bool)
+    for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi), ("p_over_kn", pk),
+                    ("size_coordination", zs), ("rattler_fraction", xr)):
+        lo, hi = RANGES[name]
+        box |= (v < lo - 1e-9) | (v > hi + 1e-9)
+    klo, khi = RANGES["kt_over_kn"]
+    box |= (kr > 0) & ((kr < klo - 1e-12) | (kr > khi + 1e-12))
+    out = box | (hK > h_max["K"]) | (hG > h_max["G"])
+    flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
+             | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)
+             | np.where(phi > 1.0, 16, 0)).astype(np.int8)
+    flags = np.broadcast_to(flags, K.shape)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
-                             error_K=ERROR["K"] * np.abs(K), error_G=ERROR["G"] * np.abs(G),
+                             error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,
+                             leverage_K=hK, leverage_G=hG, dz=np.broadcast_to(dz, K.shape),
                              valid=flags == 0, flags=flags)

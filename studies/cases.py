@@ -20,7 +20,7 @@ import dem.packing
 from dem.packing import PackingProtocol, PackingResult, pack
 from dem.probes import strain_probes
 from dem.stiffness import stiffness
-from microhom.closure import predict_closure
+from microhom.closure import closure_inputs, predict_closure
 from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import network_statistics
@@ -99,12 +99,16 @@ def theory_estimates(stats: dict, kn: float, kt: float, alpha=1.76) -> dict:
     return out
 
 
-def closure_estimate(stats: dict, kt_over_kn: float, dispersity: float) -> dict:
+def closure_estimate(stats: dict, kt_over_kn: float, dispersity: float, net=None) -> dict:
     """Statistics-only closure (``microhom.closure``) from measured statistics, with its stated
-    error and validity; wall time of the prediction alone."""
+    error and validity; wall time of the prediction alone. With ``net``, every input of the
+    closure is measured on it (``microhom.closure.closure_inputs``; kt/kn as given)."""
     t0 = time.perf_counter()
-    p = predict_closure(nc=stats["nc"], r=stats["r"], phi=stats["phi"], kt_over_kn=kt_over_kn,
-                        dispersity=dispersity)
+    if net is not None:
+        p = predict_closure(**closure_inputs(net, kt_over_kn=kt_over_kn))
+    else:
+        p = predict_closure(nc=stats["nc"], r=stats["r"], phi=stats["phi"], kt_over_kn=kt_over_kn,
+                            dispersity=dispersity)
     return {"closure_K": float(p.K), "closure_G": float(p.G), "closure_err_K": float(p.error_K),
             "closure_err_G": float(p.error_G), "closure_valid": bool(p.valid),
             "closure_time_s": time.perf_counter() - t0}
@@ -149,7 +153,7 @@ def packing_case(case: dict) -> dict:
                 "n_floppy": ex.n_floppy, "exact_rattlers": ex.n_rattlers})
     ex0 = stiffness(net, prestress=False)
     out.update({"exact_noprestress_K": ex0.K, "exact_noprestress_G": ex0.G})
-    out.update(closure_estimate(stats, kt, float(case.get("dispersity", DEFAULTS["dispersity"]))))
+    out.update(closure_estimate(stats, kt, float(case.get("dispersity", DEFAULTS["dispersity"])), net=net))
     out.update(hierarchy_estimates(net, prestress=True, order=int(case.get("hierarchy_order", 16))))
     if case.get("probes"):
         pr = strain_probes(res.state, res.law, amplitude=case.get("probe_amplitude", 1e-8),

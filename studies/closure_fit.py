@@ -1,139 +1,393 @@
-"""Refit the statistics-only closure (``microhom.closure``) and measure its error on packings it
-was not built from.
+"""Fit the statistics-only closure (``microhom.closure``) on the corpus of ``studies.corpus`` and
+measure it honestly: leave one protocol out, the candidate statistics, the collapse plots.
 
-    python -m studies.closure_fit [--out DIR] [--quick]
+    python -m studies.closure_fit [--cache DIR] [--out DIR] [--quick] [--no-build] [--bench]
 
-Training set: 16 DEM packings of N = 500 disks (identical and polydisperse 0.2; preparation
-friction 0, 0.05, 0.2, 1; p/kn = 1e-4 and 1e-2; seed 11; kt = kn, mu = 0.488), each analysed with
-kt/kn in {0.1, 0.25, 0.5, 1} (the geometry and sliding flags of the packing, only the tangent
-stiffness changes, as ``studies.sweep`` does): 64 rows. Validation set: the 10 packings of
-``studies.bench_hierarchy`` (N = 3000, other seeds and protocols), each at its own kt/kn; the
-frictionless one lies outside the closure's range and must come out flagged.
-
-For each row: the statistics a user can know (load-bearing coordination Z, solid fraction phi,
-contact-number fluctuation r, rho, dispersity, kt/kn, p/kn), the exact moduli (``dem.stiffness``,
-without pre-stress, as the theory), and the normalised moments of the relaxation
-(``mu_1/mu_0``, ``mu_2/mu_0``, ``mu_3/mu_0`` of the bulk load, in units of the block-preconditioned
-spectrum) for the record. The closure is a least-squares fit of ``log(K/K_mf)`` and
-``log(G/G_mf)`` on the features of ``microhom.closure.features``; the coefficients printed here are
-the ones stored in ``microhom/closure.py``.
+1. The corpus (``studies.corpus.load_corpus``: built where the cache lacks it, unless
+   ``--no-build``); ``--quick`` reads the committed corpus summary ``studies/closure_corpus.csv``
+   instead and builds one small packing end to end (CI).
+2. Rows used: exact response jammed (no flag from ``dem.stiffness``), ``Z - Z_iso >= DZ_MIN``.
+3. Fit: nonlinear least squares of ``log K`` and ``log G`` of the closure's form (module docstring
+   of ``microhom.closure``) on its features; the printed coefficients are the ones stored.
+4. Leave one protocol out (LOPO): for each protocol, fit on the others, predict it; relative
+   errors, leverages; the error scale ``Q`` is the 90th percentile of
+   ``|err| / sqrt(1 + h / h_mean)`` over all held-out cases, and the table gives per protocol the
+   rms and max error and the fraction inside the stated error.
+5. Candidate statistics: LOPO rms of ``log(K/K_mf)`` and ``log(G/G_mf)`` when each candidate is
+   added to the base features (how much of the spread across protocols it removes).
+6. Plots under ``--out`` (collapse of G/G_mf and K/K_mf against Z - Z_iso by protocol; predicted
+   against exact).
 """
 from __future__ import annotations
 
 import argparse
-import itertools
+import json
 import os
 import time
-import warnings
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import least_squares
 
-from dem.stiffness import stiffness
-from microhom.closure import COEF_G, COEF_K, FEATURES, RANGES, features, predict_closure
-from microhom.hierarchy import moments
-from microhom.kinematics import assemble
-from microhom.structural_sums import network_statistics
-from studies.bench_hierarchy import CASES, case_dict
-from studies.cases import get_packing
-from studies.common import cli_out_dir, write_table
+from microhom import closure
+from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, features, predict_closure
+from studies.common import cli_out_dir, out_dir, write_table
 
-TRAIN = [dict(n=500, p_over_kn=p, kt_over_kn=1.0, mu=0.4877, mu_prep=mp, dispersity=d, seed=11)
-         for d, mp, p in itertools.product((0.0, 0.2), (0.0, 0.05, 0.2, 1.0), (1e-4, 1e-2))]
-KT_RATIOS = (0.1, 0.25, 0.5, 1.0)
-
-
-def measure(net, case, kt_ratio):
-    """One row: statistics, exact moduli (no pre-stress), normalised moments."""
-    if kt_ratio is not None:
-        net = net.with_stiffness(kt=kt_ratio)
-    st = network_statistics(net).as_dict()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        ex = stiffness(net)
-    kt = float(np.mean(net.kt)) if kt_ratio is None else kt_ratio
-    row = dict(n=case["n"], dispersity=case["dispersity"], mu_prep=case["mu_prep"],
-               p_over_kn=case["p_over_kn"], seed=case["seed"], kt_over_kn=kt, nc=st["nc"], r=st["r"],
-               rho=st["rho"], phi=st["phi"], rattler_fraction=st["rattler_fraction"],
-               sliding_fraction=st["sliding_fraction"], exact_K=ex.K, exact_G=ex.G,
-               affine_K=ex.K_affine, affine_G=ex.G_affine, n_floppy=ex.n_floppy)
-    if ex.n_dof:
-        asm = assemble(net, pin=False)
-        mu = moments(asm, [0.5, 0.5, 0.0], j_max=3)
-        row.update({f"mK{j}": mu[j] / mu[0] for j in (1, 2, 3)})
-        row["mu0_over_KA"] = mu[0] / (ex.K_affine * net.area)
-    return row
+SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
+COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob_mu_prep", "knob_dispersity",
+           "knob_phi", "knob_radii", "Z", "Z_all", "Z_iso", "dZ", "r", "phi", "rattler_fraction",
+           "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "fabric_anisotropy",
+           "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
+           "flags"]
+#: candidate statistics tried on top of the base features (item 2 of issue 25)
+CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
+              "sliding_fraction")
 
 
-def collect(cases, kt_ratios):
+#: protocols whose packings are in force balance without tangential forces (kt = 0 is physical)
+FRICTIONLESS_PREP = ("pack_frictionless", "minimise")
+
+
+def usable(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows with a jammed exact response and Z - Z_iso >= DZ_MIN (the closure's domain). kt = 0
+    rows only for packings prepared without friction: a packing prepared with friction carries
+    tangential forces and is not an equilibrium of frictionless contacts."""
+    f = df["flags"].fillna("").astype(str)
+    ok = (f == "") & (df.K > 0) & (df.G > 0) & (df.dZ >= DZ_MIN)
+    ok &= (df.kt_over_kn > 0) | df.protocol.isin(FRICTIONLESS_PREP)
+    out = df[ok].copy()
+    out["Z_size_minus_Z"] = out.Z_size - out.Z
+    out["log_p_over_kn"] = np.log10(out.p_over_kn)
+    return out.reset_index(drop=True)
+
+
+def design(df, names, extra=()):
+    """Feature matrix of the rows of ``df`` (columns ``names`` of ``ALL_FEATURES``, then the
+    corpus columns ``extra``) and dZ."""
+    X, dz = features(df.Z.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy(),
+                     df.sliding_fraction.to_numpy(), (df.Z_size - df.Z).to_numpy(), df.rattler_fraction.to_numpy(),
+                     df.p_over_kn.to_numpy(), names=names)
+    if extra:
+        X = np.concatenate([X, df[list(extra)].to_numpy(float)], axis=1)
+    return X, dz
+
+
+def mean_field(df):
+    """Mean field (37) of the load-bearing particles, Z phi (1 - x_r) (kn = 1)."""
+    w = df.Z.to_numpy() * df.phi.to_numpy() * (1 - df.rattler_fraction.to_numpy())
+    K_mf = w / (2 * np.pi)
+    G_mf = w * (1 + df.kt_over_kn.to_numpy()) / (4 * np.pi)
+    return K_mf, G_mf
+
+
+def fit(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    """Coefficients c_K, c_G of the closure's form on ``df`` (kn = 1), nonlinear least squares on
+    log K and log G from a linear start in the transformed targets, and (F^T F)^-1 per modulus."""
+    XK, dz = design(df, names_K, extra)
+    XG, _ = design(df, names_G, extra)
+    K_mf, G_mf = mean_field(df)
+    lK, lG = np.log(df.K.to_numpy()), np.log(df.G.to_numpy())
+    tK = np.log(np.clip(K_mf / df.K.to_numpy() - 1, 1e-3, None))
+    tG = np.log(dz * np.clip(G_mf / df.G.to_numpy() - 1, 1e-3, None))
+    c0K, *_ = np.linalg.lstsq(XK, tK, rcond=None)
+    c0G, *_ = np.linalg.lstsq(XG, tG, rcond=None)
+    rK = least_squares(lambda c: np.log(K_mf) - np.logaddexp(0.0, XK @ c) - lK, c0K, method="lm")
+    rG = least_squares(lambda c: np.log(G_mf) + np.log(dz) - np.logaddexp(np.log(dz), XG @ c) - lG, c0G,
+                       method="lm")
+    return rK.x, rG.x, np.linalg.pinv(XK.T @ XK), np.linalg.pinv(XG.T @ XG)
+
+
+def predict_rows(df, cK, cG, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    XK, dz = design(df, names_K, extra)
+    XG, _ = design(df, names_G, extra)
+    K_mf, G_mf = mean_field(df)
+    dz = np.maximum(dz, 1e-12)
+    K = K_mf / (1 + np.exp(XK @ cK))
+    G = G_mf * dz / (dz + np.exp(XG @ cG))
+    return K, G, XK, XG
+
+
+def lopo(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+    """Leave one protocol out: per held-out row, the relative errors and the leverages in the
+    designs of the other protocols (with their mean and largest training leverage)."""
     rows = []
-    for case in cases:
-        res, _, _ = get_packing(case)
-        net = res.to_network()
-        for kr in kt_ratios:
-            try:
-                rows.append(measure(net, case, kr))
-            except ValueError as exc:      # e.g. no load-bearing backbone at this kt
-                print(f"skipped {case} kt {kr}: {exc}")
-    return pd.DataFrame(rows)
+    for prot in sorted(df.protocol.unique()):
+        tr, te = df[df.protocol != prot], df[df.protocol == prot]
+        cK, cG, covK, covG = fit(tr, extra, names_K, names_G)
+        Kp, Gp, XK, XG = predict_rows(te, cK, cG, extra, names_K, names_G)
+        d = dict(protocol=prot, key=te.key.to_numpy(), kt_over_kn=te.kt_over_kn.to_numpy(),
+                 err_K=Kp / te.K.to_numpy() - 1, err_G=Gp / te.G.to_numpy() - 1)
+        for m, X, cov, names in (("K", XK, covK, names_K), ("G", XG, covG, names_G)):
+            Xtr, _ = design(tr, names, extra)
+            htr = np.einsum("ij,jk,ik->i", Xtr, cov, Xtr)
+            d.update({f"h_{m}": np.einsum("ij,jk,ik->i", X, cov, X), f"hmean_{m}": htr.mean(),
+                      f"hmax_{m}": htr.max()})
+        rows.append(pd.DataFrame(d))
+    return pd.concat(rows, ignore_index=True)
 
 
-def fit(df):
-    """Least squares of log(modulus / mean field) on the closure's features."""
-    X = features(df.nc.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy())
-    mf_K = df.nc * df.phi / (2 * np.pi)
-    mf_G = df.nc * df.phi * (1 + df.kt_over_kn) / (4 * np.pi)
-    cK, *_ = np.linalg.lstsq(X, np.log(df.exact_K / mf_K), rcond=None)
-    cG, *_ = np.linalg.lstsq(X, np.log(df.exact_G / mf_G), rcond=None)
-    return cK, cG
+def scale(lo, m):
+    return np.sqrt(1 + lo[f"h_{m}"] / lo[f"hmean_{m}"])
 
 
-def errors(df, cK=None, cG=None):
-    p = predict_closure(nc=df.nc.to_numpy(), r=df.r.to_numpy(), phi=df.phi.to_numpy(), kt_over_kn=df.kt_over_kn.to_numpy(),
-                        dispersity=df.dispersity.to_numpy(), coef_K=cK, coef_G=cG)
-    out = df.copy()
-    out["closure_K"], out["closure_G"] = p.K, p.G
-    out["err_K"], out["err_G"] = p.K / df.exact_K - 1, p.G / df.exact_G - 1
-    out["closure_valid"], out["closure_reason"] = p.valid, p.reason
-    return out
+def calibrate(lo, coverage=0.9, h_factor=3.0, exclude=None):
+    """Error scale Q (relative) per modulus: the largest, over the held-out protocols, of the
+    ``coverage`` quantile of ``|err| / sqrt(1 + h / h_mean)`` of its cases inside the data
+    (leverage at most ``h_factor`` times the largest training leverage, for K and G; the others
+    are flagged). So the stated error covers ``coverage`` of the cases of *every* protocol.
+    ``exclude``: a protocol left out of the calibration (the nested check)."""
+    inside = (lo.h_K <= h_factor * lo.hmax_K) & (lo.h_G <= h_factor * lo.hmax_G)
+    q = {}
+    for m in ("K", "G"):
+        z = np.abs(lo[f"err_{m}"]) / scale(lo, m)
+        sel = inside if exclude is None else inside & (lo.protocol != exclude)
+        q[m] = float(max(np.quantile(z[sel & (lo.protocol == p)], coverage, method="higher")
+                         for p in lo.protocol[sel].unique()))
+    return q, inside
+
+
+def lopo_table(lo, q, inside):
+    """Per held-out protocol: cases, valid (inside the data), rms and max relative error of the
+    valid ones, the fraction inside the stated error, and the same fraction with Q calibrated
+    without that protocol (``nested_*``: the out-of-sample check of the error statement)."""
+    rows = []
+    for prot, g in lo.groupby("protocol"):
+        v = inside[g.index].to_numpy()
+        gv = g[v]
+        qn, _ = calibrate(lo, exclude=prot)
+        d = dict(protocol=prot, cases=len(g), valid=int(v.sum()))
+        for m in ("K", "G"):
+            e = gv[f"err_{m}"].abs()
+            d.update({f"rms_{m}": float(np.sqrt(np.mean(e ** 2))) if len(gv) else np.nan,
+                      f"max_{m}": float(e.max()) if len(gv) else np.nan,
+                      f"inside_{m}": float(np.mean(e <= q[m] * scale(gv, m) * (1 + 1e-12))) if len(gv) else np.nan,
+                      f"nested_{m}": float(np.mean(e <= qn[m] * scale(gv, m))) if len(gv) else np.nan})
+        rows.append(d)
+    return pd.DataFrame(rows)[["protocol", "cases", "valid", "rms_K", "max_K", "inside_K", "nested_K", "rms_G",
+                               "max_G", "inside_G", "nested_G"]]
+
+
+def candidates(df):
+    """LOPO rms of log K and log G, the chosen features alone and with each candidate added to
+    both moduli; plus the spread of log(K/K_mf), log(G/G_mf) with no model (the mean field alone)
+    and the base without the statistics beyond Z, kt/kn."""
+    K_mf, G_mf = mean_field(df)
+    out = [dict(features="mean field only (no fit)", rms_logK=float(np.std(np.log(df.K / K_mf))),
+                rms_logG=float(np.std(np.log(df.G / G_mf))))]
+    core = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ")
+    trials = [("Z - Z_iso and kt/kn only", (), core, core + ("log kt/kn * tanh(Z - 4)",)),
+              ("closure (K: + rattler fraction, log p; G: + dispersity, r, size-coordination)", (), FEATURES_K,
+               FEATURES_G)]
+    for name in ("dispersity", "r", "size-coordination", "rattler fraction", "log10 p/kn"):
+        trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * tanh(Z - 4)", name)))
+    for c in CANDIDATES:
+        trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
+    for name, extra, nK, nG in trials:
+        lo = lopo(df, extra, nK, nG)
+        out.append(dict(features=name, rms_logK=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
+                        rms_logG=float(np.sqrt(np.mean(np.log1p(lo.err_G) ** 2)))))
+    return pd.DataFrame(out)
+
+
+def plots(df, lo, folder):
+    """closure_collapse.png: G/G_mf and K/K_mf against Z - Z_iso (marker: protocol; colour: kt/kn,
+    black: kt = 0), and the leave-one-protocol-out predictions of G and K against the exact ones."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    K_mf, G_mf = mean_field(df)
+    prots = sorted(df.protocol.unique())
+    marks = dict(zip(prots, "osD^v<>"))
+    fig, ax = plt.subplots(1, 4, figsize=(19, 4.6))
+    fr = (df.kt_over_kn > 0).to_numpy()
+    for p in prots:
+        m = (df.protocol == p).to_numpy()
+        for a_, y in ((ax[0], df.G / G_mf), (ax[1], df.K / K_mf)):
+            sc = a_.scatter(df.dZ[m & fr], y[m & fr], marker=marks[p], s=16, c=np.log10(df.kt_over_kn[m & fr]),
+                            cmap="viridis", vmin=np.log10(0.05), vmax=0, label=p)
+            if (m & ~fr).any():
+                a_.scatter(df.dZ[m & ~fr], y[m & ~fr], marker=marks[p], s=22, facecolors="none", edgecolors="k")
+    x = np.logspace(-1.5, 0.5)
+    ax[0].plot(x, x / (x + 1), "r:", lw=1, label="dZ / (dZ + 1)")
+    for a_, yl in ((ax[0], "G / G_mf"), (ax[1], "K / K_mf")):
+        a_.set_xscale("log")
+        a_.set_xlabel("Z - Z_iso   (Z_iso = 4 if kt = 0, else 6/(2 - s))")
+        a_.set_ylabel(yl + "   (mean field of the load-bearing particles)")
+    ax[0].set_yscale("log")
+    ax[0].legend(fontsize=7, loc="lower right")
+    ax[0].set_title("G: colour log10 kt/kn, open black: kt = 0")
+    ax[1].set_title("K")
+    fig.colorbar(sc, ax=ax[1], label="log10 kt/kn")
+    e = lo.merge(df[["key", "kt_over_kn", "G", "K"]], on=["key", "kt_over_kn"])
+    for a_, m in ((ax[2], "G"), (ax[3], "K")):
+        for p in prots:
+            sel = e.protocol == p
+            a_.scatter(e[m][sel], e[m][sel] * (1 + e[f"err_{m}"][sel]), marker=marks[p], s=14, label=p)
+        lim = np.array([e[m].min() * 0.8, e[m].max() * 1.2])
+        a_.plot(lim, lim, "k-", lw=0.8)
+        a_.plot(lim, lim * 1.1, "k:", lw=0.6)
+        a_.plot(lim, lim / 1.1, "k:", lw=0.6)
+        a_.set_xscale("log")
+        a_.set_yscale("log")
+        a_.set_xlabel(f"exact {m} / kn")
+        a_.set_ylabel(f"closure {m} / kn, its protocol left out")
+        a_.set_title(f"leave one protocol out: {m} (dotted: +-10 %)")
+    ax[2].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(folder / "closure_collapse.png", dpi=100)
+    plt.close(fig)
+
+
+def bench(n=1_000_000):
+    rng = np.random.default_rng(0)
+    args = dict(nc=rng.uniform(3.3, 5.3, n), r=rng.uniform(0.02, 0.06, n), phi=rng.uniform(0.82, 0.9, n),
+                kt_over_kn=rng.uniform(0.05, 1, n), dispersity=rng.uniform(0, 0.5, n),
+                size_coordination=rng.uniform(0, 0.1, n), rattler_fraction=rng.uniform(0, 0.1, n),
+                p_over_kn=10 ** rng.uniform(-4, -2, n))
+    predict_closure(**{k: v[:10] for k, v in args.items()})
+    t0, c0 = time.perf_counter(), time.process_time()
+    predict_closure(**args)
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    print(f"predict_closure: {n} sets in {dc:.3f} s of CPU = {n / dc:.3g} sets/s per core "
+          f"(wall {dt:.3f} s at load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    return n / dc
+
+
+def data_ranges(df) -> dict:
+    """The box of the corpus's usable rows (the closure flags inputs outside it)."""
+    fr = df[df.kt_over_kn > 0]
+    zs = df.Z_size - df.Z
+    rd = lambda a, b: (float(np.floor(a * 1e4) / 1e4), float(np.ceil(b * 1e4) / 1e4))
+    return {"Z": rd(df.Z.min(), df.Z.max()), "kt_over_kn": rd(fr.kt_over_kn.min(), fr.kt_over_kn.max()),
+            "dispersity": rd(df.dispersity.min(), df.dispersity.max()), "r": rd(df.r.min(), df.r.max()),
+            "phi": rd(df.phi.min(), df.phi.max()), "p_over_kn": (float(df.p_over_kn.min()), float(df.p_over_kn.max())),
+            "size_coordination": rd(zs.min(), zs.max()),
+            "rattler_fraction": rd(df.rattler_fraction.min(), df.rattler_fraction.max())}
+
+
+def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
+    f = lambda a: np.array2string(np.asarray(a), precision=8, separator=", ", max_line_width=100,
+                                  floatmode="maxprec")
+    return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = np.array({f(covK)})\n"
+            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\n"
+            f"H_MEAN = {{'K': {h_mean['K']:.6g}, 'G': {h_mean['G']:.6g}}}\n"
+            f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n")
+
+
+def quick_end_to_end():
+    """One small frictionless packing, built and measured, against the stored closure (CI)."""
+    from studies.corpus import _row, build_network, measure_network
+    import tempfile
+    row = _row("pack_frictionless", 200, 5, p_over_kn=1e-2, dispersity=0.3)
+    with tempfile.TemporaryDirectory() as tmp:
+        net, _ = build_network(row, Path(tmp))
+        m = pd.DataFrame(measure_network(net, row, (0.0, 1.0)))
+    p = predict_closure(nc=m.Z.to_numpy(), r=m.r.to_numpy(), phi=m.phi.to_numpy(), kt_over_kn=m.kt_over_kn.to_numpy(),
+                        dispersity=m.dispersity.to_numpy(), sliding_fraction=m.sliding_fraction.to_numpy(),
+                        size_coordination=(m.Z_size - m.Z).to_numpy(), rattler_fraction=m.rattler_fraction.to_numpy(),
+                        p_over_kn=m.p_over_kn.to_numpy())
+    m["closure_G"], m["err_G"], m["stated_G"], m["valid"] = p.G, p.G / m.G - 1, p.rel_error_G, p.valid
+    print(m[["kt_over_kn", "Z", "dZ", "r", "K", "G", "closure_G", "err_G", "stated_G", "valid"]].to_string(index=False))
+    return m
+
+
+def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
+    """Packing files made elsewhere (any ``dem.io`` format: DEMPLA/OVAL D-file, LAMMPS data/dump,
+    npz, CSV), never in the fit: contacts from the overlaps (kn = 1), exact response and closure
+    at each kt/kn."""
+    from dem.analyse import load_network
+    from studies.corpus import CorpusRow, measure_network
+    frames = []
+    for path in paths:
+        net, _ = load_network(path, kn=1.0, kt_ratio=1.0)
+        net = net.with_stiffness(kn=1.0, kt=1.0, sliding=False)
+        if net.fn is None:   # positions only: linear contacts, forces from the overlaps
+            from dataclasses import replace
+            net = replace(net, fn=np.maximum(net.overlaps, 0.0) * net.kn, ft=np.zeros(net.n_contacts))
+        row = CorpusRow("heldout", (("file", str(path)),), 0, net.n_particles)
+        m = pd.DataFrame(measure_network(net, row, kt_ratios))
+        frames.append(m)
+    df = pd.concat(frames, ignore_index=True)
+    ok = df.K.notna() & (df.Z > 0)
+    p = predict_closure(nc=np.where(ok, df.Z, 4.0), r=np.where(ok, df.r, 0.0), phi=df.phi.to_numpy(),
+                        kt_over_kn=df.kt_over_kn.to_numpy(), dispersity=df.dispersity.to_numpy(),
+                        sliding_fraction=np.where(ok, df.sliding_fraction, 0.0),
+                        size_coordination=np.where(ok, df.Z_size - df.Z, 0.0),
+                        rattler_fraction=np.where(ok, df.rattler_fraction, 0.0),
+                        p_over_kn=np.where(ok & (df.p_over_kn > 0), df.p_over_kn, 1e-3))
+    df["closure_K"], df["closure_G"] = p.K, p.G
+    df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
+    df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G
+    df["valid"], df["reason"] = p.valid & ok.to_numpy(), np.where(ok, p.reason, "no exact response")
+    return df
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", default="out/closure/cache")
     ap.add_argument("--out", default="out/closure")
-    ap.add_argument("--quick", action="store_true", help="4 training packings, 2 validation packings")
+    ap.add_argument("--quick", action="store_true", help="the committed corpus summary + one small packing")
+    ap.add_argument("--no-build", action="store_true", help="use only the cached rows of the corpus")
+    ap.add_argument("--bench", action="store_true", help="measure predict_closure's throughput")
+    ap.add_argument("--no-candidates", action="store_true")
+    ap.add_argument("--heldout", nargs="*", default=[], help="packing files from other codes (held out)")
     args = ap.parse_args(argv)
     out = cli_out_dir(args.out)  # checked before computing (one line and exit 1 otherwise)
     t0 = time.perf_counter()
-    train = collect(TRAIN[:4] if args.quick else TRAIN, KT_RATIOS)
-    val_cases = [case_dict(*c) for c in (CASES[:2] if args.quick else CASES)]
-    val = collect(val_cases, [None])
-    cK, cG = fit(train)
     pd.set_option("display.width", 220)
-    print("features:", FEATURES)
-    print("COEF_K =", np.array2string(cK, precision=6, separator=", "))
-    print("COEF_G =", np.array2string(cG, precision=6, separator=", "))
-    print("stored: K", COEF_K, "G", COEF_G)
-    print(f"training ranges: dZ {train.nc.min() - 3:.3f}-{train.nc.max() - 3:.3f}, kt/kn {train.kt_over_kn.min()}-"
-          f"{train.kt_over_kn.max()}, dispersity {train.dispersity.min()}-{train.dispersity.max()}, "
-          f"r {train.r.min():.4f}-{train.r.max():.4f}, phi {train.phi.min():.3f}-{train.phi.max():.3f}; "
-          f"stored RANGES {RANGES}")
-    tr = errors(train, cK, cG)
-    va = errors(val, cK, cG)
-    for name, d in (("training (fit)", tr), ("validation (not fitted)", va)):
-        v = d[d.closure_valid]
-        print(f"{name}: {len(v)}/{len(d)} valid; rms err K {np.sqrt((v.err_K ** 2).mean()):.3f}, "
-              f"G {np.sqrt((v.err_G ** 2).mean()):.3f}; max |err| K {v.err_K.abs().max():.3f}, "
-              f"G {v.err_G.abs().max():.3f}")
-    va.to_csv(out / "validation_full.csv", index=False)
-    cols = ["dispersity", "mu_prep", "p_over_kn", "kt_over_kn", "nc", "r", "phi", "exact_K", "closure_K",
-            "err_K", "exact_G", "closure_G", "err_G", "closure_valid", "mK1", "mK2", "mK3"]
-    print(va[cols].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    tr.to_csv(out / "training.csv", index=False)
-    write_table(va[cols], out, "validation", "Statistics-only closure on packings it was not built from",
-                f"Fit on {len(tr)} rows (16 packings x 4 kt/kn); wall {time.perf_counter() - t0:.0f} s; "
-                f"load {os.getloadavg()[0]:.1f}.")
-    print(f"written {out}")
+    if args.quick:
+        raw = pd.read_csv(SUMMARY, keep_default_na=False, na_values=[""])
+    else:
+        from studies.corpus import load_corpus
+        raw = load_corpus(args.cache, build=not args.no_build, verbose=False)
+        raw = raw[[c for c in COLUMNS if c in raw.columns]]
+        raw.to_csv(out / "corpus.csv", index=False)
+    df = usable(raw)
+    print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
+          f"(jammed, Z - Z_iso >= {DZ_MIN}); per protocol: {df.groupby('protocol').key.nunique().to_dict()}")
+    cK, cG, covK, covG = fit(df)
+    XK, _ = design(df, FEATURES_K)
+    XG, _ = design(df, FEATURES_G)
+    hK = np.einsum("ij,jk,ik->i", XK, covK, XK)
+    hG = np.einsum("ij,jk,ik->i", XG, covG, XG)
+    lo = lopo(df)
+    q, inside = calibrate(lo)
+    h_mean = {"K": float(hK.mean()), "G": float(hG.mean())}
+    h_max = {"K": float(3.0 * hK.max()), "G": float(3.0 * hG.max())}
+    tab = lopo_table(lo, q, inside)
+    print("features K:", FEATURES_K, "\nfeatures G:", FEATURES_G)
+    print(stored_model_text(cK, cG, covK, covG, q, h_mean, h_max))
+    print("leave one protocol out (relative errors; stated error Q sqrt(1 + h/h_mean)):")
+    print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    write_table(tab, out, "lopo", "Closure, leave one protocol out",
+                f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
+    ranges = data_ranges(df)
+    print("RANGES =", ranges)
+    (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov_K=covK.tolist(),
+                                                    cov_G=covG.tolist(), Q=q, h_mean=h_mean, h_max=h_max,
+                                                    ranges=ranges)))
+    lo.to_csv(out / "lopo_cases.csv", index=False)
+    if not args.quick:
+        raw.to_csv(out / "closure_corpus.csv", index=False)
+        if not args.no_candidates:
+            cand = candidates(df)
+            print(cand.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
+            write_table(cand, out, "candidates", "Candidate statistics: LOPO rms of log K, log G")
+        plots(df, lo, out)
+    else:
+        quick_end_to_end().to_csv(out / "quick.csv", index=False)
+    if args.heldout:
+        ho = heldout(args.heldout)
+        cols = ["key", "n", "kt_over_kn", "Z", "dZ", "r", "phi", "dispersity", "K", "closure_K", "err_K",
+                "stated_K", "G", "closure_G", "err_G", "stated_G", "valid", "reason"]
+        print("held-out packings (not in the fit):")
+        print(ho[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+        write_table(ho[cols], out, "heldout", "Closure on held-out packing files")
+    if args.bench:
+        bench()
+    print(f"written {out} ({time.perf_counter() - t0:.0f} s)")
+    return tab
 
 
 if __name__ == "__main__":

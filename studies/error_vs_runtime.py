@@ -34,7 +34,7 @@ import pandas as pd
 
 from dem.probes import strain_probes
 from dem.stiffness import stiffness
-from microhom.closure import predict_closure
+from microhom.closure import closure_inputs, predict_closure
 from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import network_statistics
@@ -77,9 +77,8 @@ def main(argv=None):
         dt = time.perf_counter() - t0 + t_stats
         rows.append(_row(label, "measured Nc, r, phi", float(p.K), float(p.G), ref, dt, t_pack))
     t0 = time.perf_counter()
-    cl = predict_closure(nc=st["nc"], r=st["r"], phi=st["phi"], kt_over_kn=case["kt_over_kn"],
-                         dispersity=case["dispersity"])
-    rows.append(_row("closure (statistics only)", "measured Z, r, phi, kt/kn", float(cl.K), float(cl.G), ref,
+    cl = predict_closure(**closure_inputs(net, kt_over_kn=case["kt_over_kn"]))
+    rows.append(_row("closure (statistics only)", "measured Z, r, phi, kt/kn, rattlers, sizes, p", float(cl.K), float(cl.G), ref,
                      time.perf_counter() - t0 + t_stats, t_pack, stated_err_K=float(cl.error_K) / ref.K,
                      stated_err_G=float(cl.error_G) / ref.G))
     rows.append(_row("DEM affine tensor", f"N = {n_ref}", ref.K_affine, ref.G_affine, ref,

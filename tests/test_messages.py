@@ -233,12 +233,12 @@ def test_walk_catches_a_bare_message():
 
 def test_closure_flags_overlap_inflated_phi():
     """predict_closure(phi=1.008) raised with np.float64(...) in the text, where
-    predict_from_network flags the same overlap-inflated phi: now flagged (bit 8), with the
+    predict_from_network flags the same overlap-inflated phi: now flagged (bit 16), with the
     moduli computed as for phi <= 1 (the mean field scales with phi)."""
     from microhom.closure import predict_closure
-    p = predict_closure(nc=4.1, r=0.05, phi=1.008, kt_over_kn=1.0)
-    q = predict_closure(nc=4.1, r=0.05, phi=0.9, kt_over_kn=1.0)
-    assert not bool(p.valid) and int(p.flags) & 8 and "phi above 1" in str(p.reason)
+    p = predict_closure(nc=4.1, r=0.05, phi=1.008, kt_over_kn=1.0, p_over_kn=1e-3)
+    q = predict_closure(nc=4.1, r=0.05, phi=0.9, kt_over_kn=1.0, p_over_kn=1e-3)
+    assert not bool(p.valid) and int(p.flags) & 16 and "phi above 1" in str(p.reason)
     assert float(p.K) / float(q.K) == pytest.approx(1.008 / 0.9, rel=1e-14)
     assert bool(q.valid)
 
