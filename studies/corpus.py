@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["CorpusRow", "PROTOCOLS", "KT_RATIOS", "corpus_rows", "build_network", "measure_network",
+__all__ = ["CorpusRow", "packing_protocol", "PROTOCOLS", "KT_RATIOS", "corpus_rows", "build_network", "measure_network",
            "load_corpus", "network_features"]
 
 #: tangent over normal stiffness at which every packing is analysed
@@ -218,6 +218,24 @@ def _lammps_prep(row, work):
     return np.asarray(cfg.positions)[:, :2], np.asarray(cfg.radii), np.asarray(cfg.cell)[:2, :2], {}
 
 
+def packing_protocol(row: CorpusRow):
+    """The :class:`dem.packing.PackingProtocol` of a row made by the disk DEM (``pack_*``
+    protocols): the corpus's rows of that kind are protocols plus a name."""
+    from dem.packing import PackingProtocol
+    if not row.protocol.startswith("pack_"):
+        raise ValueError(f"row protocol {row.protocol!r} is not made by dem.packing.pack")
+    p = row.params
+    kw = dict(n=row.n, p_over_kn=p["p_over_kn"], dispersity=p["dispersity"], seed=row.seed, kn=1.0,
+              kt_over_kn=1.0)
+    if row.protocol == "pack_frictionless":
+        kw.update(mu=0.0, mu_prep=0.0)
+    else:
+        kw.update(mu=0.5, mu_prep=p["mu_prep"])
+    if row.protocol == "pack_slowdamped":
+        kw.update(damping_compaction=None, fire=False)
+    return PackingProtocol(**kw)
+
+
 def build_network(row: CorpusRow, cache: Path):
     """The row's contact network (kn = 1, kt = kn), from the cache or built and cached."""
     from microhom.network import from_overlaps
@@ -231,14 +249,7 @@ def build_network(row: CorpusRow, cache: Path):
     meta = dict(row=asdict(row))
     if row.protocol in ("pack_frictional", "pack_frictionless", "pack_slowdamped"):
         from dem.packing import pack
-        kw = dict(p_over_kn=p["p_over_kn"], dispersity=p["dispersity"], seed=row.seed, kn=1.0, kt=1.0)
-        if row.protocol == "pack_frictionless":
-            kw.update(mu=0.0, mu_prep=0.0)
-        else:
-            kw.update(mu=0.5, mu_prep=p["mu_prep"])
-        if row.protocol == "pack_slowdamped":
-            kw.update(damping_compaction=None, fire=False)
-        res = pack(row.n, **kw)
+        res = pack(packing_protocol(row))
         net = res.to_network()
         if row.protocol == "pack_frictionless":   # no contact is at a Coulomb limit: tangent springs act
             net = net.with_stiffness(kt=1.0, sliding=False)
