@@ -262,7 +262,6 @@ _D0001 = str(__import__("pathlib").Path(__file__).parent / "data" / "D0001")
     ("microhom", ["predict", "--kn", "x"], "kn"),
     ("microhom", ["predict", "--nc", "0"], "nc"),
     ("microhom", ["predict", "--kn", "1e400"], "kn"),
-    ("microhom", ["predict", "--phi", "0.5"], "--nbar"),
     ("dem", ["analyse", _D0001, "--kn", "-1"], "--kn"),
     ("dem", ["analyse", "/nonexistent/packing.dump"], "/nonexistent/packing.dump"),
     ("dem", ["analyse", _D0001, "--hierarchy-tol", "2"], "--hierarchy-tol"),
@@ -287,6 +286,15 @@ def test_cli_message_walk(cli, argv, must_name, capsys):
     assert must_name in err and "Traceback" not in err, err
     for bare in BARE_LIBRARY_TEXTS:
         assert bare not in err, err
+
+
+def test_loose_phi_is_flagged_not_refused(capsys):
+    """Below phi = pi/4 N-bar(phi) does not exist: the prediction uses N-bar = 4, exits 3
+    (flagged) and says which N-bar it used and how to choose another (issue 25's decision)."""
+    from microhom.__main__ import main
+    rc = main(["predict", "--phi", "0.5"])
+    out = capsys.readouterr().out
+    assert rc == 3 and "FLAGGED" in out and "Nbar = 4" in out and "pass nbar" in out
 
 
 def test_stiffness_near_float64_top():
