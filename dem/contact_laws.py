@@ -288,10 +288,10 @@ class LammpsHookeHistory(_Composed):
     the contact's rotation) instead of a scalar turning rigidly with the contact. For LAMMPS'
     start-up convention (velocities at the integer time, no history increment in the setup force
     call), run it with ``Simulation(..., startup="lammps")``. ``Simulation``'s damping defaults
-    to 0 for this law (LAMMPS has no Cundall local damping) and a non-zero one is refused: with
-    the 0.7 of the other laws dv/v_rms was 0.1 after one step.
+    to 0 for this law (LAMMPS has no Cundall local damping) and a non-zero one is warned about:
+    with the 0.7 of the other laws dv/v_rms was 0.1 after one step.
     """
-    #: read by ``dem.integrate.Simulation``: damping defaults to 0, a non-zero one is refused
+    #: read by ``dem.integrate.Simulation``: damping defaults to 0, a non-zero one is warned about
     LAMMPS_EQUIVALENT = True
 
     kn: float

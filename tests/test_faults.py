@@ -471,7 +471,7 @@ def test_analyse_frame_out_of_range_in_the_cli_numbering(tmp_path, capsys):
 def test_lammps_law_damping_set_or_refused():
     """LammpsHookeHistory under Simulation's default damping (0.7) left LAMMPS silently: the
     default is now 0 for it (the same state as an explicit damping=0 after a few steps, bit for
-    bit), and a non-zero damping is refused naming the law."""
+    bit), and a non-zero damping is warned about, naming the law."""
     from dem.contact_laws import LammpsHookeHistory, LinearFriction
     from dem.integrate import Simulation
     from dem.packing import random_gas
@@ -484,6 +484,6 @@ def test_lammps_law_damping_set_or_refused():
     a.run(20)
     b.run(20)
     assert np.array_equal(a.state.v, b.state.v) and np.array_equal(a.state.x, b.state.x)
-    with pytest.raises(ValueError, match="LammpsHookeHistory.*LAMMPS has no Cundall"):
-        Simulation(st.copy(), law, damping=0.7)
+    with pytest.warns(RuntimeWarning, match="LammpsHookeHistory.*LAMMPS has no Cundall"):
+        assert Simulation(st.copy(), law, damping=0.7).damping == 0.7   # asked for: said
     assert Simulation(st.copy(), LinearFriction(kn=1e3, kt=1e3, mu=0.5)).damping == 0.7
