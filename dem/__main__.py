@@ -1,32 +1,32 @@
 """Command line of the disk DEM (also installed as the ``dem`` console script).
 
     python -m dem pack --n 4000 --p-over-kn 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 --out packing.npz
-    python -m dem analyse packing.npz                 # or any file dem.io reads (see dem.analyse_cli)
+    python -m dem analyse packing.npz                 # or any file dem.io reads (see dem.analysis.analyse_cli)
 
-``pack`` builds a dense random packing with :func:`dem.packing.pack` (random gas -> compaction
+``pack`` builds a dense random packing with :func:`dem.engine.packing.pack` (random gas -> compaction
 under the pressure servo -> equilibrium at the preparation friction -> equilibrium at the test
-friction). Its protocol options are the fields of :class:`dem.packing.PackingProtocol`, generated
+friction). Its protocol options are the fields of :class:`dem.engine.packing.PackingProtocol`, generated
 from the protocol's own table (``--p-over-kn``, ``--kn``, ``--mu-prep``, ...: the same names,
 units, ranges and defaults; ``--p-target`` [N/m] with ``--kn`` instead of ``--p-over-kn``). It
 writes, next to ``--out`` (``packing.npz`` below):
 
-* ``packing.npz`` — the packing: a bit-exact state (``dem.packing.PackingResult.load``) that is
+* ``packing.npz`` — the packing: a bit-exact state (``dem.engine.packing.PackingResult.load``) that is
   also a ``dem.io`` configuration (``dem.io.read``);
-* ``packing_summary.csv`` — every quantity of ``dem.measure.summary`` plus the packing report
+* ``packing_summary.csv`` — every quantity of ``dem.analysis.measure.summary`` plus the packing report
   (steps, wall time, psi6, the stop criteria), also printed as a table;
-* ``packing.png`` — the disks with force chains (``dem.plot.plot_packing``);
+* ``packing.png`` — the disks with force chains (``dem.analysis.plot.plot_packing``);
 * ``packing.lammpstrj`` — LAMMPS text dump (OVITO);
 * ``packing.vtu`` — VTK unstructured grid with the contacts (ParaView; skipped if meshio is
   missing);
 * ``packing.checkpoint.npz`` — the checkpoint while running (atomic, every
   ``--checkpoint-seconds`` seconds of wall time and/or every ``--checkpoint-every`` steps, as
-  ``checkpoint_seconds`` and ``checkpoint_every`` of :func:`dem.packing.pack`); removed after a
+  ``checkpoint_seconds`` and ``checkpoint_every`` of :func:`dem.engine.packing.pack`); removed after a
   converged run, kept otherwise for ``--resume``.
 
 Exit codes of ``pack``: 0 converged (also: ``--resume`` of a run that had already converged,
 whose stored report and outputs are written again); 2 bad input (the message names the option and
 its allowed range; this includes a packing too large for the available memory, about 247 B per
-particle, ``dem.packing.BYTES_PER_PARTICLE``); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
+particle, ``dem.engine.packing.BYTES_PER_PARTICLE``); 3 not converged within ``--max-steps`` (outputs written, flagged ``converged =
 False``; continue with ``--resume --max-steps M``); 4 unstable run (reason printed, last good
 checkpoint kept); 1 an output or the checkpoint cannot be written (a folder that cannot be
 created or written is found before computing; a full disk during the run or the outputs: one
@@ -55,15 +55,15 @@ from tqdm import tqdm
 
 from microhom import cli
 
-from . import analyse_cli
+from .analysis import analyse_cli
 from . import io as dio
-from . import measure
-from .integrate import InstabilityError
+from .analysis import measure
+from .engine.integrate import InstabilityError
 from .io import Configuration, FormatError
-from .packing import (BYTES_PER_PARTICLE, PackingProtocol, ProtocolError, check_memory,
+from .engine.packing import (BYTES_PER_PARTICLE, PackingProtocol, ProtocolError, check_memory,
                       check_run_options, pack)
 from .runtime import remove_stale_temporaries
-from .state import State
+from .engine.state import State
 
 # the codes shared by every command line (microhom.cli): "not converged" is the "flagged" code
 EXIT_OK, EXIT_BAD_INPUT, EXIT_NOT_CONVERGED, EXIT_UNSTABLE, EXIT_INTERRUPTED = (
@@ -79,7 +79,7 @@ def _opt(name):
 
 
 #: the run options of ``pack`` (how long and where, not how the packing is made; checked by
-#: dem.packing.check_run_options): name -> (default, metavar, help)
+#: dem.engine.packing.check_run_options): name -> (default, metavar, help)
 _RUN_OPTIONS = {
     "max_steps": (2_000_000, "STEPS", "cap on the total number of time steps, an integer >= 1 "
                   "(default 2e6); a run that reaches it without converging exits with code 3"),
@@ -105,7 +105,7 @@ def _protocol_help(name, default, prm):
 
 
 def _add_protocol_options(group):
-    """One option per field of dem.packing.PackingProtocol: its name, unit, range, default and
+    """One option per field of dem.engine.packing.PackingProtocol: its name, unit, range, default and
     help come from the protocol's own table (nothing is repeated here)."""
     for name, (default, prm) in PackingProtocol.params().items():
         text = _protocol_help(name, default, prm).replace("%", "%%")
@@ -178,7 +178,7 @@ def _protocol(args, stored):
 
 def _run_options(args):
     """(max_steps, checkpoint_every, checkpoint_seconds, threads), checked by
-    dem.packing.check_run_options (BadInput naming the option)."""
+    dem.engine.packing.check_run_options (BadInput naming the option)."""
     vals = {k: _number(getattr(args, k)) if getattr(args, k) is not None else _RUN_OPTIONS[k][0]
             for k in _RUN_OPTIONS}
     try:
@@ -208,7 +208,7 @@ def _parser():
             "force per length [N/m]. The geometry depends on p/kn only, so the target is\n"
             "--p-over-kn (dimensionless) with kn = 1 by default; --p-target [N/m] with --kn\n"
             "gives absolute values.\n\n"
-            "The packing protocol options are the fields of dem.packing.PackingProtocol (same\n"
+            "The packing protocol options are the fields of dem.engine.packing.PackingProtocol (same\n"
             "names, units, ranges and defaults: the seed paper's conditions); the protocol is\n"
             "stored in STEM.npz."),
         epilog=(
@@ -231,7 +231,7 @@ def _parser():
             "  python -m dem pack --n 4000 --p-over-kn 1e-4 --mu-prep 0.1 --mu 0.49 --seed 1 \\\n"
             "      --out packing.npz"))
     _add_protocol_options(p.add_argument_group(
-        "packing protocol (dem.packing.PackingProtocol; unset options take its defaults)"))
+        "packing protocol (dem.engine.packing.PackingProtocol; unset options take its defaults)"))
     run = p.add_argument_group("run options (how long and where; not part of the protocol)")
     for name, (default, metavar, text) in _RUN_OPTIONS.items():
         run.add_argument(_opt(name), dest=name, default=None, metavar=metavar, help=text)
@@ -284,7 +284,7 @@ def _summary_rows(res, net):
 
 
 def _write_outputs(res, paths, log):
-    from .plot import plot_packing   # matplotlib: a heavy import, only when writing the picture
+    from .analysis.plot import plot_packing   # matplotlib: a heavy import, only when writing the picture
 
     net = res.to_network()
     res.save(paths["npz"])

@@ -1,6 +1,6 @@
 """What the two discrete methods share: the instability error, the run report and the atomic writer.
 
-The disk engine (``dem.integrate``, ``dem.packing``) and the free-hexagon method both use these; this
+The disk engine (``dem.engine.integrate``, ``dem.engine.packing``) and the free-hexagon method both use these; this
 module depends on nothing else in the project.
 """
 from __future__ import annotations

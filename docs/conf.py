@@ -35,7 +35,7 @@ nb_execution_show_tb = True
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"           # the docstrings state types, units and shapes
 # no "show-inheritance" key: autodoc treats any value, False included, as the flag being set
-# (it then lists private bases such as dem.contact_laws._Composed)
+# (it then lists private bases such as dem.engine.contact_laws._Composed)
 autodoc_default_options = {"members": True}
 napoleon_numpy_docstring = True
 napoleon_google_docstring = False

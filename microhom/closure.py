@@ -5,7 +5,7 @@ the input is far from the data.
 
 Where the seed's first-order formula (:func:`microhom.moduli.predict_moduli`, kept unchanged)
 misses the non-affine relaxation (docs/results/kuhn.md, sweep.md), this closure is fitted to the
-exact linear response (``dem.stiffness``, without pre-stress) of a corpus of 63 packings made by
+exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corpus of 63 packings made by
 five protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
 heavily damped one, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000 and 4000, three
 seeds, kt/kn 0-1, dispersity 0-0.5). Results, leave-one-protocol-out errors and what fails:

@@ -1,6 +1,6 @@
 """Conventions of peer codes (jax-md, LAMMPS, Kuhn's OVAL) and the conversions to and from ours.
 
-Our stiffness tensors (``dem.stiffness.stiffness``, ``microhom.moduli``) are 2D Mandel matrices
+Our stiffness tensors (``dem.analysis.stiffness.stiffness``, ``microhom.moduli``) are 2D Mandel matrices
 over ``[xx, yy, sqrt2 xy]`` [N/m] of the **Cauchy stress increment** per linear strain increment
 (tension positive), pre-stress included when ``prestress=True``: what a strain probe of the cell
 measures. Their isotropic projection ``(K, G)`` is :func:`microhom.tensors.isotropic_moduli`.

@@ -1,6 +1,6 @@
 """Sparse symmetric factorisation back ends, their inertia and a memory guard.
 
-One interface over the direct solvers the exact stiffness (``dem.stiffness``) and the certified
+One interface over the direct solvers the exact stiffness (``dem.analysis.stiffness``) and the certified
 spectral bound (:mod:`microhom.spectral`) need:
 
 - ``"pardiso"``: Intel MKL PARDISO (the ``mkl`` wheel from PyPI, x86-64 Linux and Windows),

@@ -127,7 +127,7 @@ class HierarchyResult(Result):
     C_first_order : ndarray, shape (3, 3)
         Its tensor ``C_aff - F^T M^-1 F / A`` [N/m].
     K_affine_all, G_affine_all : float
-        Affine moduli of all contacts (rattlers' included), as ``dem.stiffness`` reports them [N/m].
+        Affine moduli of all contacts (rattlers' included), as ``dem.analysis.stiffness`` reports them [N/m].
     order : int
         CG steps taken (Gauss points).
     n_moments : int
@@ -685,7 +685,7 @@ DEFAULT_TOL = 1e-2
 #: kt/kn range (median over the load-bearing contacts, sliding ones at 0) where the extrapolation's
 #: stated error was measured honest (docs/results/hierarchy.md, sections 1 and 6)
 CALIBRATED_KT_OVER_KN = (0.1, 1.0)
-_DEGENERATE = 1e-10   # tensor eigenvalue within this fraction of the affine scale: zero (as dem.stiffness)
+_DEGENERATE = 1e-10   # tensor eigenvalue within this fraction of the affine scale: zero (as dem.analysis.stiffness)
 
 
 @dataclass
@@ -766,10 +766,10 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     ----------
     network : ContactNetwork
         A periodic network (sliding contacts have kt_eff = 0, exactly as in the exact
-        solver; rattlers are removed iteratively, ``min_contacts`` as in ``dem.stiffness``).
+        solver; rattlers are removed iteratively, ``min_contacts`` as in ``dem.analysis.stiffness``).
     prestress : bool
         Include the geometric stiffness of the normal forces and the pre-stress
-        correction of the Cauchy increment (needs ``network.fn``), as ``dem.stiffness`` does.
+        correction of the Cauchy increment (needs ``network.fn``), as ``dem.analysis.stiffness`` does.
     tol : float
         Target relative width of the interval of K and of G, in (0, 1). The iteration stops at
         the first order where both meet it, or at ``max_order``; the result says which.
@@ -782,7 +782,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     dense_max : int
         Largest number of unknowns for the dense spectral bound.
     min_contacts : int, optional
-        Contacts below which a particle is a rattler (as in ``dem.stiffness``).
+        Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
     reorthogonalize : bool or "auto"
         H-conjugate each new search block against all earlier ones (True), only the
         last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000

@@ -1,6 +1,6 @@
 """Per-contact kinematics of a periodic contact network and the sparse Hessian they assemble.
 
-This is the linear algebra the exact stiffness solver (``dem.stiffness``) and the relaxation
+This is the linear algebra the exact stiffness solver (``dem.analysis.stiffness``) and the relaxation
 hierarchy (``microhom.hierarchy``) share; it lives on the theory side so that ``microhom`` never
 imports ``dem``.
 

@@ -12,7 +12,7 @@ stiffnesses [N/m] (``docs/theory.md``, "Conventions").
 * :class:`SoftSphere` -- jax-md's ``energy.soft_sphere``: ``U = eps/alpha (1 - d/sigma)^alpha`` with
   ``sigma = r_i + r_j``; ``alpha = 2`` is the harmonic law (:func:`harmonic`,
   ``kn = eps / sigma^2``), ``alpha = 5/2`` jax-md's Hertzian one.
-* :class:`Hertz` -- ``fn = kh delta^{3/2}`` (``dem.contact_models.Hertz``), or with
+* :class:`Hertz` -- ``fn = kh delta^{3/2}`` (``dem.engine.contact_models.Hertz``), or with
   ``reff=True`` LAMMPS ``gran/hertz/history``: ``fn = kn sqrt(R_eff delta) delta``,
   ``R_eff = r_i r_j / (r_i + r_j)``.
 

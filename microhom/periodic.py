@@ -1,6 +1,6 @@
 """Periodic geometry of a parallelogram (2D) or parallelepiped (3D) cell: fractional coordinates,
 wrapping, minimum image, image shifts and boundary images. The one implementation used by ``microhom.network``,
-``dem.cell`` and ``dem.measure`` (it lives on the theory side: ``dem`` may import ``microhom``,
+``dem.engine.cell`` and ``dem.analysis.measure`` (it lives on the theory side: ``dem`` may import ``microhom``,
 never the reverse).
 
 Conventions (as :class:`microhom.network.ContactNetwork`): the cell is the d x d shape matrix ``h``

@@ -1,7 +1,7 @@
 """What every result type of the project shares: read-only fields, ``as_dict()`` and ``to_frame()``.
 
 A result a user reads is a frozen dataclass that documents each field with its unit and shape
-(see :class:`microhom.moduli.Prediction`, ``dem.stiffness.StiffnessResult``). Mixing in
+(see :class:`microhom.moduli.Prediction`, ``dem.analysis.stiffness.StiffnessResult``). Mixing in
 :class:`Result` gives it
 
 * ``as_dict()``: plain Python scalars, lists and nested dicts, ready for JSON (NaN and inf become

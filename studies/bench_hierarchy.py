@@ -5,7 +5,7 @@
 
 ``validate``: 10 packings (N = 3000; identical and polydisperse disks; Z from near isostatic to
 5.1; kt/kn in {0, 0.1, 0.25, 0.5, 1}; pre-stress included). On each: the exact solve
-(``dem.stiffness``), the hierarchy up to 64 CG steps, and a certified spectral bound of the pencil
+(``dem.analysis.stiffness``), the hierarchy up to 64 CG steps, and a certified spectral bound of the pencil
 (H, M) from a shift-invert eigen-solve (a factorisation: the cost of certifying, reported) so that
 the rigorous lower bounds can be checked too. Reports, per packing, the errors of the upper
 bounds and of the extrapolated values at 8 and 16 steps (16 and 32 moments), whether the stated
@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 import scipy.sparse.linalg as sla
 
-from dem.stiffness import stiffness
+from dem.analysis.stiffness import stiffness
 from microhom.hierarchy import _extrapolate, block_preconditioner, relaxation_hierarchy
 from microhom.kinematics import assemble
 from studies.cases import get_packing
@@ -250,7 +250,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--order", type=int, default=8, help="CG steps (2 moments each)")
     ap.add_argument("--solver", default="auto", choices=["auto", "cholmod", "splu"],
-                    help="back end of the exact solve (dem.stiffness)")
+                    help="back end of the exact solve (dem.analysis.stiffness)")
     ap.add_argument("--out", default="out/hierarchy")
     args = ap.parse_args(argv)
     print(f"load average {os.getloadavg()}")

@@ -1,8 +1,8 @@
-"""A full `dem.packing.pack` of 1e4 disks against LAMMPS' preparation of 1e4 disks, in the same run.
+"""A full `dem.engine.packing.pack` of 1e4 disks against LAMMPS' preparation of 1e4 disks, in the same run.
 
     python -m studies.bench_pack [--n 10000] [--repeats 2] [--seed 0] [--old] [--case cli|mu05]
 
-Ours: :func:`dem.packing.pack` with the defaults of ``python -m dem pack`` (``--case cli``: p/kn =
+Ours: :func:`dem.engine.packing.pack` with the defaults of ``python -m dem pack`` (``--case cli``: p/kn =
 1e-4, mu_prep = 0.1, mu = 0.488, unbalanced force ratio < 1e-5, |p - p_t|/p_t < 1e-3, kinetic
 energy of the particles in contact < 1e-8 x elastic energy): gas -> compaction -> equilibrium at
 mu_prep -> equilibrium at mu, each phase with its own stop criterion (the step at which each ended
@@ -34,8 +34,8 @@ import subprocess
 import tempfile
 import time
 
-from dem.measure import coordination
-from dem.packing import PackingProtocol, pack
+from dem.analysis.measure import coordination
+from dem.engine.packing import PackingProtocol, pack
 from studies.common import add_out, cli_out_dir, report_to
 
 PREP_IN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "lammps_bench", "in.prep")

@@ -1,4 +1,4 @@
-"""Cost of one Verlet-list rebuild (:func:`dem.neighbors.rebuild`) on the throughput benchmark's scene.
+"""Cost of one Verlet-list rebuild (:func:`dem.engine.neighbors.rebuild`) on the throughput benchmark's scene.
 
     python -m studies.bench_rebuild [--ns 10000 100000] [--repeats 5] [--against REV] [--base-n 10000]
 
@@ -8,7 +8,7 @@ until a rebuild is due. The rebuild's input is the state at that step: its old l
 history, the moved positions. Each timing rebuilds a fresh copy of that state, without the spatial
 sort (the common build) and with it (every 50th build in the benchmark).
 
-With ``--against REV`` the module ``dem/neighbors.py`` of git revision REV is loaded as well; the
+With ``--against REV`` the module ``dem/engine/neighbors.py`` of git revision REV is loaded as well; the
 two are timed alternately in this process (REV, today, REV, today, ...), so that load from other
 processes hits both alike, and their outputs are compared bit for bit. Prints, per repeat, the
 median time of ``--inner`` rebuilds and the load average, then the median and the spread (min-max)
@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from dem import neighbors
-from dem.integrate import Simulation
+from dem.engine import neighbors
+from dem.engine.integrate import Simulation
 from studies.bench_throughput import DT, SKIN, bench_law, dense_base, tile, tiling
 from studies.common import add_out, cli_out_dir, report_to
 
@@ -44,9 +44,9 @@ def due_state(base, n):
 
 
 def module_at(rev):
-    """``dem/neighbors.py`` of git revision ``rev`` as a module of the ``dem`` package (numba's
+    """``dem/engine/neighbors.py`` of git revision ``rev`` as a module of the ``dem`` package (numba's
     on-disk cache off: the file lives in a temporary directory)."""
-    src = subprocess.run(["git", "show", f"{rev}:dem/neighbors.py"], check=True, capture_output=True,
+    src = subprocess.run(["git", "show", f"{rev}:dem/engine/neighbors.py"], check=True, capture_output=True,
                          text=True, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__)))).stdout
     path = os.path.join(tempfile.mkdtemp(), "neighbors_at_rev.py")
     with open(path, "w") as f:
@@ -78,7 +78,7 @@ def main(argv=None):
     ap.add_argument("--ns", type=int, nargs="+", default=[10000, 100000])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--inner", type=int, default=9, help="rebuilds per repeat (median taken)")
-    ap.add_argument("--against", default=None, help="git revision whose dem/neighbors.py to compare")
+    ap.add_argument("--against", default=None, help="git revision whose dem/engine/neighbors.py to compare")
     ap.add_argument("--base-n", type=int, default=10000, help="disks of the prepared state (tiled to N)")
     add_out(ap, "bench_rebuild")
     a = ap.parse_args(argv)

@@ -8,7 +8,7 @@ particle-steps per second, and the bytes per particle held by the state and the 
 buffers (every numpy array they own, Verlet list and contact history included). Prints a table and
 a least-squares slope of log(time per step) against log(N) (1 = linear). The peak resident memory
 of the process (``getrusage``) is printed beside the bytes the arrays own: the second method for
-the bytes per particle that ``dem.packing.check_memory`` uses.
+the bytes per particle that ``dem.engine.packing.check_memory`` uses.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from dem.integrate import Simulation
+from dem.engine.integrate import Simulation
 from studies.bench_throughput import DT, bench_law, dense_base, tile
 from studies.common import add_out, cli_out_dir, report_to
 

@@ -1,4 +1,4 @@
-"""Benchmark of the exact stiffness solver (dem.stiffness) and comparison with jax-md.
+"""Benchmark of the exact stiffness solver (dem.analysis.stiffness) and comparison with jax-md.
 
     python -m studies.bench_stiffness [--quick] [--no-jax] [--sizes 1e4,1e5,1e6] [--repeats 2]
     python -m studies.bench_stiffness --bound --sizes 1e3,1e4,1e5 --no-jax   # + certified spectral bound
@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
-from dem.stiffness import have_cholmod, have_pardiso, stiffness
+from dem.analysis.stiffness import have_cholmod, have_pardiso, stiffness
 from microhom.tensors import isotropic_moduli, mandel_to_strain, prestress_correction, tensor_to_mandel
 from microhom import lattices
 from microhom.network import ContactNetwork, from_overlaps
@@ -188,7 +188,7 @@ def candidate_run(n, backend):
     end (analysis + numeric factorisation), then one 3-column solve; a dict of figures."""
     import scipy.sparse as sp
 
-    from dem.stiffness import reduce_system
+    from dem.analysis.stiffness import reduce_system
     from microhom import factor as fm
     from microhom.kinematics import assemble
     net = diluted_triangular(n)

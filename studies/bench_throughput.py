@@ -14,10 +14,10 @@ skin 0.1 d, no local damping; 200 untimed warm-up steps, then the timed run.
 
 Laws run on our side (both timed, both reported against the same LAMMPS runs):
 
-* ``lammps-law``: :class:`dem.contact_laws.LammpsHookeHistory` with LAMMPS' numbers (dashpots
+* ``lammps-law``: :class:`dem.engine.contact_laws.LammpsHookeHistory` with LAMMPS' numbers (dashpots
   ``m_eff gamma``, ``gamma = 2 zeta sqrt(kn / (m1/2))``, cap ``mu |fn|``, projected shear history,
   LAMMPS start-up) - the same physics as LAMMPS' ``gran/hooke/history`` to round-off;
-* ``default``: the engine's own :class:`~dem.contact_laws.LinearFriction` (damping ratio 0.05 per
+* ``default``: the engine's own :class:`~dem.engine.contact_laws.LinearFriction` (damping ratio 0.05 per
   pair, tangential dashpot, cap ``mu max(fn, 0)``, scalar history).
 
 The LAMMPS inputs are in ``studies/lammps_bench/`` (``in.bench``; ``in.prep`` for the preparation
@@ -25,7 +25,7 @@ peer). The runs are interleaved (ours, LAMMPS, ours, LAMMPS, ...) so that load f
 processes hits both alike; every repeat is printed with the load average, then the median, the
 spread (min-max) and the ratio of medians. Times are wall clock (LAMMPS: its "Loop time"); the CPU
 time of the same runs (ours: process time; LAMMPS: loop time x its "CPU use") is printed too,
-since on a loaded machine it is the steadier of the two. Also times :func:`dem.packing.pack` of
+since on a loaded machine it is the steadier of the two. Also times :func:`dem.engine.packing.pack` of
 1e4 disks at p/kn = 1e-4 against LAMMPS' ``in.prep`` of 1e4 disks, interleaved (1e3 and no
 ``in.prep`` with --quick). Figures are printed, never asserted.
 """
@@ -45,12 +45,12 @@ from pathlib import Path
 import numpy as np
 
 from dem import io
-from dem.cell import StrainRate
-from dem.contact_laws import LammpsHookeHistory, LinearFriction
-from dem.integrate import Simulation
-from dem.lammps import lammps_available
-from dem.packing import PackingProtocol, pack
-from dem.state import State
+from dem.engine.cell import StrainRate
+from dem.engine.contact_laws import LammpsHookeHistory, LinearFriction
+from dem.engine.integrate import Simulation
+from dem.engine.lammps import lammps_available
+from dem.engine.packing import PackingProtocol, pack
+from dem.engine.state import State
 from studies.common import add_out, cli_out_dir, report_to
 
 INPUTS = Path(__file__).resolve().parent / "lammps_bench"

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-import dem.packing
-from dem.packing import PackingProtocol, PackingResult, pack
-from dem.probes import strain_probes
-from dem.stiffness import stiffness
+import dem.engine.packing
+from dem.engine.packing import PackingProtocol, PackingResult, pack
+from dem.engine.probes import strain_probes
+from dem.analysis.stiffness import stiffness
 from microhom.closure import closure_inputs, predict_closure
 from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli
@@ -31,7 +31,7 @@ DEFAULTS = {"n": 1000, "p_over_kn": 1e-4, "kt_over_kn": 1.0, "mu": round(MU_26DE
             "dispersity": 0.0, "seed": 1}
 
 
-#: the packing protocol of the studies: the one before issue 12.3 (``dem.packing.PackingProtocol``
+#: the packing protocol of the studies: the one before issue 12.3 (``dem.engine.packing.PackingProtocol``
 #: fields, bit-identical to it), under which the documented results were computed
 PROTOCOL = dict(damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False)
 
@@ -42,7 +42,7 @@ def cache_dir() -> Path:
 
 def _protocol_tag() -> str:
     """Hash of the packing code: a cached packing is reused only if made by the same protocol."""
-    return hashlib.sha1(Path(dem.packing.__file__).read_bytes()).hexdigest()[:8]
+    return hashlib.sha1(Path(dem.engine.packing.__file__).read_bytes()).hexdigest()[:8]
 
 
 def packing_key(case: dict) -> str:

@@ -6,7 +6,7 @@ measure it honestly: leave one protocol out, the candidate statistics, the colla
 1. The corpus (``studies.corpus.load_corpus``: built where the cache lacks it, unless
    ``--no-build``); ``--quick`` reads the committed corpus summary ``studies/closure_corpus.csv``
    instead and builds one small packing end to end (CI).
-2. Rows used: exact response jammed (no flag from ``dem.stiffness``), ``Z - Z_iso >= DZ_MIN``.
+2. Rows used: exact response jammed (no flag from ``dem.analysis.stiffness``), ``Z - Z_iso >= DZ_MIN``.
 3. Fit: nonlinear least squares of ``log K`` and ``log G`` of the closure's form (module docstring
    of ``microhom.closure``) on its features; the printed coefficients are the ones stored.
 4. Leave one protocol out (LOPO): for each protocol, fit on the others, predict it; relative
@@ -296,7 +296,7 @@ def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
     """Packing files made elsewhere (any ``dem.io`` format: DEMPLA/OVAL D-file, LAMMPS data/dump,
     npz, CSV), never in the fit: contacts from the overlaps (kn = 1), exact response and closure
     at each kt/kn."""
-    from dem.analyse import load_network
+    from dem.analysis.analyse import load_network
     from studies.corpus import CorpusRow, measure_network
     frames = []
     for path in paths:

@@ -13,14 +13,14 @@ missing.
 Protocols (:data:`PROTOCOLS`):
 
 ``pack_frictional``
-    :func:`dem.packing.pack`: random gas, servo compression to p/kn, equilibrium at the
+    :func:`dem.engine.packing.pack`: random gas, servo compression to p/kn, equilibrium at the
     preparation friction ``mu_prep``, then the test friction 0.5 (kt = kn); sliding contacts as the
     packing left them.
 ``pack_frictionless``
-    :func:`dem.packing.pack` with mu = mu_prep = 0 (the specialised frictionless law, servo +
+    :func:`dem.engine.packing.pack` with mu = mu_prep = 0 (the specialised frictionless law, servo +
     FIRE quench): the densest packings at each pressure, no tangential forces.
 ``lammps_prep``
-    LAMMPS (through :func:`dem.lammps.run_lammps`), the ``studies/lammps_bench/in.prep`` protocol
+    LAMMPS (through :func:`dem.engine.lammps.run_lammps`), the ``studies/lammps_bench/in.prep`` protocol
     many users follow: soft push-off of a random insertion, fixed-rate isotropic compression
     (``fix deform``) to a target solid fraction, relaxation at fixed box with friction 0.5 and a
     global drag. The tangential forces are not read back: the network has normal forces from the
@@ -33,10 +33,10 @@ Protocols (:data:`PROTOCOLS`):
     corpus); frictionless. Radii: the
     50:50 bidisperse 1:1.4 mixture or uniform with dispersity 0.5.
 ``pack_slowdamped``
-    :func:`dem.packing.pack` with the older single-damping protocol (``damping_compaction=None,
+    :func:`dem.engine.packing.pack` with the older single-damping protocol (``damping_compaction=None,
     fire=False``: heavy local damping throughout the slow compaction), frictional.
 
-Exact response: :func:`dem.stiffness.stiffness` of the network with ``kt = ratio * kn`` (kn = 1),
+Exact response: :func:`dem.analysis.stiffness.stiffness` of the network with ``kt = ratio * kn`` (kn = 1),
 without pre-stress (``K``, ``G``; the target of the closure, as the theory) and with it (``K_ps``,
 ``G_ps``, the geometric stiffness of the normal forces), stated per row.
 """
@@ -110,7 +110,7 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
         for mp in (0.1, 0.3, 1.0):
             for p in (1e-4, 1e-2):
                 rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.2))
-        for d in (0.2, 0.45):     # dem.packing takes dispersity < 0.5
+        for d in (0.2, 0.45):     # dem.engine.packing takes dispersity < 0.5
             for p in (1e-4, 1e-3, 1e-2):
                 rows.append(_row("pack_frictionless", 1000, seed, p_over_kn=p, dispersity=d))
         for radii in ("bidisperse", "uniform0.5"):
@@ -200,7 +200,7 @@ _IN_PREP = Path(__file__).resolve().parent / "lammps_bench" / "in.prep"
 
 def _lammps_prep(row, work):
     from dem import io
-    from dem.lammps import run_lammps
+    from dem.engine.lammps import run_lammps
     p = row.params
     text = _IN_PREP.read_text()
     text = text.replace("variable dmin    equal 0.9", "variable dmin    index 0.9")
@@ -210,7 +210,7 @@ def _lammps_prep(row, work):
     work.mkdir(parents=True, exist_ok=True)
     (work / "in.prep").write_text(text)
     d = float(p["dispersity"])
-    # LAMMPS takes its -var options from the command line: run through dem.lammps with them
+    # LAMMPS takes its -var options from the command line: run through dem.engine.lammps with them
     cmd_vars = ["-var", "N", str(row.n), "-var", "seed", str(4242 + row.seed), "-var", "phi", str(p["phi"]),
                 "-var", "dmin", f"{1 - d:.6g}", "-var", "dmax", f"{1 + d:.6g}", "-var", "out", "final.data"]
     run_lammps(work, input_name="in.prep", extra_args=cmd_vars)
@@ -219,11 +219,11 @@ def _lammps_prep(row, work):
 
 
 def packing_protocol(row: CorpusRow):
-    """The :class:`dem.packing.PackingProtocol` of a row made by the disk DEM (``pack_*``
+    """The :class:`dem.engine.packing.PackingProtocol` of a row made by the disk DEM (``pack_*``
     protocols): the corpus's rows of that kind are protocols plus a name."""
-    from dem.packing import PackingProtocol
+    from dem.engine.packing import PackingProtocol
     if not row.protocol.startswith("pack_"):
-        raise ValueError(f"row protocol {row.protocol!r} is not made by dem.packing.pack")
+        raise ValueError(f"row protocol {row.protocol!r} is not made by dem.engine.packing.pack")
     p = row.params
     kw = dict(n=row.n, p_over_kn=p["p_over_kn"], dispersity=p["dispersity"], seed=row.seed, kn=1.0,
               kt_over_kn=1.0)
@@ -248,7 +248,7 @@ def build_network(row: CorpusRow, cache: Path):
     p = row.params
     meta = dict(row=asdict(row))
     if row.protocol in ("pack_frictional", "pack_frictionless", "pack_slowdamped"):
-        from dem.packing import pack
+        from dem.engine.packing import pack
         res = pack(packing_protocol(row))
         net = res.to_network()
         if row.protocol == "pack_frictionless":   # no contact is at a Coulomb limit: tangent springs act
@@ -315,7 +315,7 @@ def network_features(net) -> dict:
 
 def measure_network(net, row: CorpusRow, kt_ratios=KT_RATIOS) -> list[dict]:
     """One dict per kt/kn: the row's description, the candidate statistics, the exact moduli."""
-    from dem.stiffness import stiffness
+    from dem.analysis.stiffness import stiffness
     rows = []
     if row.protocol == "pack_frictionless":
         # the frictionless law flags every contact sliding (mu = 0); the corpus analyses the

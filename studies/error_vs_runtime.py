@@ -32,8 +32,8 @@ import time
 import numpy as np
 import pandas as pd
 
-from dem.probes import strain_probes
-from dem.stiffness import stiffness
+from dem.engine.probes import strain_probes
+from dem.analysis.stiffness import stiffness
 from microhom.closure import closure_inputs, predict_closure
 from microhom.hierarchy import relaxation_hierarchy
 from microhom.moduli import predict_moduli

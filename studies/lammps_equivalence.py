@@ -9,8 +9,8 @@ largest position difference (over the mean diameter), velocity difference (over 
 and spin difference (over the rms spin) of
 
 * ``lammps off``: LAMMPS ``newton off`` against ``newton on`` (LAMMPS' own round-off);
-* ``engine``: :class:`dem.contact_laws.LammpsHookeHistory` with ``startup="lammps"``;
-* ``default``: the engine's own law (:class:`~dem.contact_laws.LinearFriction`, damping ratio 0.05
+* ``engine``: :class:`dem.engine.contact_laws.LammpsHookeHistory` with ``startup="lammps"``;
+* ``default``: the engine's own law (:class:`~dem.engine.contact_laws.LinearFriction`, damping ratio 0.05
   per pair, tangential dashpot, cap ``mu max(fn, 0)``, scalar history) with its leapfrog start-up
   (velocities taken as half-step ones), for contrast (benchmark law only).
 
@@ -24,9 +24,9 @@ import os
 import sys
 import time
 
-from dem.contact_laws import LinearFriction
-from dem.lammps import lammps_available
-from dem.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
+from dem.engine.contact_laws import LinearFriction
+from dem.engine.lammps import lammps_available
+from dem.engine.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
                                    start_state)
 from studies.common import add_out, cli_out_dir, report_to
 

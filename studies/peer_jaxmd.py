@@ -1,4 +1,4 @@
-"""Cross-check of :func:`dem.peers.jaxmd_elasticity` against jax-md itself (optional peer).
+"""Cross-check of :func:`dem.analysis.peers.jaxmd_elasticity` against jax-md itself (optional peer).
 
     pip install -e ".[peers]" && python -m studies.peer_jaxmd [--n 64 256] [--steps 40000]
 
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from dem.peers import jaxmd_elasticity
+from dem.analysis.peers import jaxmd_elasticity
 from studies.common import add_out, cli_out_dir, report_to
 
 

@@ -9,7 +9,7 @@ mu = tan 26 deg, p/kn = 1e-4):
 
 * ``contacts``: mu's contacting neighbours only (the definition used before issue 16);
 * ``near``: the paper's N̄ near neighbours, N̄ from phi (``microhom.neighbourhood.near_neighbours``);
-* ``delaunay``: all Delaunay neighbours (mean 6, periodic images; ``dem.measure``).
+* ``delaunay``: all Delaunay neighbours (mean 6, periodic images; ``dem.analysis.measure``).
 
 For each, the null model permutes the contact numbers Nc^nu among the non-rattlers at random
 (geometry, W and the neighbourhood kept) ``--null`` times: the rho the definition gives when the
@@ -23,7 +23,7 @@ import time
 
 import pandas as pd
 
-from dem.measure import delaunay_neighbours
+from dem.analysis.measure import delaunay_neighbours
 from microhom.moduli import predict_moduli
 from microhom.structural_sums import rho_definitions
 from studies.cases import DEFAULTS, get_packing

@@ -15,7 +15,7 @@ crystalline ones excluded) this study
    rho is summed over too, so the self-consistent ``x(N̄) = r N̄ rho(N̄)/Nc`` is what such a reading
    would give;
 3. measures the **size of the correlated clusters** of the exact non-affine displacement field
-   (``dem.stiffness``'s relaxed fluctuations, rattlers removed): the first zero of the
+   (``dem.analysis.stiffness``'s relaxed fluctuations, rattlers removed): the first zero of the
    displacement correlation ``C(d) = <u_i . u_j>_{|x_i - x_j| = d} / <u^2>``, and the number of
    particles within it, ``N_cl = n pi d0^2``, to compare with the N̄ the inversion needs.
 
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from dem.stiffness import stiffness
+from dem.analysis.stiffness import stiffness
 from microhom.seed_inversion import invert_seed_correction
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, get_packing

@@ -19,7 +19,7 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from dem.stiffness import stiffness
+from dem.analysis.stiffness import stiffness
 from microhom import lattices
 from microhom.moduli import predict_from_network, predict_moduli, rho_from_alpha
 from microhom.structural_sums import particle_sums

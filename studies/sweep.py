@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from dem.stiffness import stiffness
+from dem.analysis.stiffness import stiffness
 from microhom.moduli import PHI_MAX, predict_moduli
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, closure_estimate, get_packing, hierarchy_estimates

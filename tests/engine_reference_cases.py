@@ -16,9 +16,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import law_reference_cases as ref  # noqa: E402
-from dem.cell import PressureServo, StrainRate  # noqa: E402
-from dem.contact_laws import HertzRolling, LammpsHookeHistory, LinearFriction  # noqa: E402
-from dem.integrate import Simulation  # noqa: E402
+from dem.engine.cell import PressureServo, StrainRate  # noqa: E402
+from dem.engine.contact_laws import HertzRolling, LammpsHookeHistory, LinearFriction  # noqa: E402
+from dem.engine.integrate import Simulation  # noqa: E402
 
 
 def _servo():

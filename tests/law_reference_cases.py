@@ -2,16 +2,16 @@
 
 ``tests/data/law_reference.npz`` holds the positions, velocities, spins, rotations, cell and
 tangential history after these runs, computed by the three hand-written kernels of
-``dem/contact_laws.py`` (commit 087b653, before the laws were composed from sub-models). The
+``dem/engine/contact_laws.py`` (commit 087b653, before the laws were composed from sub-models). The
 composed laws must reproduce them bit for bit (``tests/test_contact_laws.py``). Regenerate only
 with that old code (``git stash; git checkout 087b653 -- dem``), never with the code under test.
 """
 import numpy as np
 
-from dem.cell import PressureServo
-from dem.contact_laws import Frictionless, HertzMindlin, LinearFriction
-from dem.integrate import Simulation
-from dem.state import State
+from dem.engine.cell import PressureServo
+from dem.engine.contact_laws import Frictionless, HertzMindlin, LinearFriction
+from dem.engine.integrate import Simulation
+from dem.engine.state import State
 from microhom import lattices
 
 R = 0.5

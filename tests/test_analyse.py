@@ -61,7 +61,7 @@ def test_oval_without_convention_warns_in_notes():
 
 @pytest.fixture(scope="module")
 def packing_npz(tmp_path_factory):
-    from dem.packing import PackingProtocol, pack
+    from dem.engine.packing import PackingProtocol, pack
     res = pack(PackingProtocol(n=150, p_over_kn=1e-3, kn=1.0, mu=0.5, mu_prep=0.05,
                                dispersity=0.2, seed=3, tol_unbalanced=1e-3, tol_ke=1e-6))
     path = tmp_path_factory.mktemp("pk") / "packing.npz"
@@ -70,8 +70,8 @@ def packing_npz(tmp_path_factory):
 
 
 def test_packing_npz_matches_library(packing_npz):
-    from dem.measure import pressure
-    from dem.stiffness import stiffness
+    from dem.analysis.measure import pressure
+    from dem.analysis.stiffness import stiffness
     from microhom.moduli import predict_from_network
     from microhom.structural_sums import network_statistics
 
@@ -97,7 +97,7 @@ def test_packing_npz_matches_library(packing_npz):
 def test_hierarchy_and_closure_sections(packing_npz):
     """The analysis carries the hierarchy (bounds around the exact value, the library's numbers)
     and the statistics-only closure with its stated error."""
-    from dem.stiffness import stiffness
+    from dem.analysis.stiffness import stiffness
     from microhom.closure import predict_closure
     from microhom.hierarchy import DEFAULT_TOL, relaxation_hierarchy
     from microhom.structural_sums import network_statistics
@@ -136,7 +136,7 @@ def test_table_and_csv_outputs(packing_npz):
     p = run(path)
     assert p.returncode == 0, p.stderr
     for text in ("coordination", "no rattlers", "vbar", "ebar", "(37)", "measured rho", "alpha",
-                 "exact (dem.stiffness)", "pressure"):
+                 "exact (dem.analysis.stiffness)", "pressure"):
         assert text in p.stdout, text
     p = run(path, "--csv", "--no-exact")
     assert p.returncode == 0, p.stderr
@@ -220,7 +220,7 @@ OLD_CSV_HEADER = "file.source,file.format,file.forces,file.kn,file.kt,file.branc
 
 
 def test_json_and_csv_layout_unchanged_and_typed_result(capsys):
-    from dem.analyse import AnalysisResult, analyse_file
+    from dem.analysis.analyse import AnalysisResult, analyse_file
     from microhom.results import Result
     import dataclasses
 
@@ -336,7 +336,7 @@ def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path
     """The same packing written as a LAMMPS dump (kn = 1) and as an OVAL D-file (kn_OVAL = 2, which
     multiplies half the overlap) gives the same network and moduli with kt = 2/7 kn."""
     from dem import io as dio
-    from dem.analyse import load_network
+    from dem.analysis.analyse import load_network
     from microhom import lattices
 
     net = lattices.triangular(6, 6, diameter=1.0)

@@ -1,4 +1,4 @@
-"""Contact laws composed from sub-models (dem.contact_models): bit-identity with the hand-written
+"""Contact laws composed from sub-models (dem.engine.contact_models): bit-identity with the hand-written
 kernels they replaced, fused against separate integration, history layout, the rolling-resistance
 law added as one sub-model, and bad coefficients named."""
 import math
@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from dem import contact_models as cm
-from dem.contact_laws import (ContactLaw, Frictionless, HertzMindlin, HertzRolling, LammpsHookeHistory,
+from dem.engine import contact_models as cm
+from dem.engine.contact_laws import (ContactLaw, Frictionless, HertzMindlin, HertzRolling, LammpsHookeHistory,
                               LinearFriction, law_from_meta)
-from dem.cell import PressureServo
-from dem.integrate import Simulation, critical_dt
-from dem.state import State
+from dem.engine.cell import PressureServo
+from dem.engine.integrate import Simulation, critical_dt
+from dem.engine.state import State
 import engine_reference_cases as eref
 import law_reference_cases as ref
 
@@ -297,7 +297,7 @@ def test_threads_refused_with_the_range(bad):
 
 
 def _kernel_functions():
-    """Every function of dem.contact_models that numba compiles: jitted functions (their Python
+    """Every function of dem.engine.contact_models that numba compiles: jitted functions (their Python
     source) and the hooks' implementations (the typers registered with ``_implements``)."""
     import inspect
     from numba.core.registry import CPUDispatcher

@@ -8,7 +8,7 @@ import pytest
 import sympy
 from scipy.optimize import minimize
 
-from dem.peers import jaxmd_elasticity
+from dem.analysis.peers import jaxmd_elasticity
 from microhom import conventions, laws, lattices
 from microhom.network import from_overlaps, from_pairs
 from microhom.tensors import isotropic_moduli, mandel_to_strain, prestress_correction

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dem import io as dio
-from dem.packing import PackingResult
+from dem.engine.packing import PackingResult
 
 BASE = ["--n", "120", "--p-over-kn", "1e-3", "--mu-prep", "0.1", "--mu", "0.49", "--seed", "2",
         "--no-progress"]
@@ -131,7 +131,7 @@ def test_help_explains_units():
               "unbalanced force ratio", "exit codes", "force per length", "247 B per particle"):
         assert s in text, s
     # one option per protocol field, with the protocol's own range text and default
-    from dem.packing import PackingProtocol
+    from dem.engine.packing import PackingProtocol
     for name, (default, prm) in PackingProtocol.params().items():
         opt = "--" + name.replace("_", "-")
         assert opt in text, opt
@@ -141,8 +141,8 @@ def test_help_explains_units():
 
 def test_unstable_run_exits_4_and_keeps_checkpoint(tmp_path, monkeypatch, capsys):
     from dem.__main__ import main
-    from dem.integrate import Simulation
-    from dem.state import State
+    from dem.engine.integrate import Simulation
+    from dem.engine.state import State
 
     orig = Simulation.run
 

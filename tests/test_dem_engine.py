@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from dem.cell import PressureServo, rotation
-from dem.contact_laws import Frictionless, LinearFriction, HertzMindlin, damping_ratio
-from dem.integrate import InstabilityError, Simulation, critical_dt
-from dem.neighbors import rebuild
-from dem.state import State
+from dem.engine.cell import PressureServo, rotation
+from dem.engine.contact_laws import Frictionless, LinearFriction, HertzMindlin, damping_ratio
+from dem.engine.integrate import InstabilityError, Simulation, critical_dt
+from dem.engine.neighbors import rebuild
+from dem.engine.state import State
 from microhom import lattices
 from microhom.network import from_overlaps
 

@@ -14,7 +14,7 @@ import pytest
 
 from dem import io
 from dem.__main__ import main as dem_main
-from dem.analyse import NOT_JAMMED, analyse
+from dem.analysis.analyse import NOT_JAMMED, analyse
 from dem.io import Configuration, FormatError
 from studies.common import EXIT_NO_OUTPUT, cli_out_dir
 
@@ -366,7 +366,7 @@ def test_available_memory_is_plausible():
 
 def test_garbage_checkpoint_message(tmp_path):
     """A garbage checkpoint gave numpy's 'allow_pickle=' text: now the file and the cause."""
-    from dem.state import State
+    from dem.engine.state import State
     bad = tmp_path / "run.checkpoint.npz"
     bad.write_bytes(b"not a zip" * 50)
     with pytest.raises(FormatError) as err:
@@ -472,9 +472,9 @@ def test_lammps_law_damping_set_or_refused():
     """LammpsHookeHistory under Simulation's default damping (0.7) left LAMMPS silently: the
     default is now 0 for it (the same state as an explicit damping=0 after a few steps, bit for
     bit), and a non-zero damping is warned about, naming the law."""
-    from dem.contact_laws import LammpsHookeHistory, LinearFriction
-    from dem.integrate import Simulation
-    from dem.packing import random_gas
+    from dem.engine.contact_laws import LammpsHookeHistory, LinearFriction
+    from dem.engine.integrate import Simulation
+    from dem.engine.packing import random_gas
 
     law = LammpsHookeHistory(kn=1e3, kt=1e3, gamma_n=5.0, mu=0.5)
     st = random_gas(40, phi0=0.7, seed=1)

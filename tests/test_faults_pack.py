@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 import dem.__main__ as cli
-import dem.plot
+import dem.analysis.plot
 from dem import runtime
-from dem.integrate import Simulation
-from dem.packing import BYTES_PER_PARTICLE, PackingProtocol, PackingResult, pack
-from dem.state import State
+from dem.engine.integrate import Simulation
+from dem.engine.packing import BYTES_PER_PARTICLE, PackingProtocol, PackingResult, pack
+from dem.engine.state import State
 
 BASE = ["--n", "40", "--p-over-kn", "1e-3", "--mu", "0.3", "--mu-prep", "0.3", "--seed", "2",
         "--tol-unbalanced", "1e-3", "--no-progress"]
@@ -104,8 +104,8 @@ def _full_disk_after(n_ok, monkeypatch):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.fspath(path))
         return real(path, write, binary)
 
-    monkeypatch.setattr("dem.state.atomic_write", writer)
-    monkeypatch.setattr("dem.packing.atomic_write", writer)
+    monkeypatch.setattr("dem.engine.state.atomic_write", writer)
+    monkeypatch.setattr("dem.engine.packing.atomic_write", writer)
 
 
 def test_full_disk_during_the_run_keeps_the_checkpoint(tmp_path, monkeypatch, capsys):
@@ -128,7 +128,7 @@ def test_full_disk_while_writing_outputs_then_resume(tmp_path, monkeypatch, caps
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "p.png"))
 
-    monkeypatch.setattr(dem.plot, "plot_packing", full)
+    monkeypatch.setattr(dem.analysis.plot, "plot_packing", full)
     out = tmp_path / "p.npz"
     assert cli.main(["pack", *BASE, "--out", str(out)]) == cli.EXIT_MACHINE
     err = capsys.readouterr().err

@@ -1,9 +1,9 @@
-"""FIRE velocity mixing (dem.fire): the kernel against the formula written with numpy, the quench
+"""FIRE velocity mixing (dem.engine.fire): the kernel against the formula written with numpy, the quench
 on uphill motion, and the alpha schedule of Bitzek et al. (2006)."""
 import numpy as np
 import pytest
 
-from dem.fire import Fire, fire_mix
+from dem.engine.fire import Fire, fire_mix
 
 
 def _random(n, seed, spins=True):

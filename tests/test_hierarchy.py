@@ -1,12 +1,12 @@
-"""The relaxation hierarchy against closed forms, the exact solver (dem.stiffness, a separate
+"""The relaxation hierarchy against closed forms, the exact solver (dem.analysis.stiffness, a separate
 factorisation) and dense linear algebra; its bound properties; bad input."""
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from dem.packing import PackingProtocol, pack
-from dem.stiffness import stiffness
+from dem.engine.packing import PackingProtocol, pack
+from dem.analysis.stiffness import stiffness
 from microhom import lattices
 from microhom.hierarchy import (block_preconditioner, lowest_modes, isotropic_weights, moments,
                                 relaxation_hierarchy, spectral_lower_bound)
@@ -453,7 +453,7 @@ def test_soft_mode_deflation_removes_the_plateau():
 def _exact(net, **kw):
     import warnings
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # dem.stiffness warns about the conditioning at 1e8+
+        warnings.simplefilter("ignore")          # dem.analysis.stiffness warns about the conditioning at 1e8+
         return stiffness(net, **kw)
 
 
@@ -499,7 +499,7 @@ def test_large_stiffness_ratio_at_default_order_is_not_claimed(packing, ratio):
 
 
 def test_gas_is_not_jammed():
-    """300 disks at random (156 contacts in chains and clusters, no rigid backbone): dem.stiffness
+    """300 disks at random (156 contacts in chains and clusters, no rigid backbone): dem.analysis.stiffness
     says "not jammed"; the hierarchy used to return K = 5e-20 as valid. Now the same verdict."""
     rng = np.random.default_rng(0)
     net = from_overlaps(rng.uniform(0, 30.0, (300, 2)), 0.5, np.eye(2) * 30.0, kn=1.0, kt=1.0)
@@ -513,7 +513,7 @@ def test_gas_is_not_jammed():
 
 
 def test_floppy_square_lattice_is_flagged():
-    """Square lattice with kt = 0: a shear mechanism (zero eigenvalue of C). dem.stiffness says
+    """Square lattice with kt = 0: a shear mechanism (zero eigenvalue of C). dem.analysis.stiffness says
     "floppy", and so does the hierarchy (it used to say valid)."""
     net = lattices.square(5, 6, kt=0.0, angle=0.4)
     ex = _exact(net)
@@ -524,7 +524,7 @@ def test_floppy_square_lattice_is_flagged():
 
 @pytest.fixture(scope="module")
 def frictionless():
-    """A frictionless packing at p/kn = 1e-5 (200 disks, dispersity 0.2, made by dem.packing.pack
+    """A frictionless packing at p/kn = 1e-5 (200 disks, dispersity 0.2, made by dem.engine.packing.pack
     and stored as a LAMMPS data file), kn = 1, kt = 0, fn = kn x overlap."""
     from pathlib import Path
     from dem import io
@@ -535,7 +535,7 @@ def frictionless():
 
 def test_frictionless_low_pressure_validity_matches_the_certificate(frictionless):
     """Jammed frictionless packing at low pressure (G/G_aff ~ 0.003): kt = 0 is outside the
-    calibrated range, so only the rigorous interval counts; the tensor's zero eigenvalue (dem.stiffness:
+    calibrated range, so only the rigorous interval counts; the tensor's zero eigenvalue (dem.analysis.stiffness:
     "floppy") and, with pre-stress, its negative eigenvalue ("unstable") are never valid. Before
     issue 22 both returned valid=True with no reason."""
     for prestress, flag in ((False, "floppy"), (True, "unstable")):

@@ -1,4 +1,4 @@
-"""dem.lammps end to end: write the packing input, run LAMMPS, read the dump back, and check the
+"""dem.engine.lammps end to end: write the packing input, run LAMMPS, read the dump back, and check the
 contacts, forces and stress measured here against LAMMPS's own computes to round-off.
 
 Skipped only when the LAMMPS binary ``lmp`` is not on PATH (CI installs Debian's ``lammps``)."""
@@ -10,9 +10,9 @@ import sys
 import numpy as np
 import pytest
 
-from dem.lammps import pack_lammps
-from dem.measure import contact_forces, stress
-from dem.packing import PackingProtocol, pack, random_gas
+from dem.engine.lammps import pack_lammps
+from dem.analysis.measure import contact_forces, stress
+from dem.engine.packing import PackingProtocol, pack, random_gas
 from microhom.structural_sums import network_statistics
 
 # slow: the module's fixture prepares a LAMMPS packing (10-35 s on 2 cores); the LAMMPS
@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS bin
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lammps")
     np_ = 2 if shutil.which("mpirun") else 1
-    # dem.packing's default stop criteria (tol_p 1e-3, tol_unbalanced 1e-5, tol_ke 1e-8)
+    # dem.engine.packing's default stop criteria (tol_p 1e-3, tol_unbalanced 1e-5, tol_ke 1e-8)
     return pack_lammps(PROTO, folder, np=np_, timeout=120, max_steps=200_000)
 
 
@@ -38,11 +38,11 @@ def test_packing_reaches_target(run):
     assert res["N"] == N and res["converged"] == 1.0
     assert res["pressure"] == pytest.approx(1e-3, rel=1e-3)
     assert [ph["name"] for ph in run.phases] == ["compact", "prep", "test"]
-    for ph in run.phases[1:]:     # both equilibrium phases met dem.packing's three criteria
+    for ph in run.phases[1:]:     # both equilibrium phases met dem.engine.packing's three criteria
         assert ph["converged"] == 1.0 and ph["rel_p_err"] < 1e-3 and ph["unbalanced"] < 1e-5
         assert ph["ke_rel"] < 1e-8
     assert 0.80 < res["phi"] < 0.86 and 3.3 < res["Z"] < 4.2
-    # the starting gas is dem.packing.random_gas with the same seed (same N, radii)
+    # the starting gas is dem.engine.packing.random_gas with the same seed (same N, radii)
     gas = random_gas(PROTO)
     assert np.allclose(np.sort(run.config.radii), np.sort(gas.radius), rtol=1e-15)
 
@@ -95,7 +95,7 @@ def test_analyse_reads_the_run_folder(run):
 
 def test_packing_matches_dem_packing(run):
     # same gas, contact law, target and frictions: the LAMMPS packing is statistically equivalent
-    # to dem.packing's (not identical: viscous drag vs local damping). Tolerances from measurement
+    # to dem.engine.packing's (not identical: viscous drag vs local damping). Tolerances from measurement
     # (docs/scale_out.md): at N = 300, p/kn = 1e-3, seeds 1-3, the two engines differed by <= 0.0063
     # in phi and <= 0.08 in Z without rattlers, about the seed-to-seed scatter of either engine
     # (phi 0.826-0.839); the bounds below are about twice that.

@@ -2,7 +2,7 @@
 
 The same state (576 polydisperse disks, random velocities and spins, kn = 1e4, dt = 0.002) runs
 100 steps in LAMMPS (``newton on`` and ``newton off``) and in the engine with
-:class:`~dem.contact_laws.LammpsHookeHistory` and ``startup="lammps"``. At steps 1, 10 and 100 the
+:class:`~dem.engine.contact_laws.LammpsHookeHistory` and ``startup="lammps"``. At steps 1, 10 and 100 the
 engine's positions, velocities and spins differ from LAMMPS(newton on) by no more than ten times
 LAMMPS(newton off) does (floor: 1e-14 relative, a few ulps); today's default law and start-up
 differ by many orders more (the test can fail). Skipped where ``lmp`` is missing.
@@ -13,8 +13,8 @@ import shutil
 import numpy as np
 import pytest
 
-from dem.contact_laws import LinearFriction
-from dem.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
+from dem.engine.contact_laws import LinearFriction
+from dem.engine.lammps_trajectory import (DT, KN, divergence, engine_trajectory, equivalence_laws, lammps_trajectory,
                                    start_state)
 
 pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")

@@ -1,11 +1,11 @@
-"""dem.measure against closed forms: a compressed triangular lattice, rotations, periodic images."""
+"""dem.analysis.measure against closed forms: a compressed triangular lattice, rotations, periodic images."""
 import math
 
 import numpy as np
 import pytest
 from dataclasses import replace
 
-from dem import measure
+from dem.analysis import measure
 from microhom import lattices
 from microhom.network import from_overlaps, from_pairs
 

@@ -163,7 +163,7 @@ CLEAN_TYPES = (ValueError, TypeError, MemoryError, FileNotFoundError)
 
 
 def _walk_cases():
-    from dem.stiffness import stiffness
+    from dem.analysis.stiffness import stiffness
     from microhom import lattices
     from microhom.closure import predict_closure
     from microhom.hierarchy import relaxation_hierarchy
@@ -301,7 +301,7 @@ def test_stiffness_near_float64_top():
     """stiffness gave K = inf with only numpy's overflow warning: the moduli of a triangular
     lattice are kn sqrt(3)/2 (closed form), also at kn = 1e308; a tensor entry past the float64
     range is flagged with the reason; a kn without a power-of-two scale is refused by name."""
-    from dem.stiffness import stiffness
+    from dem.analysis.stiffness import stiffness
     from microhom import lattices
 
     exact = np.sqrt(3.0) / 2.0

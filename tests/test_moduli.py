@@ -169,13 +169,13 @@ def test_perfect_lattice_prediction_is_valid_and_equals_the_bound():
 @pytest.fixture(scope="module")
 def near_jamming():
     """Frictionless polydisperse packing at p/kn = 1e-4: exact G/G_affine is a few per cent."""
-    from dem.packing import PackingProtocol, pack
+    from dem.engine.packing import PackingProtocol, pack
     return pack(PackingProtocol(n=200, p_over_kn=1e-4, kt_over_kn=0.0, mu=0.0, mu_prep=0.0,
                                 dispersity=0.2, seed=2)).to_network()
 
 
 def test_near_jamming_never_valid(near_jamming):
-    from dem.stiffness import stiffness
+    from dem.analysis.stiffness import stiffness
     from microhom.moduli import predict_from_network
 
     ex = stiffness(near_jamming)

@@ -1,4 +1,4 @@
-"""The Verlet-list rebuild (:func:`dem.neighbors.rebuild`) against a plain reference of its
+"""The Verlet-list rebuild (:func:`dem.engine.neighbors.rebuild`) against a plain reference of its
 specification: an O(N^2) search over every pair and every image shift in [-2, 2]^2, the spatial sort
 as a stable argsort of the bin index, and the contact history carried over through a dict keyed by
 (i, j, shift) in the new labels (the first old pair of a key wins).
@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from dem.neighbors import rebuild
-from dem.state import State
+from dem.engine.neighbors import rebuild
+from dem.engine.state import State
 from microhom.periodic import heights
 from studies import bench_rebuild
 

@@ -11,12 +11,13 @@ from scipy.spatial import Delaunay
 
 import dem.__main__ as cli
 from dem import io as dio
-from dem import measure
-from dem.integrate import InstabilityError, Simulation
-from dem.packing import (PackingProtocol, PackingResult, PackReport, ProtocolError, hexatic_psi6,
+from dem.analysis import measure
+from dem.engine.integrate import InstabilityError, Simulation
+from dem.engine.packing import (PackingProtocol, PackingResult, PackReport, ProtocolError, hexatic_psi6,
                          network_from_state, pack, random_gas)
-from dem.scenes import isotropic
-from dem.state import State
+from dem.engine.state import State
+from dem.engine.cell import PressureServo
+from dem.engine.contact_laws import Frictionless
 from microhom import lattices
 
 PROTO = PackingProtocol(n=60, p_over_kn=1e-3, kn=1.0, mu=0.3, mu_prep=0.3, seed=3,
@@ -45,7 +46,7 @@ def test_packing_meets_its_stop_criteria(small_packing):
 
 def _psi6_delaunay(net):
     """psi6 = |mean_i (1/n_i) sum_j exp(6 i theta_ij)| over the Delaunay neighbours of the 3x3
-    periodic tiling (independent of dem.measure)."""
+    periodic tiling (independent of dem.analysis.measure)."""
     x, h = net.positions, net.cell
     n = x.shape[0]
     shifts = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
@@ -110,7 +111,7 @@ def test_resume_inside_a_fire_phase_is_bit_exact(tmp_path):
 def test_compaction_fire_gate_follows_the_solid_fraction():
     """Compact's gate: FIRE on after ``still_checks`` checks without compaction, off as soon as
     the solid fraction moves again; the stop criterion is untouched."""
-    from dem.packing import Compact, _Run
+    from dem.engine.packing import Compact, _Run
 
     class St:
         solid_fraction = 0.8
@@ -215,11 +216,12 @@ def test_random_gas_seeded_and_bad_input():
         pack(50)
 
 
-def test_isotropic_scene_wiring():
-    """The scene's servo brings a frictionless gas to the target pressure, and the pressure it
+def test_isotropic_servo_wiring():
+    """The pressure servo brings a frictionless gas to the target pressure, and the pressure it
     reports is the Love-Weber pressure of the contact network computed independently."""
     st = random_gas(PackingProtocol(n=80, seed=2), spins=False)
-    sim = isotropic.simulation(st, p_target=1e-3, kn=1.0)  # frictionless: no spins, no history
+    sim = Simulation(st, Frictionless(kn=1.0), damping=0.7)   # frictionless: no spins, no history
+    sim.control = PressureServo(p_target=1e-3, max_rate=2e-4 / sim.dt, alpha=0.5)
     for _ in range(100):
         sim.run(500)
         m = sim.measure()
@@ -388,7 +390,7 @@ def test_protocol_defaults_are_the_seed_papers_conditions():
 
 @pytest.mark.parametrize("name", sorted(BAD))
 def test_protocol_refuses_each_bad_field_naming_it_and_its_range(name):
-    from dem.packing import ProtocolError
+    from dem.engine.packing import ProtocolError
     prm = PackingProtocol.params()[name][1]
     with pytest.raises(ProtocolError) as err:
         PackingProtocol(**{"n": 10, name: BAD[name]})
@@ -406,9 +408,9 @@ def test_lammps_writer_maps_the_protocol(tmp_path):
     contact law, the servo target, the criteria, the time step; the dashpot from the restitution
     gives that restitution back (closed form of a linear spring-dashpot collision)."""
     from dem import io as dio
-    from dem.contact_laws import LinearFriction
-    from dem.integrate import critical_dt
-    from dem.lammps import INPUT_NAME, write_inputs
+    from dem.engine.contact_laws import LinearFriction
+    from dem.engine.integrate import critical_dt
+    from dem.engine.lammps import INPUT_NAME, write_inputs
     proto = PackingProtocol(n=50, p_over_kn=2e-3, kn=3.0, kt_over_kn=0.5, mu=0.4, mu_prep=0.05,
                             dispersity=0.1, seed=7, restitution=0.6, tol_p=2e-3, tol_ke=1e-7,
                             check_every=50, dt_over_dtcrit=0.9, jam_p=0.02)

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import sympy
 
-from dem.contact_laws import Frictionless, LinearFriction
-from dem.integrate import Simulation
-from dem.packing import PackingProtocol, network_from_state, pack
-from dem.probes import ProbeResult, strain_probes, strain_response
-from dem.state import State
-from dem.stiffness import stiffness
+from dem.engine.contact_laws import Frictionless, LinearFriction
+from dem.engine.integrate import Simulation
+from dem.engine.packing import PackingProtocol, network_from_state, pack
+from dem.engine.probes import ProbeResult, strain_probes, strain_response
+from dem.engine.state import State
+from dem.analysis.stiffness import stiffness
 from microhom import lattices
 
 

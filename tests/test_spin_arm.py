@@ -59,8 +59,8 @@ def test_exact_stiffness_differs_by_the_overlap_and_lammps_files_use_radius(tmp_
     tangential springs differently) but by a small amount; 'dem analyse' on a LAMMPS file uses
     the radius by default and says so, and --spin-arm contact reproduces stiffness()'s default."""
     from dem import io
-    from dem.analyse import analyse_file
-    from dem.stiffness import stiffness
+    from dem.analysis.analyse import analyse_file
+    from dem.analysis.stiffness import stiffness
     from microhom import lattices
 
     lat = lattices.triangular(6, 6)

@@ -1,12 +1,12 @@
-"""Tests of dem.stiffness against closed forms and independent computations (never its own output)."""
+"""Tests of dem.analysis.stiffness against closed forms and independent computations (never its own output)."""
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-import dem.stiffness
-from dem.stiffness import (StiffnessResult, affine_stiffness, count_modes, factorise, have_cholmod,
+import dem.analysis.stiffness
+from dem.analysis.stiffness import (StiffnessResult, affine_stiffness, count_modes, factorise, have_cholmod,
                            isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt, reduce_system, relax,
                            relaxed_tensor, stiffness, strain_to_mandel, stress_increment,
                            tensor_to_mandel, voigt_to_mandel)
@@ -359,7 +359,7 @@ def test_cholmod_agrees_with_superlu():
 
 
 def test_superlu_fallback_without_cholmod(monkeypatch):
-    monkeypatch.setattr(dem.stiffness, "_cholmod", None)
+    monkeypatch.setattr(dem.analysis.stiffness, "_cholmod", None)
     r = stiffness(lattices.triangular(6, 6, kn=1.0, kt=0.5))
     assert r.solver == "splu" and close(r.K, S3 / 2)
     with pytest.raises(RuntimeError, match="libsuitesparse-dev"):
@@ -458,7 +458,7 @@ def test_result_exports():
 
 
 # ---- PARDISO (the default where the mkl wheel loads) and the memory guard (issue 22 items 4, 5) --
-needs_pardiso = pytest.mark.skipif(not dem.stiffness.have_pardiso(), reason="mkl wheel not installed")
+needs_pardiso = pytest.mark.skipif(not dem.analysis.stiffness.have_pardiso(), reason="mkl wheel not installed")
 
 
 @needs_pardiso
@@ -515,8 +515,8 @@ def test_memory_guard_refuses_before_assembling(monkeypatch):
     def boom(*a, **k):
         raise AssertionError("assemble must not run")
 
-    monkeypatch.setattr(dem.stiffness, "assemble", boom)
-    with pytest.raises(dem.stiffness.MemoryGuardError, match=r"predicted .* GB, available .* GB"):
+    monkeypatch.setattr(dem.analysis.stiffness, "assemble", boom)
+    with pytest.raises(dem.analysis.stiffness.MemoryGuardError, match=r"predicted .* GB, available .* GB"):
         stiffness(net, max_memory=1e6)
     with pytest.raises(ValueError, match="max_memory"):
         stiffness(net, max_memory=-1.0)
@@ -526,7 +526,7 @@ def test_predicted_memory_covers_the_measured_peaks():
     """The prediction against peaks measured by studies.bench_stiffness (docs/stiffness.md):
     1e5 disks (295 246 unknowns) 0.68 GB with PARDISO, 1.2-2.0 GB with SuperLU; 1e6 disks 5.3 GB
     with CHOLMOD; and a 4e6-disk network is refused on a 23 GB machine."""
-    pm = dem.stiffness.predicted_memory
+    pm = dem.analysis.stiffness.predicted_memory
     assert 0.68e9 <= pm(99_960, 295_246, "pardiso") <= 3 * 0.68e9
     assert 2.0e9 <= pm(99_960, 295_246, "splu") <= 3 * 2.0e9
     assert 5.3e9 <= pm(999_750, 2_955_742, "cholmod") <= 3 * 5.3e9

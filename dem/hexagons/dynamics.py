@@ -1,7 +1,7 @@
 """Explicit central-difference dynamics of the free-hexagon assembly (numba force kernel).
 
 This is the free-hexagon method's own integrator, state and time-step bound; the disk engine
-(``dem.integrate``) is a different method and neither imports the other. Shared: ``dem.runtime``.
+(``dem.engine.integrate``) is a different method and neither imports the other. Shared: ``dem.runtime``.
 
 Units: SI per m of thickness (N/m, kg/m, J/m). Tension positive.
 

@@ -18,10 +18,10 @@ key                    shape       meaning
 ``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
 =====================  ==========  =========================================================
 
-Other keys are ignored by :func:`read_npz`: a packing file of :mod:`dem.packing` keeps its
+Other keys are ignored by :func:`read_npz`: a packing file of :mod:`dem.engine.packing` keeps its
 bit-exact state there (``write_npz(..., extra=...)``), and its ``meta_json`` holds the packing
 report and the protocol that made it (``meta["protocol"]``, a
-``dem.packing.PackingProtocol.as_dict()``). :func:`write_npz` is the one writer of this schema.
+``dem.engine.packing.PackingProtocol.as_dict()``). :func:`write_npz` is the one writer of this schema.
 
 CSV schema (``format_version`` 1): optional ``#`` header lines ``key: value`` (``format_version``,
 ``cell_a: ax ay``, ``cell_b: bx by`` — both absent for an open packing —, ``origin: ox oy``,
@@ -78,7 +78,7 @@ def write_npz(path, config, *, compressed=False, extra=None):
 
     ``path``: a path, or a binary file object (e.g. the temporary file of
     :func:`dem.runtime.atomic_write`). ``extra``: further arrays {key: array} stored beside the
-    schema's keys (a ``dem.packing`` file stores its bit-exact state there); a key that is one of
+    schema's keys (a ``dem.engine.packing`` file stores its bit-exact state there); a key that is one of
     the schema's, or starts with ``field:``, raises ``ValueError``; :func:`read_npz` ignores them.
     """
     arrays = {"format": np.array(_MAGIC), "format_version": np.array(FORMAT_VERSION),

@@ -1,4 +1,4 @@
-"""The ``analyse`` sub-command of ``python -m dem`` (the engine is :mod:`dem.analyse`).
+"""The ``analyse`` sub-command of ``python -m dem`` (the engine is :mod:`dem.analysis.analyse`).
 
     python -m dem analyse packing.dump --kn 1e5 --kt-ratio 0.2857   # any file dem.io reads
     python -m dem analyse D0001 --kn 2e8 --kn-convention oval --json
@@ -25,11 +25,11 @@ def add_parser(sub):
     a = sub.add_parser(
         "analyse", help="measure a packing file and compare the theory with its exact stiffness",
         description="Read a packing (LAMMPS dump/data, OVAL/DEMPLA D-file, dem.io npz/CSV, a "
-                    "dem.packing npz, or a dem.lammps run folder), build its contact network and "
+                    "dem.engine.packing npz, or a dem.engine.lammps run folder), build its contact network and "
                     "print coordination with and without rattlers, structural sums (vbar, ebar "
                     "measured vs eq. 37), measured rho, stress (when the file has contact forces), "
                     "the theory's moduli (mean field; corrected with the measured rho and with the "
-                    "alignment model) and the exact stiffness tensor (dem.stiffness). Moduli and "
+                    "alignment model) and the exact stiffness tensor (dem.analysis.stiffness). Moduli and "
                     "stresses in 2D are force per length [N/m], vbar and ebar [N m], in the units "
                     "of kn and the file. The notes say every assumption made (kn, kt, frame).",
         epilog="exit codes: 0 analysed (degenerate results are flagged in the report, not by the "
@@ -37,9 +37,9 @@ def add_parser(sub):
                "1 the machine's state (a file that cannot be read: permissions; out of memory), "
                "130 interrupted, 141 output pipe closed (e.g. '| head': silent)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    a.add_argument("file", help="packing file or dem.lammps run folder")
+    a.add_argument("file", help="packing file or dem.engine.lammps run folder")
     a.add_argument("--format", default=None, choices=dan.FORMATS, metavar="FORMAT",
-                   help="one of " + ", ".join(dan.FORMATS) + " (packing = dem.packing npz, "
+                   help="one of " + ", ".join(dan.FORMATS) + " (packing = dem.engine.packing npz, "
                         "lammps-run = folder); default from the name/extension")
     a.add_argument("--kn", type=float, default=None,
                    help="normal contact stiffness [N/m] (force per unit overlap), > 0; default 1 "

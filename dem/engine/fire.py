@@ -1,5 +1,5 @@
 """FIRE velocity mixing (Bitzek, Koskinen, Gähler, Moseler and Gumbsch, PRL 97, 170201 (2006)) for
-the packing phases of :mod:`dem.packing`, at a fixed time step.
+the packing phases of :mod:`dem.engine.packing`, at a fixed time step.
 
 After each time step of the engine (forces ``F_n`` at ``x_n``, velocities ``v_{n+1/2}``), with the
 generalised velocity ``u = (v_i, r_i w_i)`` and acceleration ``a = (F_i / m_i, r_i T_i / I_i)``
@@ -14,7 +14,7 @@ of every disk (translations and spins share one vector; ``r w`` is the rim speed
 FIRE's time-step growth is left out (the engine's ``dt`` is already 0.8 of the stability bound);
 what remains is the velocity mixing and the quench on uphill motion, which stops the bouncing of
 an underdamped assembly without the drag of a heavy damping. The velocities are fluctuations
-about the affine field of the cell (``dem.cell``): the quench does not stop the cell.
+about the affine field of the cell (``dem.engine.cell``): the quench does not stop the cell.
 Defaults are those of Bitzek et al.: ``n_min = 5``, ``f_alpha = 0.99``, ``alpha_start = 0.1``.
 
 The state of the mixing (``alpha``, the count of steps with ``P > 0``) is two numbers carried in
@@ -100,7 +100,7 @@ class Fire:
             raise ValueError(f"n_min must be an integer >= 0, got {self.n_min}")
 
     def update(self, sim):
-        """Mix the velocities of ``sim`` (a :class:`dem.integrate.Simulation`) after a step."""
+        """Mix the velocities of ``sim`` (a :class:`dem.engine.integrate.Simulation`) after a step."""
         st = sim.state
         spin = sim.law.needs_spin
         e = _EMPTY

@@ -3,8 +3,8 @@
 The engine behind ``python -m dem analyse FILE`` (see ``docs/scale_out.md``):
 
 * :func:`load_network` reads any supported file — LAMMPS dump/data, OVAL D-file, dem.io npz/CSV
-  (:func:`dem.io.read`), the packing npz of :meth:`dem.packing.PackingResult.save`, or a LAMMPS
-  run folder of :mod:`dem.lammps` — and builds the :class:`~microhom.network.ContactNetwork`.
+  (:func:`dem.io.read`), the packing npz of :meth:`dem.engine.packing.PackingResult.save`, or a LAMMPS
+  run folder of :mod:`dem.engine.lammps` — and builds the :class:`~microhom.network.ContactNetwork`.
   Files that carry contact forces (packing npz, LAMMPS run folder) give a network with ``fn``,
   ``ft`` and their own ``kn``, ``kt``; plain configurations give contacts by overlap with the
   ``kn``, ``kt`` passed (default kn = 1, so moduli come out in units of kn).
@@ -14,7 +14,7 @@ The engine behind ``python -m dem analyse FILE`` (see ``docs/scale_out.md``):
   alignment model at ``alpha``), the statistics-only closure of :mod:`microhom.closure` with its
   stated error, the relaxation hierarchy of :mod:`microhom.hierarchy` (moduli with a rigorous upper
   bound and a stated error, without a factorisation), and the exact stiffness tensor of
-  :func:`dem.stiffness.stiffness` (with the pre-stress terms when asked).
+  :func:`dem.analysis.stiffness.stiffness` (with the pre-stress terms when asked).
 * :class:`AnalysisResult` holds the result (frozen; ``as_dict()`` is the JSON of the command
   line, NaN as ``null``); :func:`format_table`, :func:`flatten` render it as text or as one flat
   record (the CSV row).
@@ -41,10 +41,10 @@ from microhom.moduli import predict_from_network
 from microhom.results import Result
 from microhom.structural_sums import network_statistics
 
-from . import io
-from .lammps import read_run
+from .. import io
+from ..engine.lammps import read_run
 from .measure import coordination, stress
-from .packing import PackingResult
+from ..engine.packing import PackingResult
 from .stiffness import stiffness
 
 __all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS",
@@ -100,7 +100,7 @@ class AnalysisResult(Result):
         None), ``K_error``, ``G_error`` (stated errors) [N/m], ``order`` (CG steps),
         ``converged``, ``unstable``, ``reasons``, ``time_s`` [s].
     stiffness : dict
-        :func:`dem.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
+        :func:`dem.analysis.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
         ``C_mandel`` (3, 3) [N/m], ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
         ``n_dof``, ``residual``, ``time_s`` [s].
     comparison : dict
@@ -186,7 +186,7 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
         try:
             res = PackingResult.load(path)
         except (KeyError, ValueError, OSError) as exc:
-            raise io.FormatError(path, None, None, f"not a dem.packing result ({exc})") from None
+            raise io.FormatError(path, None, None, f"not a dem.engine.packing result ({exc})") from None
         net = res.to_network()
         forces = "from file"
         law = res.law.to_meta() if hasattr(res.law, "to_meta") else {}
@@ -196,7 +196,7 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     elif format == "lammps-run":
         if not path.is_dir() or not (path / "in.packing").is_file():
             raise io.FormatError(path, None, None, "not a LAMMPS run folder (no in.packing: the "
-                                 "folder dem.lammps.pack_lammps writes holds in.packing, "
+                                 "folder dem.engine.lammps.pack_lammps writes holds in.packing, "
                                  "final.dump and contacts.dump)")
         run = read_run(path)
         net = run.network
@@ -441,7 +441,7 @@ def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     ``spin_arm=None`` (default) matches the exact stiffness's spin kinematics to the file's code:
     ``"radius"`` for LAMMPS files and run folders (``gran/*`` turns spins about the radius),
     ``"contact"`` otherwise (the kinematics of the theory and of the hierarchy, whose bounds hold
-    for it; ``dem.packing`` files too, although the engine's default law turns spins about the
+    for it; ``dem.engine.packing`` files too, although the engine's default law turns spins about the
     radius); the notes say which was used. Give ``"contact"`` or ``"radius"`` to choose."""
     t0 = time.perf_counter()
     net, info = load_network(path, format, kn=kn, kt=kt, kt_ratio=kt_ratio,
@@ -584,8 +584,8 @@ def format_table(res) -> str:
     if "error" in ex:
         L.append(f"  exact: n/a ({ex['error']})")
     else:
-        L.append(f"  {'affine (dem.stiffness)':44}{_g(ex['K_affine']):>14}{_g(ex['G_affine']):>14}")
-        L.append(f"  {'exact' + (' with prestress' if ex['prestress'] else '') + ' (dem.stiffness)':44}"
+        L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex['K_affine']):>14}{_g(ex['G_affine']):>14}")
+        L.append(f"  {'exact' + (' with prestress' if ex['prestress'] else '') + ' (dem.analysis.stiffness)':44}"
                  f"{_g(ex['K']):>14}{_g(ex['G']):>14}")
         C = np.asarray(ex["C_mandel"])
         L.append("  exact C (Mandel [xx, yy, sqrt2 xy]):")

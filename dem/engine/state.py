@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .runtime import atomic_write
+from ..runtime import atomic_write
 
 __all__ = ["State", "disk_mass"]
 
@@ -162,7 +162,7 @@ class State:
         path = os.fspath(path)
         if not path.endswith(".npz") and not os.path.exists(path):
             path += ".npz"
-        from .io import FormatError, check_regular_file
+        from ..io import FormatError, check_regular_file
 
         check_regular_file(path)
         try:

@@ -27,7 +27,7 @@ Each sub-model is a ``NamedTuple`` of its coefficients (that is what numba recei
   cheap to evaluate on pairs not in contact); a law whose sub-models all say so runs the
   vectorised pair loop (:func:`pair_forces_chunked`), any other the serial one
   (:func:`pair_forces_serial`), with bit-identical results;
-* ``dt_stiffness(normal)``: its stiffness for the critical time step [N/m] (see :mod:`dem.integrate`);
+* ``dt_stiffness(normal)``: its stiffness for the critical time step [N/m] (see :mod:`dem.engine.integrate`);
 * normal and tangential models: ``tangent(delta)`` (``tangent(normal, delta)``), the tangent
   stiffness [N/m] at overlaps ``delta`` [m]; normal models: ``fn_elastic(delta)``, the elastic
   normal force;
@@ -41,9 +41,9 @@ combination of sub-model types (the types are part of the signature and the hook
 at compile time through ``numba.extending.overload``), so a contact never branches on the law at
 run time, and the compiled loops are cached on disk like any ``cache=True`` function. A new law
 is one new sub-model: see :class:`RollingResistance` (Hertz with rolling resistance,
-:class:`dem.contact_laws.HertzRolling`).
+:class:`dem.engine.contact_laws.HertzRolling`).
 
-Geometry and sign conventions are those of :mod:`dem.contact_laws`. The loop can also integrate
+Geometry and sign conventions are those of :mod:`dem.engine.contact_laws`. The loop can also integrate
 (``kick``): with a fused :class:`Kick` every particle is kicked and drifted as soon as its force is
 complete (pairs are ordered by ``i`` and ``j > i``, so particle ``k`` is complete when the loop
 reaches the first pair with ``i > k``), which saves a pass over the particle arrays (:class:`Kick`). The
@@ -362,7 +362,7 @@ def damping_ratio(e) -> float:
 # --------------------------------------------------------------------------------------------------
 class Contact(NamedTuple):
     """A pair's kinematics as the tangential and rolling hooks read them (one pair, scalars).
-    Lengths [m], velocities [m/s], spins [1/s]; frame of :mod:`dem.contact_laws`."""
+    Lengths [m], velocities [m/s], spins [1/s]; frame of :mod:`dem.engine.contact_laws`."""
     lx: float    #: branch ``l = x_j + h s - x_i``
     ly: float
     d: float     #: ``|l|``
@@ -755,7 +755,7 @@ def _roll(model, c, load, hist, slots, dt):
 # the bundles of the loops: what the pair loop and the kick read and write
 # --------------------------------------------------------------------------------------------------
 class Bodies(NamedTuple):
-    """The particle arrays of the pair loop and the kick (a view of :class:`dem.state.State`).
+    """The particle arrays of the pair loop and the kick (a view of :class:`dem.engine.state.State`).
     Inside the loops ``x``, ``v`` and ``x_ref`` are flat (2N,) views."""
     x: np.ndarray        #: (N, 2) positions [m]
     v: np.ndarray        #: (N, 2) fluctuation velocities [m/s] (the total is ``v + L x``)
@@ -769,7 +769,7 @@ class Bodies(NamedTuple):
 
 class Forces(NamedTuple):
     """What the pair loop writes: ``f`` (N, 2) contact forces [N/m], ``torque`` (N,) [N] (empty
-    without spins), ``out`` (8,) the tallies (:mod:`dem.contact_laws`), ``acc`` (5,) the sums of
+    without spins), ``out`` (8,) the tallies (:mod:`dem.engine.contact_laws`), ``acc`` (5,) the sums of
     :func:`kick_range` of a fused kick. Inside the loops ``f`` is a flat (2N,) view."""
     f: np.ndarray
     torque: np.ndarray
@@ -849,7 +849,7 @@ class Cell(NamedTuple):
 
 
 def bodies_of(state, spin):
-    """The :class:`Bodies` of a :class:`dem.state.State` (spins, rotations, inertias empty unless
+    """The :class:`Bodies` of a :class:`dem.engine.state.State` (spins, rotations, inertias empty unless
     ``spin``)."""
     e = _EMPTY
     return Bodies(state.x, state.v, state.omega if spin else e, state.theta if spin else e, state.radius,
@@ -1307,7 +1307,7 @@ _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of on
     :class:`Pairs` (the list, its history and per-pair constants); cell: :class:`Cell`; models:
     :class:`Models` (the law's four sub-models); kick: :class:`Kick`; dt: the history increment
     step (0: history not advanced); tally: whether to fill ``out``. Fills ``forces``
-    (:class:`Forces`): f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.contact_laws`; only
+    (:class:`Forces`): f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.engine.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
     fused kick, ``acc`` (5,) = the sums of :func:`kick_range`. The array bundles may also be plain
     tuples in field order: numba types a plain tuple of arrays in C, a NamedTuple through Python

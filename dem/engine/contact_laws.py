@@ -1,4 +1,4 @@
-"""Contact laws for 2D disks, each a composition of sub-models (:mod:`dem.contact_models`).
+"""Contact laws for 2D disks, each a composition of sub-models (:mod:`dem.engine.contact_models`).
 
 Conventions (2D, per unit thickness; any consistent units, e.g. SI: forces [N/m], stiffnesses
 [N/m per m of overlap, written N/m as in the DEM literature], lengths [m]):
@@ -12,10 +12,10 @@ Conventions (2D, per unit thickness; any consistent units, e.g. SI: forces [N/m]
   :class:`LammpsHookeHistory`);
 * relative velocity of j's contact point w.r.t. i's: ``dv = v_j - v_i + L l - (w_i a_i + w_j a_j) t``
   (fluctuation velocities plus the affine field of the cell);
-* tangential history (this project's rule, :class:`~dem.contact_models.LinearHistory`): a scalar
+* tangential history (this project's rule, :class:`~dem.engine.contact_models.LinearHistory`): a scalar
   ``ft`` along ``t`` (the spring turns rigidly with the contact), incremented by
   ``-kt (dv . t) dt`` and capped at the Coulomb limit ``|ft| <= mu max(fn, 0)``; reset when the
-  contact opens. The LAMMPS rule is :class:`~dem.contact_models.LammpsHistory` (see
+  contact opens. The LAMMPS rule is :class:`~dem.engine.contact_models.LammpsHistory` (see
   :class:`LammpsHookeHistory` and ``docs/dem.md``).
 
 Viscous normal damping from a restitution coefficient ``e`` in (0, 1]: damping ratio
@@ -24,7 +24,7 @@ Viscous normal damping from a restitution coefficient ``e`` in (0, 1]: damping r
 collision is then exactly ``e`` and the contact lasts ``pi / (omega0 sqrt(1 - zeta^2))``,
 ``omega0 = sqrt(kn / m_eff)``.
 
-Laws (frozen dataclasses; ``models`` is the :class:`~dem.contact_models.Models` bundle
+Laws (frozen dataclasses; ``models`` is the :class:`~dem.engine.contact_models.Models` bundle
 (normal, damping, tangential, rolling) of sub-models the pair loop is compiled for):
 
 * :class:`Frictionless` — linear normal spring, no history, no spins.
@@ -89,7 +89,7 @@ class _Composed:
 
     def dt_stiffness(self):
         """Stiffness per possible contact entering the critical time step: the largest of the normal
-        stiffness and the rotational one (tangential plus rolling; see :mod:`dem.integrate`)."""
+        stiffness and the rotational one (tangential plus rolling; see :mod:`dem.engine.integrate`)."""
         normal, _, tangential, rolling = self.models
         return max(normal.dt_stiffness(), tangential.dt_stiffness(normal) + rolling.dt_stiffness(normal))
 
@@ -226,7 +226,7 @@ class HertzMindlin(_Composed):
 
 @dataclass(frozen=True)
 class HertzRolling(_Composed):
-    """:class:`HertzMindlin` with rolling resistance (:class:`~dem.contact_models.RollingResistance`):
+    """:class:`HertzMindlin` with rolling resistance (:class:`~dem.engine.contact_models.RollingResistance`):
     a torque spring ``k_r = kr_ratio k_n(delta) R_eff^2`` on the relative rotation of the two disks,
     capped at ``mu_r R_eff max(fn, 0)``.
 
@@ -291,7 +291,7 @@ class LammpsHookeHistory(_Composed):
     to 0 for this law (LAMMPS has no Cundall local damping) and a non-zero one is warned about:
     with the 0.7 of the other laws dv/v_rms was 0.1 after one step.
     """
-    #: read by ``dem.integrate.Simulation``: damping defaults to 0, a non-zero one is warned about
+    #: read by ``dem.engine.integrate.Simulation``: damping defaults to 0, a non-zero one is warned about
     LAMMPS_EQUIVALENT = True
 
     kn: float
@@ -315,7 +315,7 @@ class LammpsHookeHistory(_Composed):
 
 @dataclass(frozen=True)
 class ContactLaw(_Composed):
-    """Any combination of sub-models of :mod:`dem.contact_models`, e.g.
+    """Any combination of sub-models of :mod:`dem.engine.contact_models`, e.g.
     ``ContactLaw(Hertz(1e5, 0.01), MassGamma(5.0, 2.5), LammpsHistory(1e4, 0.5))``.
 
     Parameters

@@ -1,23 +1,23 @@
-"""Large packings on LAMMPS: the :mod:`dem.packing` protocol as a LAMMPS input, run, read back.
+"""Large packings on LAMMPS: the :mod:`dem.engine.packing` protocol as a LAMMPS input, run, read back.
 
 For packings too large for the numba engine (10^5-10^6 disks), :func:`pack_lammps` writes a LAMMPS
 input that prepares a packing with the same contact law and, as far as LAMMPS (29 Sep 2021, GRANULAR
-package) allows, the same protocol as :func:`dem.packing.pack`; runs it with ``mpirun -np K lmp``
+package) allows, the same protocol as :func:`dem.engine.packing.pack`; runs it with ``mpirun -np K lmp``
 (serial ``lmp`` if K = 1 or no ``mpirun``); and reads the result back with :mod:`dem.io` into a
 :class:`microhom.network.ContactNetwork` with the contact forces LAMMPS computed. The protocol
-side by side with :mod:`dem.packing`, and what differs, is in ``docs/scale_out.md``.
+side by side with :mod:`dem.engine.packing`, and what differs, is in ``docs/scale_out.md``.
 
 Protocol (the input's comments give the details): a proportional pressure servo with the law and
-cap of :class:`dem.cell.PressureServo` (``fix deform`` with a variable rate from the virial-only
+cap of :class:`dem.engine.cell.PressureServo` (``fix deform`` with a variable rate from the virial-only
 pressure and the affine stiffness) from the gas on; a compaction phase at light drag that ends when
 the packing has jammed (pressure within ``jam_p``, unbalanced force below ``jam_unbalanced``, a
 contact network with Z >= ``jam_z``); equilibrium phases at ``mu_prep`` then ``mu`` with a stronger
-drag, ended by ``fix halt`` on dem's three stop criteria. Measured against :func:`dem.packing.pack`
+drag, ended by ``fix halt`` on dem's three stop criteria. Measured against :func:`dem.engine.packing.pack`
 in ``docs/scale_out.md``.
 
 Units: any consistent set (the input uses ``units lj``, which does no unit conversion: the numbers
 are the caller's). 2D, per unit thickness: LAMMPS's ``dimension 2`` forces and its 2D pressure
-(virial over the cell *area*) are then forces per length, as in :mod:`dem.measure`.
+(virial over the cell *area*) are then forces per length, as in :mod:`dem.analysis.measure`.
 
 Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
 
@@ -30,7 +30,7 @@ Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
   built with ``from_overlaps(..., tolerance=0)``, the same test.
 * stress: ``compute pressure NULL virial`` (no kinetic term; with a temperature compute LAMMPS
   adds ``N k T / A``) gives ``P_ab = (1/A) sum (x_i - x_j)_a f_i,b``; with this project's
-  tension-positive Love-Weber stress ``sigma`` (:func:`dem.measure.stress`, ``symmetric=False``)
+  tension-positive Love-Weber stress ``sigma`` (:func:`dem.analysis.measure.stress`, ``symmetric=False``)
   ``P = -sigma^T`` and LAMMPS's scalar pressure ``(P_xx + P_yy)/2`` (2D) equals ``-tr(sigma)/2``.
 * contact forces: ``compute pair/local dist force p1 p2 p3`` (``force`` = ``|F_n|`` with the
   sign of a repulsion, ``p1..p3`` = tangential force on the first atom) with
@@ -53,11 +53,11 @@ import numpy as np
 
 from microhom.network import from_overlaps
 
-from . import io
+from .. import io
 from .contact_laws import LinearFriction, damping_ratio
 from .integrate import critical_dt
-from .io import FormatError
-from .io._core import open_bytes
+from ..io import FormatError
+from ..io._core import open_bytes
 from .packing import PackingProtocol, random_gas
 
 __all__ = ["LammpsRun", "write_inputs", "run_lammps", "read_run", "pack_lammps", "lammps_available",
@@ -80,18 +80,18 @@ def _num(x) -> str:
 def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compaction=0.01,
                  jam_z=3.0, skin=None, dt=None) -> dict:
     """Write ``gas.data`` and ``in.packing`` into ``folder`` for the packing ``protocol`` (a
-    :class:`dem.packing.PackingProtocol`, validated there); return the parameters used.
+    :class:`dem.engine.packing.PackingProtocol`, validated there); return the parameters used.
 
-    The protocol is mapped, not repeated: the starting gas is :func:`dem.packing.random_gas` of
+    The protocol is mapped, not repeated: the starting gas is :func:`dem.engine.packing.random_gas` of
     the protocol (``n``, ``seed``, ``radius``, ``dispersity``, ``rho``, ``phi0``,
     ``gas_overlaps``), so both engines start from the same configuration; the contact law takes
     ``kn``, ``kt``, ``mu_prep`` then ``mu`` and ``restitution`` (a normal and tangential
     dashpot ``gamma_n = 2 zeta sqrt(kn / m_eff)`` for a pair of mean disks, ``zeta`` from
-    :func:`dem.contact_laws.damping_ratio`: LAMMPS's ``gamma_n`` is one constant for all pairs);
+    :func:`dem.engine.contact_laws.damping_ratio`: LAMMPS's ``gamma_n`` is one constant for all pairs);
     the servo ``p_target``, ``alpha``, ``max_strain_per_step``; the compaction ends on ``jam_p``
     and ``jam_unbalanced``; the equilibrium phases on ``tol_p``, ``tol_unbalanced``, ``tol_ke``,
     checked every ``check_every`` steps; the time step is ``dt_over_dtcrit`` times
-    :func:`dem.integrate.critical_dt`. Not mapped: ``damping``, ``damping_compaction`` and
+    :func:`dem.engine.integrate.critical_dt`. Not mapped: ``damping``, ``damping_compaction`` and
     ``fire`` (dem's dissipation; LAMMPS 2021 has no Cundall local damping: the drags below play
     their part, and the compaction phase always runs). A protocol with ``growth_dispersity`` > 0
     is refused (no LAMMPS counterpart).
@@ -100,7 +100,7 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     ----------
     folder : path
         Folder of the run (created if missing).
-    protocol : dem.packing.PackingProtocol
+    protocol : dem.engine.packing.PackingProtocol
         The packing protocol.
     max_steps : int
         Cap on the steps of each phase, >= 1.
@@ -125,7 +125,7 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     and ``protocol``, its ``as_dict()``).
     """
     if not isinstance(protocol, PackingProtocol):
-        raise TypeError(f"write_inputs takes a dem.packing.PackingProtocol, got "
+        raise TypeError(f"write_inputs takes a dem.engine.packing.PackingProtocol, got "
                         f"{type(protocol).__name__}")
     if protocol.growth_dispersity > 0:
         raise ValueError(f"growth_dispersity must be 0 for the LAMMPS writer (no LAMMPS "
@@ -153,14 +153,14 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     skin = 0.2 * p.radius if skin is None else float(skin)
     r = st.radius
     # mean squared branch length of a contact, (r_i + r_j)^2 for independent radii: the affine
-    # isotropic stiffness K = sum_c kn |l_c|^2 / (2A) of dem.cell.PressureServo is then
+    # isotropic stiffness K = sum_c kn |l_c|^2 / (2A) of dem.engine.cell.PressureServo is then
     # kn Nc <l^2> / (2A) (overlaps neglected: a relative error ~ p/kn)
     l2 = float(2.0 * np.mean(r ** 2) + 2.0 * np.mean(r) ** 2)
 
     cfg = io.Configuration(positions=st.x, radii=st.radius, cell=st.h, ids=np.arange(1, st.n + 1),
                            fields={"density": np.full(st.n, st.rho)})
     io.write_lammps_data(folder / "gas.data", cfg, velocities=False,
-                         title=f"random gas: dem.packing.random_gas(n={p.n}, seed={p.seed}, "
+                         title=f"random gas: dem.engine.packing.random_gas(n={p.n}, seed={p.seed}, "
                                f"phi0={p.phi0})")
     prm = dict(n=p.n, p_target=p.p_target, kn=p.kn, kt=p.kt, mu=p.mu, mu_prep=p.mu_prep,
                radius=p.radius, dispersity=p.dispersity, rho=float(st.rho), seed=p.seed,
@@ -189,7 +189,7 @@ def _input_text(p) -> str:
               "pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)")
     relen = "variable        lx0 equal $(lx)\nvariable        ly0 equal $(ly)"
     lines = f"""\
-# LAMMPS input written by dem.lammps.write_inputs: the dem.packing protocol (docs/scale_out.md).
+# LAMMPS input written by dem.engine.lammps.write_inputs: the dem.engine.packing protocol (docs/scale_out.md).
 #   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
 # Units: the caller's consistent set ('units lj' does no conversion); 2D, per unit thickness.
 # N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}
@@ -243,7 +243,7 @@ thermo_style    custom step atoms v_phi v_Z v_Zc c_pv v_perr v_unb v_kerel cpu
 thermo_modify   norm no flush yes
 thermo          {max(10000, 10 * p['check_every'])}
 
-# ---- pressure servo (dem.cell.PressureServo): isotropic true strain rate
+# ---- pressure servo (dem.engine.cell.PressureServo): isotropic true strain rate
 #      edot = -alpha (p_t - p) / (K dt), K = kn Nc <l^2> / (2 A) the affine stiffness, capped at
 #      +-max_strain_per_step/dt (the cap is the rate while there are no contacts). fix deform
 #      'variable' sets the box length change since the start of the run: lx(t+dt) = lx exp(edot dt)
@@ -497,7 +497,7 @@ def read_run(folder, params=None) -> LammpsRun:
 
 
 def pack_lammps(protocol, folder, *, np=1, lmp="lmp", timeout=None, **knobs) -> LammpsRun:
-    """Write the inputs of ``protocol`` (a :class:`dem.packing.PackingProtocol`;
+    """Write the inputs of ``protocol`` (a :class:`dem.engine.packing.PackingProtocol`;
     :func:`write_inputs`, with its LAMMPS ``knobs``), run LAMMPS (:func:`run_lammps` with ``np``
     MPI ranks) and read the result (:func:`read_run`)."""
     prm = write_inputs(folder, protocol, **knobs)

@@ -15,7 +15,7 @@ with its unit, default and allowed range (checked there, nowhere else)::
     corpus = [proto.replace(seed=s) for s in range(5)]
 
 The same protocol drives ``python -m dem pack`` (its options are the protocol's fields) and the
-LAMMPS writer (:func:`dem.lammps.write_inputs`).
+LAMMPS writer (:func:`dem.engine.lammps.write_inputs`).
 
 Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the fields):
 
@@ -24,7 +24,7 @@ Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the 
    steps), drawn from ``numpy.random.default_rng(seed)``; radii identical, or uniform in
    ``r (1 +- dispersity)``. ``gas_overlaps=False`` starts instead from a cold gas without
    overlaps (random sequential addition).
-2. *Compaction* (phase ``compact``) with :class:`dem.cell.PressureServo`: the cell shrinks at
+2. *Compaction* (phase ``compact``) with :class:`dem.engine.cell.PressureServo`: the cell shrinks at
    ``max_strain_per_step`` (default 2e-4 per step) while there is no load, then the
    stiffness-adaptive servo holds the pressure at the target while the assembly, still below
    jamming, flows into a jammed state. This phase runs with a *light* local damping
@@ -39,7 +39,7 @@ Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the 
    with a light compaction damping the same packing jams in a few 1e4 steps (numbers in
    ``docs/dem.md``). ``damping_compaction=None`` restores the single-damping protocol.
 
-   The time step is ``dt_over_dtcrit`` (default 1) times :func:`dem.integrate.critical_dt`,
+   The time step is ``dt_over_dtcrit`` (default 1) times :func:`dem.engine.integrate.critical_dt`,
    which is itself at least sqrt(2) below the leapfrog limit of the stiffest possible contacts.
 
    The fast start from a gas is the choice made against crystallisation of identical disks (2D
@@ -52,10 +52,10 @@ Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the 
    ``dispersity`` > 0 for amorphous frictionless packings. Friction ``mu_prep`` during this phase
    is the knob for the coordination number (``mu_prep = 0``: densest, highest Z).
    With ``fire=True`` (default), once the solid fraction has stopped changing (relative change
-   below 3e-7 at five checks in a row) the FIRE velocity mixing of :mod:`dem.fire` runs too,
+   below 3e-7 at five checks in a row) the FIRE velocity mixing of :mod:`dem.engine.fire` runs too,
    until the phase ends or the packing moves again.
 3. *Equilibrium* at ``mu_prep`` (phase ``prep``), with the local damping ``damping`` and, with
-   ``fire=True`` (default), the FIRE velocity mixing of :mod:`dem.fire` after every step (it
+   ``fire=True`` (default), the FIRE velocity mixing of :mod:`dem.engine.fire` after every step (it
    quenches the velocities whenever the power ``F . v`` turns negative: the ringing of the
    lightly damped compaction is stopped in a few hundred steps instead of several thousand).
    Stop when all three criteria hold (checked every ``check_every`` steps, at absolute step
@@ -74,7 +74,7 @@ Protocol (the phases :func:`phases` builds and :func:`pack` runs; names are the 
 The protocol before issue 12.3 is ``damping_compaction=0.1, dt_over_dtcrit=0.8, fire=False``
 (bit-identical to it). Same seed, same parameters -> bit-identical packing (serial kernels,
 fixed summation order).
-:class:`PackingResult` carries the final :class:`dem.state.State` (a checkpoint: ``save``/``load``),
+:class:`PackingResult` carries the final :class:`dem.engine.state.State` (a checkpoint: ``save``/``load``),
 the report and :meth:`PackingResult.to_network` (a :class:`microhom.network.ContactNetwork`).
 :meth:`PackingResult.save` writes one npz that is both a checkpoint (``PackingResult.load``)
 and a ``dem.io`` configuration (:func:`dem.io.read`).
@@ -105,10 +105,10 @@ from .cell import PressureServo, wrap
 from .contact_laws import Frictionless, LinearFriction, law_from_meta
 from .fire import Fire
 from .integrate import InstabilityError, Simulation, critical_dt
-from .io import Configuration
-from .io.simple import write_npz
-from .measure import hexatic_order
-from .runtime import atomic_write, remove_stale_temporaries
+from ..io import Configuration
+from ..io.simple import write_npz
+from ..analysis.measure import hexatic_order
+from ..runtime import atomic_write, remove_stale_temporaries
 from .state import State
 
 __all__ = ["PackingProtocol", "ProtocolError", "Param", "pack", "random_gas", "phases",
@@ -161,7 +161,7 @@ class PackingProtocol(Result):
     ``param`` metadata of each field, :class:`Param`; ``python -m dem pack --help`` prints the
     same table). A bad value raises :class:`ProtocolError` (a ``ValueError``) naming the field
     and its range, when the protocol is made: :func:`pack`, :func:`random_gas`,
-    ``python -m dem pack`` and :func:`dem.lammps.write_inputs` take a protocol and check nothing
+    ``python -m dem pack`` and :func:`dem.engine.lammps.write_inputs` take a protocol and check nothing
     themselves. Variants: ``protocol.replace(mu=0.3)``; a corpus of packings is a list of
     protocols. Serialised by ``as_dict()`` / :meth:`from_dict` (and :meth:`to_json` /
     :meth:`from_json`); every packing npz stores its protocol (``PackingResult.protocol``).
@@ -229,7 +229,7 @@ class PackingProtocol(Result):
                             "Cundall local damping of the equilibrium phases")
     fire: bool = _param(True, "-", "True or False", lambda v: True,
                         "FIRE velocity mixing in the equilibrium phases and, once still, in the "
-                        "compaction (dem.fire)", "bool")
+                        "compaction (dem.engine.fire)", "bool")
     restitution: float | None = _param(None, "-", "in (0, 1]", lambda v: 0 < v <= 1,
                                        "coefficient of restitution of a viscous contact "
                                        "dashpot (None: no dashpot)", optional=True)
@@ -238,7 +238,7 @@ class PackingProtocol(Result):
     alpha: float = _param(0.5, "-", "in (0, 1]", lambda v: 0 < v <= 1,
                           "servo gain: fraction of the pressure error corrected per step")
     dt_over_dtcrit: float = _param(1.0, "-", "in (0, 1]", lambda v: 0 < v <= 1,
-                                   "time step over dem.integrate.critical_dt")
+                                   "time step over dem.engine.integrate.critical_dt")
     tol_p: float = _param(1e-3, "-", "in (0, 1)", lambda v: 0 < v < 1,
                           "stop when |p - p_target| / p_target < tol_p ...")
     tol_unbalanced: float = _param(1e-5, "-", "in (0, 1)", lambda v: 0 < v < 1,
@@ -284,7 +284,7 @@ class PackingProtocol(Result):
         return self.kt_over_kn == 0 or (self.mu == 0 and self.mu_prep == 0)
 
     def laws(self):
-        """(law of the preparation phases, law of the test phase): ``dem.contact_laws`` laws."""
+        """(law of the preparation phases, law of the test phase): ``dem.engine.contact_laws`` laws."""
         if self.frictionless:
             law = Frictionless(kn=self.kn, restitution=self.restitution)
             return law, law
@@ -631,8 +631,8 @@ class PackingResult:
 
     Attributes
     ----------
-    state : the final :class:`dem.state.State` (positions [m], velocities [m/s], cell [m], ...).
-    law : the contact law of the last phase (a ``dem.contact_laws`` law, stiffnesses in N/m).
+    state : the final :class:`dem.engine.state.State` (positions [m], velocities [m/s], cell [m], ...).
+    law : the contact law of the last phase (a ``dem.engine.contact_laws`` law, stiffnesses in N/m).
     report : the :class:`PackReport` of the run (criteria, counts, timings).
     protocol : the :class:`PackingProtocol` that made it (None for a file written before
         protocols were stored).
@@ -655,7 +655,7 @@ class PackingResult:
         path = os.fspath(path)
         path = path if path.endswith(".npz") else path + ".npz"
         st = self.state
-        meta = {"source": "dem.packing", "note": _CONFIG_NOTE, "timestep": int(st.step),
+        meta = {"source": "dem.engine.packing", "note": _CONFIG_NOTE, "timestep": int(st.step),
                 **self.report.scalars(), "law": st.meta["packing_law"],
                 "protocol": None if self.protocol is None else self.protocol.as_dict()}
         cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
@@ -756,7 +756,7 @@ class Compact:
 
     Once the packing has stopped compacting (the solid fraction changed by less than
     ``still_tol`` (relative) between consecutive checks, ``still_checks`` times in a row), the
-    FIRE mixing (:mod:`dem.fire`) runs on top of the damping until the phase ends or the packing
+    FIRE mixing (:mod:`dem.engine.fire`) runs on top of the damping until the phase ends or the packing
     moves again (``still_tol = 0``: never). It stops the ringing of the jammed, lightly damped
     packing; during the flow it would stop the flow, hence the gate.
     """
@@ -797,7 +797,7 @@ class Equilibrate:
     law : the contact law of the phase (its friction is the phase's friction).
     damping : Cundall local damping of the phase, in [0, 1).
     tol_p, tol_unbalanced, tol_ke : the three stop criteria above [-].
-    fire : FIRE velocity mixing after every step (:mod:`dem.fire`, a fresh :class:`~dem.fire.Fire` at the
+    fire : FIRE velocity mixing after every step (:mod:`dem.engine.fire`, a fresh :class:`~dem.engine.fire.Fire` at the
         start of the phase), on top of the damping.
 
     The values are the protocol's (:func:`phases` fills them in); the phase has no defaults.
@@ -871,7 +871,7 @@ class _Run:
         self.p_target = protocol.p_target
         self.phases, self.index, self.history = phase_list, index, history
         self.last = {}
-        self.fire = None     # the FIRE mixing of the current phase (dem.fire.Fire) or None
+        self.fire = None     # the FIRE mixing of the current phase (dem.engine.fire.Fire) or None
         self.last_phi = None  # solid fraction at the last check (Compact's stillness gate)
         self.n_still = 0      # consecutive checks without compaction
         self.n_checks = 0
@@ -1067,7 +1067,7 @@ def pack(protocol, *, max_steps=2_000_000, checkpoint=None, checkpoint_every=200
     """
     t_start = time.perf_counter()
     if not isinstance(protocol, PackingProtocol):
-        raise TypeError(f"pack takes a PackingProtocol (dem.packing.PackingProtocol(n=..., ...)), "
+        raise TypeError(f"pack takes a PackingProtocol (dem.engine.packing.PackingProtocol(n=..., ...)), "
                         f"got {type(protocol).__name__}")
     max_steps, every, seconds, threads = check_run_options(
         max_steps=max_steps, checkpoint_every=checkpoint_every,

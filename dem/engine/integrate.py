@@ -51,7 +51,7 @@ from . import contact_models as cm
 from . import neighbors
 from .contact_laws import law_from_meta
 from .state import State
-from .runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
+from ..runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
 
 __all__ = ["Simulation", "critical_dt", "possible_contacts"]
 
@@ -83,13 +83,13 @@ def _resultants(f):
 
 
 def _compact(st):
-    """(pi32, jc) of the state's Verlet list (:func:`dem.contact_models.compact_list`)."""
+    """(pi32, jc) of the state's Verlet list (:func:`dem.engine.contact_models.compact_list`)."""
     if st.n >= 2 ** (31 - cm.SHIFT_BITS):
         raise ValueError(f"at most {2 ** (31 - cm.SHIFT_BITS) - 1} particles, got {st.n}")
     pi32, jc, ok = cm.compact_list(st.nl_i, st.nl_j, st.nl_shift)
     if not ok:
         raise ValueError("the Verlet list must be ordered by nl_i with image shifts in {-1, 0, 1} "
-                         "(as dem.neighbors.rebuild makes it); rebuild it")
+                         "(as dem.engine.neighbors.rebuild makes it); rebuild it")
     return pi32, jc
 
 
@@ -117,17 +117,17 @@ class Simulation:
 
     Parameters
     ----------
-    state : :class:`dem.state.State` (modified in place).
-    law : a contact law from :mod:`dem.contact_laws`.
+    state : :class:`dem.engine.state.State` (modified in place).
+    law : a contact law from :mod:`dem.engine.contact_laws`.
     dt : time step [s]; default ``0.8 * critical_dt``; refused (ValueError) above ``critical_dt``
         unless ``unsafe_dt=True`` (for tests of the instability guard).
     damping : Cundall local damping lambda in [0, 1); ``None`` (default) means 0.7, or 0 for a law
         that follows another code's equations (``LAMMPS_EQUIVALENT``: the
-        :class:`~dem.contact_laws.LammpsHookeHistory` law, since LAMMPS has no Cundall damping).
+        :class:`~dem.engine.contact_laws.LammpsHookeHistory` law, since LAMMPS has no Cundall damping).
         An explicit ``damping > 0`` with such a law runs with a ``RuntimeWarning``: the run leaves
         LAMMPS's equations (dv/v_rms of 0.1 at the first step with 0.7).
     skin : Verlet skin [m], default 0.1 * mean diameter... (0.2 * mean radius).
-    control : cell control (:class:`dem.cell.StrainRate`, :class:`dem.cell.PressureServo`) or None
+    control : cell control (:class:`dem.engine.cell.StrainRate`, :class:`dem.engine.cell.PressureServo`) or None
         (the cell keeps its current ``L``).
     sort_every : spatially sort the particles every this many list rebuilds (0: never).
     check_every : steps between instability checks; ke_limit : kinetic-energy bound [J/m].
@@ -140,7 +140,7 @@ class Simulation:
         the separate pass, one pass over the particle arrays fewer; measured no faster on the
         benchmark scene, see ``docs/dem.md``, hence off by default).
     threads : threads of the contact-force loop (default 1). With 2 or more
-        (:func:`dem.contact_models.pair_forces_threaded`) the forces agree with one thread's to
+        (:func:`dem.engine.contact_models.pair_forces_threaded`) the forces agree with one thread's to
         round-off, not bit for bit, and a run is reproducible for a given number of threads; the
         kick, the list builds and the rest of the step stay on one thread (measured speed-up in
         ``docs/dem.md``).

@@ -4,7 +4,7 @@
 packing of jax-md soft disks (``energy.soft_sphere``, harmonic by default): it builds the network
 with :func:`microhom.network.from_overlaps` and the law :class:`microhom.laws.SoftSphere` (so the
 forces ``fn`` are consistent with the stiffnesses ``kn``), solves the exact pre-stressed linear
-response (:func:`dem.stiffness.stiffness`, ``prestress=True``) and converts the Cauchy-increment
+response (:func:`dem.analysis.stiffness.stiffness`, ``prestress=True``) and converts the Cauchy-increment
 tensor to jax-md's energy-density tensor (:mod:`microhom.conventions`: ``B = K - p/2``,
 ``G_U = G + p/2``).
 """
@@ -42,7 +42,7 @@ class PeerModuli(Result):
     B, G : float
         The peer's isotropic moduli [N/m] (jax-md's ``extract_isotropic_moduli``).
     C_cauchy_mandel : (3, 3) array
-        Our Cauchy-increment tensor [N/m] (:mod:`dem.stiffness`, pre-stress on).
+        Our Cauchy-increment tensor [N/m] (:mod:`dem.analysis.stiffness`, pre-stress on).
     K, G_cauchy : float
         Our isotropic moduli [N/m]: ``K = B + p/2``, ``G_cauchy = G - p/2``.
     pressure : float
@@ -56,7 +56,7 @@ class PeerModuli(Result):
         tensor is meaningful).
     network : microhom.network.ContactNetwork
         The contact network built (not exported).
-    stiffness : dem.stiffness.StiffnessResult
+    stiffness : dem.analysis.stiffness.StiffnessResult
         The full stiffness solve (not exported).
     """
 
@@ -90,7 +90,7 @@ def jaxmd_elasticity(positions, radii, box, *, epsilon=1.0, alpha=2.0, fractiona
     radii : (N,) radii [m] (jax-md's ``sigma`` of a pair is ``r_i + r_j``), or a scalar.
     box : (2, 2) jax-md box, columns = cell vectors [m] (a scalar L means a square L x L box).
     epsilon : energy scale [J/m] > 0; alpha : soft-sphere exponent >= 2 (2 harmonic, 2.5 Hertzian).
-    solver : passed to :func:`dem.stiffness.stiffness`.
+    solver : passed to :func:`dem.analysis.stiffness.stiffness`.
     """
     box = np.asarray(box, dtype=float)
     if box.ndim == 0:

@@ -1,7 +1,7 @@
 """The same state run in this engine and in LAMMPS ``gran/hooke/history``: trajectories compared.
 
-:func:`lammps_trajectory` writes a :class:`dem.state.State` and a
-:class:`dem.contact_laws.LammpsHookeHistory` law as a LAMMPS data file and input (``units lj``,
+:func:`lammps_trajectory` writes a :class:`dem.engine.state.State` and a
+:class:`dem.engine.contact_laws.LammpsHookeHistory` law as a LAMMPS data file and input (``units lj``,
 ``dimension 2``, ``atom_style sphere``, ``fix nve/sphere disc``, ``fix enforce2d``), runs it and
 reads back positions, velocities and spins at the requested steps. :func:`engine_trajectory` runs
 the same state here with ``startup="lammps"``; :func:`divergence` compares two trajectories.
@@ -34,7 +34,7 @@ import numpy as np
 from microhom import lattices
 from microhom.results import Result
 
-from . import io
+from .. import io
 from .contact_laws import LammpsHookeHistory
 from .integrate import Simulation
 from .lammps import lammps_available, run_lammps
@@ -123,7 +123,7 @@ def lammps_masses(radius, rho):
 
 
 def pair_style_line(law) -> str:
-    """``pair_style gran/hooke/history`` line for a :class:`~dem.contact_laws.LammpsHookeHistory` law."""
+    """``pair_style gran/hooke/history`` line for a :class:`~dem.engine.contact_laws.LammpsHookeHistory` law."""
     if not isinstance(law, LammpsHookeHistory):
         raise TypeError(f"law must be a LammpsHookeHistory, got {type(law).__name__}")
     gt = "NULL" if law.gamma_t is None else repr(float(law.gamma_t))
@@ -158,9 +158,9 @@ def write_inputs(folder, state, law, dt, steps, dump_steps, *, newton="on", skin
     n = state.n
     cfg = io.Configuration(positions=state.x, radii=state.radius, cell=state.h, ids=np.arange(1, n + 1),
                            velocities=state.v, fields={"density": np.full(n, state.rho), "omegaz": state.omega})
-    io.write_lammps_data(folder / "state.data", cfg, title="dem.lammps_trajectory state")
+    io.write_lammps_data(folder / "state.data", cfg, title="dem.engine.lammps_trajectory state")
     skin = 0.2 * float(np.mean(state.radius)) if skin is None else float(skin)
-    text = f"""# written by dem.lammps_trajectory: the same state as the engine's, run {steps} steps
+    text = f"""# written by dem.engine.lammps_trajectory: the same state as the engine's, run {steps} steps
 units           lj
 dimension       2
 atom_style      sphere

@@ -7,7 +7,7 @@ until the unbalanced force ratio is below ``tol_unbalanced``, and takes ``Delta 
 Each of the three Mandel strain modes ``[xx, yy, sqrt2 xy]`` is probed with ``+eps`` and
 ``-eps``; the central difference removes the second-order (geometric) terms, so the result is
 the tangent stiffness at the packing's state. It is the second, independent route to the tensor
-computed by :func:`dem.stiffness.stiffness` (exact linear response): the two must agree for a
+computed by :func:`dem.analysis.stiffness.stiffness` (exact linear response): the two must agree for a
 small probe. The measured stress is the DEM's Cauchy stress (Love-Weber over the current cell),
 so compare with ``stiffness(..., prestress=True)``.
 """
@@ -174,7 +174,7 @@ def strain_probes(state, law, *, amplitude=1e-8, ramp_steps=200, tol_unbalanced=
 
     Parameters
     ----------
-    state : :class:`dem.state.State` of an equilibrated packing (not modified; probes run on copies).
+    state : :class:`dem.engine.state.State` of an equilibrated packing (not modified; probes run on copies).
     law : its contact law (e.g. ``PackingResult.law``).
     amplitude : strain increment per probe (dimensionless), in (0, 0.01); small enough that no new
         contacts open or close: at p/kn = 1e-4 the smallest gaps are ~1e-7 D, so 1e-8 agrees with
