@@ -42,9 +42,8 @@ from microhom.results import Result
 from microhom.structural_sums import network_statistics
 
 from .. import io
-from ..engine.lammps import read_run
+from ..io.lammps_run import read_run
 from .measure import coordination, stress
-from ..engine.packing import PackingResult
 from .stiffness import stiffness
 
 __all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS",
@@ -183,16 +182,16 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     forces = None
     file_arm = "radius" if format.startswith("lammps") else "contact"
     if format == "packing":
-        try:
-            res = PackingResult.load(path)
-        except (KeyError, ValueError, OSError) as exc:
-            raise io.FormatError(path, None, None, f"not a dem.engine.packing result ({exc})") from None
-        net = res.to_network()
+        net = io.read_npz_network(path)
+        if net is None:
+            raise io.FormatError(path, None, "network:pairs", "a dem packing file without its stored "
+                                 "contact network (written before it was stored): load it with "
+                                 "dem.engine.packing.PackingResult.load and save it again")
         forces = "from file"
-        law = res.law.to_meta() if hasattr(res.law, "to_meta") else {}
+        law = io.read_npz(path).meta.get("law") or {}
         if kn is not None or kt is not None or kt_ratio is not None:
             notes.append("--kn/--kt ignored: a packing file carries its own contact law "
-                         f"({law.get('law', type(res.law).__name__)})")
+                         f"({law.get('law', 'stored')}) and network")
     elif format == "lammps-run":
         if not path.is_dir() or not (path / "in.packing").is_file():
             raise io.FormatError(path, None, None, "not a LAMMPS run folder (no in.packing: the "

@@ -661,7 +661,8 @@ class PackingResult:
         cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
                             velocities=st.v, meta=meta)
         extra = {k: v for k, v in st.arrays().items() if k != "ids"}   # ids: the schema's own
-        atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra))
+        net = self.to_network()        # stored too: the analysis reads it without the simulator
+        atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra, network=net))
         return path
 
     @classmethod

@@ -28,7 +28,7 @@ from ._core import (KN_CONVENTIONS, Configuration, FileTooLarge, FormatError, av
 from .lammps import (box_from_dump_bounds, dump_bounds, iter_lammps_dump, read_lammps_data,
                      read_lammps_dump, write_lammps_data, write_lammps_dump)
 from .oval import read_oval, write_oval
-from .simple import FORMAT_VERSION, read_csv, read_npz, write_csv, write_npz
+from .simple import FORMAT_VERSION, read_csv, read_npz, read_npz_network, write_csv, write_npz
 from .vtk import read_vtk, write_vtk
 
 __all__ = ["Configuration", "FormatError", "FileTooLarge", "KN_CONVENTIONS", "check_regular_file",
@@ -36,7 +36,7 @@ __all__ = ["Configuration", "FormatError", "FileTooLarge", "KN_CONVENTIONS", "ch
            "read", "write", "detect_format",
            "read_lammps_data", "write_lammps_data", "read_lammps_dump", "write_lammps_dump",
            "iter_lammps_dump", "dump_bounds", "box_from_dump_bounds",
-           "read_oval", "write_oval", "read_npz", "write_npz", "read_csv", "write_csv",
+           "read_oval", "write_oval", "read_npz", "read_npz_network", "write_npz", "read_csv", "write_csv",
            "read_vtk", "write_vtk"]
 
 #: format name -> (reader, writer)

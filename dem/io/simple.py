@@ -16,7 +16,16 @@ key                    shape       meaning
 ``forces``             (N, 2)      optional
 ``field:<name>``       (N,)        optional further per-particle fields
 ``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
+``network:pairs``      (C, 2)      optional contact network: int64 particle indices i < j
+``network:branch``     (C, 2)      float64 branch vectors x_j - x_i (periodic image resolved)
+``network:kn``, ``:kt``  (C,)      float64 contact stiffnesses [N/m]
+``network:sliding``    (C,)        bool, contacts at the Coulomb limit
+``network:fn``, ``:ft``  (C,)      optional normal (compression positive) and tangential forces
 =====================  ==========  =========================================================
+
+The ``network:`` keys are written together (:func:`write_npz` with ``network=``) and read by
+:func:`read_npz_network`: a file that carries them hands its contacts, stiffnesses and forces to
+the analysis without the simulator that made it.
 
 Other keys are ignored by :func:`read_npz`: a packing file of :mod:`dem.engine.packing` keeps its
 bit-exact state there (``write_npz(..., extra=...)``), and its ``meta_json`` holds the packing
@@ -49,7 +58,7 @@ def _f(x):
     return repr(float(x))
 
 
-__all__ = ["read_npz", "write_npz", "read_csv", "write_csv", "FORMAT_VERSION"]
+__all__ = ["read_npz", "write_npz", "read_npz_network", "read_csv", "write_csv", "FORMAT_VERSION"]
 
 FORMAT_VERSION = 1
 _MAGIC = "microhom-configuration"
@@ -72,14 +81,30 @@ def _jsonable_meta(meta):
     return out
 
 
-def write_npz(path, config, *, compressed=False, extra=None):
+_NETWORK_KEYS = ("pairs", "branch", "kn", "kt", "sliding", "fn", "ft")
+
+
+def _network_arrays(network, n_particles):
+    """The ``network:`` arrays of a :class:`microhom.network.ContactNetwork` (2D)."""
+    if network.n_particles != n_particles:
+        raise ValueError(f"network has {network.n_particles} particles but the configuration "
+                         f"{n_particles}: write the network of this configuration")
+    out = {f"network:{k}": getattr(network, k) for k in _NETWORK_KEYS
+           if getattr(network, k) is not None}
+    return out
+
+
+def write_npz(path, config, *, compressed=False, extra=None, network=None):
     """Write ``config`` as an npz file (schema in the module docstring): the one writer of the
     schema.
 
     ``path``: a path, or a binary file object (e.g. the temporary file of
     :func:`dem.runtime.atomic_write`). ``extra``: further arrays {key: array} stored beside the
     schema's keys (a ``dem.engine.packing`` file stores its bit-exact state there); a key that is one of
-    the schema's, or starts with ``field:``, raises ``ValueError``; :func:`read_npz` ignores them.
+    the schema's, or starts with ``field:`` or ``network:``, raises ``ValueError``;
+    :func:`read_npz` ignores them. ``network``: the configuration's
+    :class:`~microhom.network.ContactNetwork` (same particles, same order), stored under the
+    ``network:`` keys for :func:`read_npz_network`.
     """
     arrays = {"format": np.array(_MAGIC), "format_version": np.array(FORMAT_VERSION),
               "positions": config.positions, "radii": config.radii, "origin": config.origin,
@@ -93,9 +118,12 @@ def write_npz(path, config, *, compressed=False, extra=None):
         arrays["forces"] = config.forces
     for name, v in config.fields.items():
         arrays[f"field:{name}"] = v
-    clash = sorted(k for k in (extra or {}) if k in _SCHEMA_KEYS or k.startswith("field:"))
+    clash = sorted(k for k in (extra or {})
+                   if k in _SCHEMA_KEYS or k.startswith("field:") or k.startswith("network:"))
     if clash:
         raise ValueError(f"extra arrays {clash} clash with the npz schema's keys {sorted(_SCHEMA_KEYS)}")
+    if network is not None:
+        arrays.update(_network_arrays(network, len(config.radii)))
     arrays = {**(extra or {}), **arrays}
     save = np.savez_compressed if compressed else np.savez
     if hasattr(path, "write"):
@@ -297,3 +325,26 @@ def read_csv(path) -> Configuration:
         velocities=arr[:, [col["vx"], col["vy"]]] if "vx" in col and "vy" in col else None,
         forces=arr[:, [col["fx"], col["fy"]]] if "fx" in col and "fy" in col else None,
         fields=fields, meta=meta, source=path, source_format="csv")
+
+
+def read_npz_network(path):
+    """The contact network stored in an npz file by ``write_npz(..., network=)``, or None when the
+    file carries none. Positions, radii, cell and origin are the configuration's (:func:`read_npz`);
+    the contacts, branch vectors, stiffnesses [N/m], sliding flags and forces are the stored ones.
+    """
+    from microhom.network import ContactNetwork
+    cfg = read_npz(path)
+    path = os.fspath(path)
+    with np.load(path, allow_pickle=False) as z:
+        if "network:pairs" not in z.files:
+            return None
+        got = {k: z[f"network:{k}"] for k in _NETWORK_KEYS if f"network:{k}" in z.files}
+    missing = [k for k in ("branch", "kn", "kt", "sliding") if k not in got]
+    if missing:
+        raise FormatError(path, None, f"network:{missing[0]}", "missing (the network: keys are "
+                          "written together)")
+    try:
+        return ContactNetwork(positions=cfg.positions, radii=cfg.radii, cell=cfg.cell,
+                              origin=cfg.origin, **got)
+    except ValueError as exc:
+        raise FormatError(path, None, "network:pairs", f"inconsistent stored network ({exc})") from None
