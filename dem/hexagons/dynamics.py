@@ -40,8 +40,9 @@ __all__ = ["Model", "step", "advance", "model_forces", "assemble_stiffness", "ge
 RAMP_CODES = {"instant": 0, "linear": 1, "nonlinear": 2, "none": 3}
 # energy/contact accounts in Model.acc: W_E, W_gas, D_break, D_fric, D_damp, D_dash (accumulated);
 # V_contact (current contact energy), n_contacts (current), max overlap / d (so far)
+# and the parts of D_break, D_fric spent on the planar fault's segments (D_break_fault, D_fric_fault)
 ACC = {"W_E": 0, "W_gas": 1, "D_break": 2, "D_fric": 3, "D_damp": 4, "D_dash": 5, "V_contact": 6,
-       "n_contacts": 7, "max_overlap": 8}
+       "n_contacts": 7, "max_overlap": 8, "D_break_fault": 9, "D_fric_fault": 10}
 N_ACC = len(ACC)
 
 
@@ -225,6 +226,40 @@ class Model:
     cvis: np.ndarray = None
     kspr: np.ndarray = None
     uref: np.ndarray = None
+    # the planar fault (None: no fault law; every interface follows its own edge's law)
+    fseg: np.ndarray = None
+    flam: np.ndarray = None
+
+    def fault_args(self):
+        """(fseg, sp, sidx, slam, sw) of the fault kernel: per interface its segment (-1: not a fault
+        edge), the segments as CSR (``sidx[sp[s]:sp[s+1]]``, edges in the order along the line), the
+        edge weights ``sw`` (1; 1/2, 1, 1/2 in a triple) and each segment's weighted projected length
+        over L, ``slam[s] = sum_e sw flam[e]`` (computed once, not part of the state)."""
+        if getattr(self, "_fargs", None) is not None and self._fkey is self.fseg \
+                and len(self._fargs[0]) == len(self.ci):
+            return self._fargs
+        nifc = len(self.ci)
+        if self.fseg is None or not np.any(self.fseg >= 0):
+            fseg = -np.ones(nifc, np.int64)
+            args = (fseg, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+        else:
+            fseg = np.asarray(self.fseg, np.int64)
+            nseg = int(fseg.max()) + 1
+            e = np.nonzero(fseg >= 0)[0]
+            order = e[np.argsort(fseg[e], kind="stable")]
+            cnt = np.bincount(fseg[e], minlength=nseg)
+            sp_ = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
+            w = np.ones(len(order))
+            for s_ in np.nonzero(cnt == 3)[0]:          # a triple a, b, a: weights 1/2, 1, 1/2
+                q = np.arange(sp_[s_], sp_[s_] + 3)
+                fam = self.ca[order[q]]                    # the edge family (edge number of cell i)
+                for k in range(3):
+                    w[q[k]] = 1.0 if np.sum(fam == fam[k]) == 1 else 0.5
+            slam = np.bincount(fseg[order], weights=w * self.flam[order], minlength=nseg).astype(float)
+            args = (fseg, sp_, order.astype(np.int64), slam, w)
+        self._fkey = self.fseg
+        self._fargs = args
+        return args
 
     def devices(self):
         """(cvis, kspr, uref) arrays of shape (N,12), zeros when the scene has none."""
@@ -305,7 +340,7 @@ def ramp_value(kind, Tr, t):
 @njit(cache=True)
 def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
             ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-            sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt):
+            sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt, fseg, sp, sidx, slam, sw):
     N = u.shape[0]
     for c in range(N):
         K = Kmat[mat[c]]
@@ -324,6 +359,8 @@ def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
     w_gas = 0.0
     d_dash = 0.0
     for e in range(ci.shape[0]):
+        if fseg[e] >= 0:
+            continue                      # an edge of the planar fault: segment law below
         i = ci[e]
         a = ca[e]
         j = cj[e]
@@ -361,10 +398,168 @@ def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
         f[i, 2 * a + 1] += Fy
         f[j, 2 * b] -= Fx
         f[j, 2 * b + 1] -= Fy
+    if sp.shape[0] > 1:
+        fb, ff, fg, fd = _fault_segments(u, f, vh, L, ci, ca, cj, cb, nx, ny, kn, kt, ft, coh, tanphi,
+                                         tanphi_r, vent, sn0, sn, tau, jtp, jnp, broken, pg, cdash, dt,
+                                         sp, sidx, slam, sw)
+        d_break += fb
+        d_fric += ff
+        w_gas += fg
+        d_dash += fd
+        acc[9] += fb
+        acc[10] += ff
     acc[1] += w_gas
     acc[2] += d_break
     acc[3] += d_fric
     acc[5] += d_dash
+
+
+@njit(cache=True)
+def _fault_segments(u, f, vh, L, ci, ca, cj, cb, nx, ny, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
+                    sn, tau, jtp, jnp, broken, pg, cdash, dt, sp, sidx, slam, sw):
+    """The planar fault: Mohr-Coulomb on the true plane, per segment of the zigzag of lattice edges.
+
+    Segment ``s`` owns the interfaces ``sidx[sp[s]:sp[s+1]]`` with weights ``sw`` (1 and 1 for a pair,
+    1/2, 1, 1/2 for the triple that closes a line crossing an odd number of edges) and has
+    ``lam = slam[s] = sum_e w_e n_e . n_f`` (consecutive edges along the fault line,
+    one of each of the two edge orientations). Their frame (``nx``, ``ny``) is the fault's normal
+    n_f, their preload ``sn0``, ``tau0`` is the virgin traction vector sigma0 n_e of the edge in that
+    frame, and the gas pressure ``pg`` is p_g (n_e . n_f), so that for a uniform stress sigma the
+    sums over a segment are exact:
+
+        sum_e w_e sn_e = lam sigma_nf,  sum_e w_e tau_e = lam tau_f,  sum_e w_e pg_e = lam p_g,
+        lam = sum_e w_e n_e . n_f      (sum_e w_e n_e = lam n_f: the two families weigh the same)
+
+    The strength check uses the fault tractions sigma_f = sum w sn / lam, tau_f = sum w tau / lam (tension
+    if sigma_f + p_g >= ft, shear if |tau_f| >= c - (sigma_f + p_g) tan phi); once broken, every edge
+    keeps the no-tension cut-off of the broken law (gas on the faces, vented per edge) and the
+    segment's weighted shear sum is returned onto |sum w tau| <= -sum w (sn + pg) tan phi_r by one
+    plastic slip shared by its edges (equal shear decrements: the edges have the same kt). Energies as
+    in :func:`dem.hexagons.interface.mc_update`: the drop at a break in d_break, the plastic work (the
+    edges' shear forces times the slip) in d_fric. Returns (d_break, d_fric, w_gas, d_dash) [J/m]."""
+    d_break = 0.0
+    d_fric = 0.0
+    w_gas = 0.0
+    d_dash = 0.0
+    nseg = sp.shape[0] - 1
+    for s in range(nseg):
+        lo = sp[s]
+        hi = sp[s + 1]
+        m = hi - lo
+        if m == 0:
+            continue
+        e0 = sidx[lo]
+        lam = slam[s]
+        n_tr = 0.0
+        t_tr = 0.0
+        p_sum = 0.0
+        e_before = 0.0
+        for q in range(lo, hi):
+            e = sidx[q]
+            i = ci[e]
+            a = ca[e]
+            j = cj[e]
+            b = cb[e]
+            dux = u[j, 2 * b] - u[i, 2 * a]
+            duy = u[j, 2 * b + 1] - u[i, 2 * a + 1]
+            jn = dux * nx[e] + duy * ny[e]
+            jt = -dux * ny[e] + duy * nx[e]
+            s_tr = sn0[e] + kn[e] * jn
+            t_e = tau[e] + kt[e] * (jt - jtp[e])
+            # keep the trial values in the state arrays (overwritten below); jumps in jnp/jtp after use
+            sn[e] = s_tr
+            tau[e] = t_e
+            w = sw[q]
+            n_tr += w * s_tr
+            t_tr += w * t_e
+            p_sum += w * pg[e]
+            e_before += 0.5 * s_tr * s_tr / kn[e] + 0.5 * t_e * t_e / kt[e]
+        br = broken[e0]
+        newly = False
+        if br == 0:
+            spf = (n_tr + p_sum) / lam
+            lim = coh[e0] - spf * tanphi[e0]
+            if spf >= ft[e0]:
+                br = 1
+                newly = True
+            elif abs(t_tr) / lam >= lim:
+                br = 2
+                newly = True
+        d_vent = 0.0
+        if br > 0:
+            n_eff = 0.0
+            for q in range(lo, hi):
+                e = sidx[q]
+                pge = pg[e]
+                spb = sn[e] + pge
+                if spb > 0.0 and pge > 0.0:
+                    # gas work on the open faces (pressure before venting), as in the edge law
+                    dux = u[cj[e], 2 * cb[e]] - u[ci[e], 2 * ca[e]]
+                    duy = u[cj[e], 2 * cb[e] + 1] - u[ci[e], 2 * ca[e] + 1]
+                    w_gas += L * pge * (dux * nx[e] + duy * ny[e] - jnp[e])
+                if spb > 0.0:
+                    if pge > 0.0 and spb / kn[e] > vent[e]:
+                        d_vent += 0.5 * pge * pge / kn[e]
+                        pge = 0.0
+                        pg[e] = 0.0
+                    spb = 0.0
+                sn[e] = spb - pge
+                n_eff += sw[q] * spb
+            limr = -n_eff * tanphi_r[e0]
+            t_new = t_tr
+            if t_tr > limr:
+                t_new = limr
+            elif t_tr < -limr:
+                t_new = -limr
+            wsum = 0.0
+            for q in range(lo, hi):
+                wsum += sw[q]
+            dl = (t_tr - t_new) / wsum          # the shear decrement of every edge: one shared slip
+            t_all = 0.0
+            if dl != 0.0:
+                for q in range(lo, hi):
+                    tau[sidx[q]] -= dl
+                    t_all += tau[sidx[q]]
+            if newly:
+                e_after = 0.0
+                for q in range(lo, hi):
+                    e = sidx[q]
+                    e_after += 0.5 * sn[e] * sn[e] / kn[e] + 0.5 * tau[e] * tau[e] / kt[e]
+                d_break += L * (e_before - e_after)
+            else:
+                d_fric += L * t_all * dl / kt[e0]       # sum of the edge forces times the slip dl/kt
+                d_break += L * d_vent
+        for q in range(lo, hi):
+            e = sidx[q]
+            i = ci[e]
+            a = ca[e]
+            j = cj[e]
+            b = cb[e]
+            n_x = nx[e]
+            n_y = ny[e]
+            dux = u[j, 2 * b] - u[i, 2 * a]
+            duy = u[j, 2 * b + 1] - u[i, 2 * a + 1]
+            jn = dux * n_x + duy * n_y
+            jt = -dux * n_y + duy * n_x
+            pge = pg[e]
+            jtp[e] = jt
+            jnp[e] = jn
+            broken[e] = br
+            s_n = sn[e]
+            ta = tau[e]
+            Fx = L * (s_n * n_x - ta * n_y)
+            Fy = L * (s_n * n_y + ta * n_x)
+            if br > 0 and cdash > 0.0 and (s_n + pge) < 0.0:
+                dvx = vh[j, 2 * b] - vh[i, 2 * a]
+                dvy = vh[j, 2 * b + 1] - vh[i, 2 * a + 1]
+                Fx += cdash * dvx
+                Fy += cdash * dvy
+                d_dash += cdash * (dvx * dvx + dvy * dvy) * dt
+            f[i, 2 * a] += Fx
+            f[i, 2 * a + 1] += Fy
+            f[j, 2 * b] -= Fx
+            f[j, 2 * b + 1] -= Fy
+    return d_break, d_fric, w_gas, d_dash
 
 
 @njit(cache=True)
@@ -488,7 +683,7 @@ def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc,
 def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
              Kmat, mat, f0, fext, cvis, kspr, uref, wc, wk, FE0,
              ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-             sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort,
+             sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort, fseg, sp, sidx, slam, sw,
              contact, centres, nbc, nif, cut, kc, cc, grid, head, nxt, cand, pos, vel):
     N = u.shape[0]
     t = t0
@@ -521,7 +716,7 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
         t = t0 + (s + 1) * dt
         _forces(u, f, g_new, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
                 ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-                sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt)
+                sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt, fseg, sp, sidx, slam, sw)
         if contact:
             acc[5] += _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc, grid,
                                 head, nxt, cand, pos, vel)
@@ -558,7 +753,7 @@ def model_forces(model: Model, u: np.ndarray, t: float) -> np.ndarray:
     vh = model.vh if model.vh is not None else np.zeros_like(u)
     _forces(u, f, g, model.Kmat, model.mat, model.f0, model.fext, *model.devices()[1:], model.wc, model.wk,
             model.FE0,
-            *model.ifc_args(), model.acc, vh, float(model.cdash), float(model.dt_last))
+            *model.ifc_args(), model.acc, vh, float(model.cdash), float(model.dt_last), *model.fault_args())
     if model.contact:
         model.acc[5] += _contacts(u, vh, f, model.acc, float(model.dt_last), *model.contact_args())
     return f
@@ -602,7 +797,7 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
                  model.minv, float(model.alpha), int(model.ramp_kind), float(model.ramp_time),
                  model.Kmat, model.mat, model.f0, model.fext, *model.devices(), model.wc, model.wk, model.FE0,
                  *model.ifc_args(), model.acc, model.mnode, float(model.cdash), float(model.v_abort),
-                 *_contact_call_args(model))
+                 *model.fault_args(), *_contact_call_args(model))
     model.dt_last = float(dt)
     if t < 0:
         done = int(-t)
