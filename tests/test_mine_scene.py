@@ -418,3 +418,34 @@ def test_verdict_converges_from_1117_to_1527_cells(tmp_path):
     assert len(vt) == 4
     assert vt.verdict.iloc[0] == vt.verdict.iloc[2] == "no clear difference", vt[["reading", "verdict"]]
     assert vt.verdict.iloc[1].startswith("60") and vt.verdict.iloc[3].startswith("60"), vt[["reading", "verdict"]]
+
+
+# ----------------------------------------------------------------------------- the planar fault in the scene
+def test_plane_fault_refused_when_it_fails_at_the_virgin_state():
+    """With the paper's K0 = 1/3 and the coal's 22 deg the true 60 deg plane fails before excavation
+    (|tau| = 7.2 MPa against 0.40 x 11.5 MPa): refused naming the fault's parameters and K0."""
+    with pytest.raises(ValueError, match=r"disl_phi_deg=.*planar dislocation fails at the virgin state.*K0"):
+        build_scene(small(fault_law="plane"))
+    build_scene(small(fault_law="plane", K0=0.6))
+
+
+def test_fault_indicators_move_when_the_fault_is_weakened():
+    """Against the control (no dislocation, measured across the same line): a strong planar fault
+    (40 deg) stays intact and matches the control exactly (its springs act in the fault frame with
+    kn = kt, the same forces); weakened to 16 deg it slips millimetres over the whole seam height and
+    releases tens of kJ/m by friction."""
+    from dem.scenes.mine import fault_indicators, resolve
+    base = dict(fault_law="plane", K0=0.6, floor="rock")
+    ctl = run_scene(small(n_disl=0, **base))
+    out = {}
+    for phi in (40.0, 16.0):
+        p = small(disl_phi_deg=phi, **base)
+        r = run_scene(p)
+        f0 = fault_indicators(ctl.scene, ctl.series, lines=resolve(p).dislocations)
+        out[phi] = r.indicators.fault.minus(f0)
+        assert r.indicators.energy_residual_rel < 1e-3
+    strong, weak = out[40.0], out[16.0]
+    assert abs(strong.slip_mean_m) < 1e-9 and strong.n_broken == 0 and strong.released_J_per_m == 0.0
+    assert weak.slip_mean_m > 1e-3 and weak.slip_max_m > 2e-3
+    assert weak.slipped_length_m >= 2.0                       # the seam is 2 m high in this scene
+    assert weak.n_broken > 0 and weak.released_J_per_m > 1e4
