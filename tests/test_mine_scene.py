@@ -386,14 +386,23 @@ def test_cli_refuses_unknown_reading(capsys):
     assert "loading" in capsys.readouterr().err
 
 
-def test_study_quick(tmp_path):
-    """The decisive study's quick mode runs end to end (3 runs) and writes a verdict and figures."""
+def test_study_quick(tmp_path, capsys):
+    """The decisive study's quick mode runs end to end (one map reading: 60, 120 and the control, two
+    repetitions at different time steps), prints the fault indicators with their noise band, writes a
+    verdict and the figures, and resumes."""
     import pandas as pd
-    from studies.mine_bumps import main
+    from studies.mine_bumps import MAP_IND, main
     assert main(["--quick", "--out", str(tmp_path), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "fault |slip|" in printed and "fault released" in printed and "MDE" in printed
     v = pd.read_csv(tmp_path / "verdict.csv")
-    assert len(v) == 1 and v.verdict.iloc[0] in ("120 worse", "60 worse", "no clear difference")
-    assert (tmp_path / "fig_profile_near.png").exists() and (tmp_path / "fig_cracks_near.png").exists()
+    assert len(v) == 1 and v.reps.iloc[0] == 2
+    assert v.verdict.iloc[0] in ("120 worse", "60 worse", "mixed", "equal", "not resolvable")
+    for name in MAP_IND:
+        assert np.isfinite(v[f"{name} MDE"].iloc[0]) and v[f"{name} excess 60 2sigma"].iloc[0] >= 0
+    assert v["fault released [J/m] excess 60"].iloc[0] > 0          # the planar fault acts
+    for f in ("profile_near", "cracks_near", "difference_near", "slip_profile", "wedge_Ek", "verdict", "map"):
+        assert (tmp_path / f"fig_{f}.png").exists(), f
     assert main(["--quick", "--out", str(tmp_path), "--no-progress"]) == 0        # resumes: nothing to run
 
 
@@ -402,7 +411,7 @@ def test_verdict_converges_from_1117_to_1527_cells(tmp_path):
     """The 60/120 verdict on the 1117-cell lattice (inner radius 0.25 m) equals the verdict on the
     1527-cell lattice (side 0.25 m, the paper's 1532), for the reading where the angle matters most
     (far placement, roller floor, interface gas: 60 deg worse) and for the paper-closest one."""
-    from studies import mine_bumps as mb
+    from studies import mine_bumps as mb                 # the first pass (legacy sweep, zigzag fault)
     from studies.runner import run_cases
     cs = []
     for lat in ("inner", "side"):
@@ -449,3 +458,18 @@ def test_fault_indicators_move_when_the_fault_is_weakened():
     assert weak.slip_mean_m > 1e-3 and weak.slip_max_m > 2e-3
     assert weak.slipped_length_m >= 2.0                       # the seam is 2 m high in this scene
     assert weak.n_broken > 0 and weak.released_J_per_m > 1e4
+
+
+def test_released_gas_acts_with_the_excavation_only():
+    """gas='released': the eigenstress is not in the virgin equilibrium (same virgin forces as without
+    gas) and is released as (1 - g) with the face; the energy balance closes with it."""
+    from dem.hexagons.dynamics import forces_frozen
+    base = dict(fault_law="plane", K0=0.6, floor="rock", disl_phi_deg=18.0, gas_pressure=2e6)
+    a = build_scene(small(gas="none", **base))
+    b = build_scene(small(gas="released", **base))
+    assert b.info["n_gas_nodes"] > 0 and a.info["n_wall_nodes"] == b.info["n_wall_nodes"]
+    assert np.array_equal(a.model.u, b.model.u)                       # the same virgin state
+    fa, fb = forces_frozen(a.model, a.model.u), forces_frozen(b.model, b.model.u)
+    assert np.allclose(fa, fb, rtol=0, atol=1e-9 * np.abs(fa).max())  # g = 1: nothing released yet
+    r = run_scene(b)
+    assert r.indicators.energy_residual_rel < 1e-3

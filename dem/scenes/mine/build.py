@@ -16,7 +16,7 @@ from ...hexagons.fault import plane_fault
 from ...hexagons.interface import spring_stiffness_rule
 from ...hexagons.lattice import classify_free_edges, make_lattice
 from .excavation import excavate, virgin_state, virgin_utilisation
-from .gas import eigenstrain_forces, gassy_cells, interface_pressure
+from .gas import eigenstrain_forces, gassy_cells, interface_pressure, release_gas_with_excavation
 from .geometry import Geometry, block_labels, resolve, segments_cross
 from .params import G_ACC, MineParams
 
@@ -175,8 +175,10 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     fext[fc, 2 * fe + 1] += fb[:, 1]
     if p.gravity:
         fext[:, 1::2] -= (mnode * G_ACC)[:, None]
-    gassy = gassy_cells(N, ci, cj, is_disl, is_coal) if p.gas == "eigenstrain" else np.zeros(N, bool)
-    fext += eigenstrain_forces(gassy, nn, L, p.gas_pressure)
+    gassy = gassy_cells(N, ci, cj, is_disl, is_coal) if p.gas in ("eigenstrain", "released") else np.zeros(N, bool)
+    f_gas = eigenstrain_forces(gassy, nn, L, p.gas_pressure)
+    if p.gas == "eigenstrain":
+        fext += f_gas                     # part of the virgin equilibrium
     minv = np.full((N, 12), 1.0 / mnode[0])
     fixed = [(LEFT, 0), (RIGHT, 0), (BOTTOM, 1)]
     if p.floor == "no_slip":
@@ -213,6 +215,9 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
                          "orientation_deg=0 (normals at 0, +-60 deg)")
 
     model, keep = excavate(full, in_open, RAMP_CODES[p.ramp], p.ramp_time, p.damping, p.v_abort)
+    n_eshelby = len(model.wc)
+    if p.gas == "released":
+        release_gas_with_excavation(model, f_gas[keep])
     _boundary_devices(p, model, fc, fe, side, keep, N, full.u)
     model.cdash = p.contact_damping * 2.0 * np.sqrt(L * kn * mnode[0] / 2.0)
     if p.contact:
@@ -234,7 +239,8 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
                 E_eff=E_eff, virgin_residual=residual, virgin_utilisation=util,
                 sigma0=virgin_stress(p, g, np.array(g.H)))
     sc_.info = {"n_cells_full": int(N), "n_cells": int(len(keep)), "n_interfaces": int(model.n_ifc),
-                "n_wall_nodes": int(len(model.wc)), "n_disl_interfaces": int(model.is_disl.sum()),
+                "n_wall_nodes": int(n_eshelby), "n_gas_nodes": int(len(model.wc) - n_eshelby),
+                "n_disl_interfaces": int(model.is_disl.sum()),
                 "kn": kn, "kt": kt, "rho": p.rho, "p_top": p.p_top}
     return sc_
 

@@ -412,7 +412,8 @@ def compute(scene, series, wall_time, nsteps, dt, stopped="", names=None) -> Min
     dr = g.side * (mid[:, 0] - g.rib_x)
     seam_b = brk & (mid[:, 1] <= g.seam_hi + g.r_in) & (mid[:, 1] >= g.seam_lo - g.r_in) & (dr > -g.r_in)
     ux = _toward(scene)
-    rib = np.unique(m.wc[m.is_coal[m.wc]])
+    wc = m.wc[:scene.info.get("n_wall_nodes", len(m.wc))]          # the Eshelby loads (not the released gas)
+    rib = np.unique(wc[m.is_coal[wc]])
     rib = rib[g.side * (m.centres[rib, 0] - g.rib_x) > -g.r_in] if len(rib) else rib
     Ek = np.asarray(series["Ek"])
     WE = np.asarray(series["W_E"])

@@ -16,7 +16,8 @@ for each value in docs/mine_scene.md section 3:
   (``tall_extra`` m more rock above, traction on its top); ``absorbing`` adds Lysmer-Kuhlemeyer
   dashpots on the far boundaries;
 * ``gas``: ``"interface"`` (effective stress on the dislocation interfaces), ``"eigenstrain"`` (the
-  paper's eigenstrain in the cells along the dislocation), ``"none"``;
+  paper's eigenstrain in the cells along the dislocation, inside the virgin equilibrium),
+  ``"released"`` (the same eigenstrain released with the excavation, (1 - g(t)) of it), ``"none"``;
 * ``lattice``: ``"inner"`` (``cell_size`` is the inner radius: 1117 cells after excavation) or
   ``"side"`` (``cell_size`` is the side: 1527 cells, the paper's 1532);
 * ``model``: ``"half"`` (the left boundary is the adit's symmetry plane, domain ``width``) or
@@ -44,7 +45,7 @@ READINGS = {
     "placement": ("near", "far"),
     "floor": ("rollers", "no_slip", "rock"),
     "loading": ("traction", "rollers", "spring", "tall"),
-    "gas": ("interface", "eigenstrain", "none"),
+    "gas": ("interface", "eigenstrain", "released", "none"),
     "lattice": ("inner", "side"),
     "model": ("half", "full"),
     "disl_side": ("right", "left"),
