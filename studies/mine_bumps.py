@@ -389,8 +389,8 @@ def map_readings(quick: bool):
     """The readings of the map (one dict of MineParams fields each)."""
     if quick:
         return [dict(MAP_BASE, ramp_time=0.005, disl_phi_deg=16.0, gas_pressure=1e6, coal_c=150e3)]
-    keys = list(MAP_AXES)
-    return [dict(MAP_BASE, **dict(zip(keys, vals))) for vals in itertools.product(*MAP_AXES.values())]
+    keys = list(MAP_AXES)[::-1]                     # coal cohesion outermost: the paper's coal first
+    return [dict(MAP_BASE, **dict(zip(keys, vals))) for vals in itertools.product(*list(MAP_AXES.values())[::-1])]
 
 
 def _map_control(r):
@@ -401,17 +401,20 @@ def _map_control(r):
 def map_cases(quick: bool, out_dir: str):
     dur = 0.01 if quick else 0.05
     reps = (0.67, 0.73) if quick else REPS
-    runs, ctl = [], {}
-    for r in map_readings(quick):
+    out, seen = [], set()
+    for r in map_readings(quick):                  # each control just before the first runs that need it
+        for dts in reps:
+            c = _map_control(r)
+            ck = json.dumps(c, sort_keys=True) + str(dts)
+            if ck not in seen:
+                seen.add(ck)
+                out.append({"role": "control", "reading": c, "partitions": [[r["placement"], a, 1] for a in ANGLES],
+                            "duration": dur, "out": out_dir, "dt_safety": dts})
         for dts in reps:
             for a in ANGLES:
-                runs.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,
-                             "dt_safety": dts})
-            c = _map_control(r)
-            ctl[json.dumps(c, sort_keys=True) + str(dts)] = {
-                "role": "control", "reading": c, "partitions": [[r["placement"], a, 1] for a in ANGLES],
-                "duration": dur, "out": out_dir, "dt_safety": dts}
-    return list(ctl.values()) + runs
+                out.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,
+                            "dt_safety": dts})
+    return out
 
 
 def _value(df, cid, kind, col, key):
@@ -636,6 +639,44 @@ def map_figures(all_cases, mt, out, quick):
     return made
 
 
+def static_coulomb(reading=None, floors=("rock", "rollers")) -> pd.DataFrame:
+    """The independent static check: the elastic stress field of the excavated scene (one sparse solve
+    of the linear response to the full removal of the Eshelby forces, every interface intact,
+    :func:`dem.scenes.mine.excavation.static_excavation`) resolved on the *true* 60 and 120 deg planes in
+    the coal cells the dislocation crosses; Coulomb failure function CFF = |tau| + (sigma_n + p_g) tan phi
+    [Pa], before and after the excavation. One row per (floor, angle)."""
+    from dem.hexagons.dynamics import cell_stress
+    from dem.hexagons.fault import fault_frame, segments_cross
+    from dem.scenes.mine import build_scene
+    from dem.scenes.mine.excavation import static_excavation
+    r0 = dict(MAP_BASE, **PAPER_CLOSEST) if reading is None else dict(reading)
+    rows = []
+    for floor in floors:
+        for a in ANGLES:
+            p = MineParams(**dict(r0, floor=floor), disl_angle_deg=a, n_disl=1, elastic=True)
+            sc = build_scene(p)
+            m = sc.model
+            du, _ = static_excavation(m)
+            seg = sc.geometry.dislocations[0]
+            t, n = fault_frame(*seg)
+            e = segments_cross(m.centres[m.ci], m.centres[m.cj], seg[0], seg[1])
+            cells = np.unique(np.concatenate([m.ci[e], m.cj[e]]))
+            cells = cells[m.is_coal[cells]]
+            tp = np.tan(np.radians(p.disl_phi_deg if p.disl_phi_deg >= 0 else p.coal_phi_deg))
+            row = {"floor": floor, "angle": a}
+            for lab, u in (("virgin", m.u), ("excavated", m.u + du)):
+                S = cell_stress(m, u)[cells]
+                tx = S[:, 0] * n[0] + S[:, 2] * n[1]
+                ty = S[:, 2] * n[0] + S[:, 1] * n[1]
+                sn, tau = tx * n[0] + ty * n[1], tx * t[0] + ty * t[1]
+                cff = np.abs(tau) + (sn + p.gas_pressure) * tp
+                row.update({f"sigma_n {lab} MPa": sn.mean() / 1e6, f"|tau| {lab} MPa": np.abs(tau).mean() / 1e6,
+                            f"CFF mean {lab} MPa": cff.mean() / 1e6, f"CFF max {lab} MPa": cff.max() / 1e6,
+                            f"fraction CFF>0 {lab}": float((cff > 0).mean())})
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m studies.mine_bumps", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="one map reading, 2 repetitions, 5 ms ramp + 10 ms (6 runs)")
@@ -671,8 +712,14 @@ def main(argv=None):
     head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s), scheduler "
             f"{a.scheduler or 'serial'} workers {a.workers or '-'}, load average at start {load0[0]:.2f} / end "
             f"{os.getloadavg()[0]:.2f}. Verdicts: {counts}. Votes in the order: {', '.join(MAP_IND)}")
+    stat = static_coulomb(map_readings(True)[0] if a.quick else None, ("rock",) if a.quick else ("rock", "rollers"))
+    stat.to_csv(os.path.join(out, "static_coulomb.csv"), index=False)
     with open(os.path.join(out, "verdict.md"), "w") as fh:
-        fh.write(head + "\n\n" + _md(show) + "\n")
+        fh.write(head + "\n\n" + _md(show) + "\n\nStatic Coulomb check on the true planes (elastic):\n\n"
+                 + _md(stat) + "\n")
+    print("static Coulomb check on the true planes (elastic, paper-closest map reading):")
+    print(_md(stat[["floor", "angle", "CFF mean virgin MPa", "CFF mean excavated MPa", "CFF max excavated MPa",
+                    "fraction CFF>0 excavated"]]))
     if len(mt):
         r0 = mt.iloc[0]
         print("fault indicators, first reading (excess over the control, mean +- 2 sigma over the repetitions):")
