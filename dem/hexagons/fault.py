@@ -104,8 +104,8 @@ def segment_tractions(model):
     e, s = _segments(model)
     w = np.zeros(model.n_ifc)
     if len(e):
-        _, _, sidx, _, sw = model.fault_args()
-        w[sidx] = sw
+        fb = model.fault_bundle()
+        w[fb.sidx] = fb.sw
     w = w[e]
     segs = np.unique(s)
     inv = np.searchsorted(segs, s)
