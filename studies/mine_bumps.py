@@ -374,6 +374,9 @@ and coal cohesion [Pa] (150 kPa the paper's)."""
 PAPER_CLOSEST = {"disl_phi_deg": 22.0, "gas_pressure": 1e6, "coal_c": 150e3}
 REPS = (0.64, 0.67, 0.70, 0.73, 0.76)
 """dt_safety of the perturbed repetitions (time step 0.64-0.76 of the Gershgorin bound)."""
+JITTER = (2.40, 2.45, 2.50, 2.55, 2.60)
+"""``--noise lattice``: the named end of the dislocation at these distances from the rib [m] (the
+line moves by up to 0.2 d across the lattice), time step 0.7 of the bound."""
 MAP_IND = {"wedge peak Ek [J/m]": ("b", "wedge.peak_Ek_J_per_m", 1e3),
            "wedge disp [m]": ("b", "wedge.disp_mean_m", 1e-3),
            "fault |slip| [m]": ("f", "slip_mean_m", 1e-4),
@@ -398,10 +401,22 @@ def _map_control(r):
     return {k: v for k, v in r.items() if k not in ("disl_phi_deg", "gas_pressure")} | {"gas": "none"}
 
 
-def map_cases(quick: bool, out_dir: str):
+def map_cases(quick: bool, out_dir: str, noise: str = "dt"):
+    """The runs of the map. ``noise="dt"``: each case repeated at the time steps ``REPS``;
+    ``noise="lattice"``: the paper-closest reading only, the dislocation moved across the lattice
+    (``JITTER``) at one time step."""
     dur = 0.01 if quick else 0.05
-    reps = (0.67, 0.73) if quick else REPS
     out, seen = [], set()
+    if noise == "lattice":
+        for x in ((2.45, 2.55) if quick else JITTER):
+            r = dict(map_readings(True)[0] if quick else dict(MAP_BASE, **PAPER_CLOSEST), disl_first=x)
+            out.append({"role": "control", "reading": _map_control(r), "partitions": [[r["placement"], a, 1] for a in ANGLES],
+                        "duration": dur, "out": out_dir, "dt_safety": 0.7, "jitter": "disl_first"})
+            for a in ANGLES:
+                out.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,
+                            "dt_safety": 0.7, "jitter": "disl_first"})
+        return out
+    reps = (0.67, 0.73) if quick else REPS
     for r in map_readings(quick):                  # each control just before the first runs that need it
         for dts in reps:
             c = _map_control(r)
@@ -417,6 +432,14 @@ def map_cases(quick: bool, out_dir: str):
     return out
 
 
+def _rep_key(c):
+    """(reading without the repeated variable, the repetition's value) of a case or control."""
+    r = dict(c["reading"])
+    if c.get("jitter"):
+        return json.dumps({k: v for k, v in r.items() if k != c["jitter"]}, sort_keys=True), r[c["jitter"]]
+    return json.dumps(r, sort_keys=True), c["dt_safety"]
+
+
 def _value(df, cid, kind, col, key):
     v = float(df.loc[cid, f"{kind}.{key}.{col}"])
     return abs(v) if col == "slip_mean_m" else v
@@ -430,20 +453,19 @@ def map_table(all_cases, df) -> pd.DataFrame:
     from scipy import stats
     df = df.set_index("case_id")
     ok = lambda i: i in df.index and df.loc[i, "status"] == "ok"       # noqa: E731
-    ctrl = {json.dumps(c["reading"], sort_keys=True) + str(c["dt_safety"]): case_id(c)
-            for c in all_cases if c["role"] == "control"}
+    ctrl = {_rep_key(c): case_id(c) for c in all_cases if c["role"] == "control"}
     groups = {}
     for c in all_cases:
         if c["role"] == "case":
-            g = groups.setdefault(json.dumps(c["reading"], sort_keys=True), {})
-            g.setdefault(c["dt_safety"], {})[c["angle"]] = case_id(c)
+            rk, rv = _rep_key(c)
+            groups.setdefault(rk, {}).setdefault(rv, {})[c["angle"]] = case_id(c)
     rows = []
     for rk, reps in groups.items():
         r = json.loads(rk)
         key = {a: _key(r["placement"], a, 1) for a in ANGLES}
         trip = []
         for dts, ids in sorted(reps.items()):
-            cid = ctrl[json.dumps(_map_control(r), sort_keys=True) + str(dts)]
+            cid = ctrl[(json.dumps(_map_control(r), sort_keys=True), dts)]
             if all(ok(i) for i in (*ids.values(), cid)):
                 trip.append((ids, cid))
         n = len(trip)
@@ -681,6 +703,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m studies.mine_bumps", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="one map reading, 2 repetitions, 5 ms ramp + 10 ms (6 runs)")
     ap.add_argument("--legacy", action="store_true", help="the first pass (66 readings, edge-by-edge fault)")
+    ap.add_argument("--noise", choices=("dt", "lattice"), default="dt",
+                    help="repetitions at 5 time steps over the whole map (dt), or the paper-closest reading with "
+                         "the dislocation moved across the lattice (lattice)")
     ap.add_argument("--out", default="out/mine_bumps")
     ap.add_argument("--scheduler", default=None, help="None (serial), 'local' or a Dask address")
     ap.add_argument("--workers", type=int, default=None)
@@ -689,11 +714,12 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.legacy:
         return main_legacy(a)
-    out = a.out + ("_quick" if a.quick and a.out == "out/mine_bumps" else "")
+    out = a.out + ("_lattice" if a.noise == "lattice" and a.out == "out/mine_bumps" else "") \
+        + ("_quick" if a.quick and a.out == "out/mine_bumps" else "")
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    all_cases = map_cases(a.quick, out)
+    all_cases = map_cases(a.quick, out, a.noise)
     df = run_cases(run_case, all_cases, os.path.join(out, "cases.csv"), scheduler=a.scheduler, workers=a.workers,
                    progress=not a.no_progress)
     wall = time.perf_counter() - t0
