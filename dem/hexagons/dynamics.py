@@ -258,6 +258,11 @@ class Model:
         Per-dof ground spring [N/m per m] (None: zeros).
     uref : ndarray, shape (N, 12)
         Reference displacement of the ground springs [m] (None: zeros).
+    fseg : ndarray of int, shape (nif,)
+        Segment of the planar fault each interface belongs to, -1 if none (None: no planar fault;
+        :mod:`dem.hexagons.fault`).
+    flam : ndarray, shape (nif,)
+        n_e . n_f of each fault interface: its edge's projected length on the fault over L [-].
     """
     centres: np.ndarray           # (N,2) m
     mat: np.ndarray               # (N,) int material index
