@@ -9,7 +9,7 @@ and 150 deg edges (normal 60 deg). Checked edge by edge, the 30 deg and 150 deg 
 tractions under the same shear stress, so the lattice, not the plane, decides which fault slips.
 
 The planar law (``fault_law="plane"`` of the mine scene; kernel
-:func:`dem.hexagons.dynamics._fault_segments`):
+``dem.hexagons.dynamics._fault_segments``):
 
 * every crossed interface keeps its cells and nodes, but its frame is the fault's: normal n_f (from
   cell i to cell j), tangent t_f = (-n_fy, n_fx); its springs act in that frame;
