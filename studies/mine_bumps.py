@@ -412,7 +412,8 @@ def map_cases(quick: bool, out_dir: str, noise: str = "dt"):
     if noise == "lattice":
         for x in ((2.45, 2.55) if quick else JITTER):
             r = dict(map_readings(True)[0] if quick else dict(MAP_BASE, **PAPER_CLOSEST), disl_first=x)
-            out.append({"role": "control", "reading": _map_control(r), "partitions": [[r["placement"], a, 1] for a in ANGLES],
+            out.append({"role": "control", "reading": _map_control(r),
+                        "partitions": [[r["placement"], a, 1] for a in ANGLES],
                         "duration": dur, "out": out_dir, "dt_safety": 0.7, "jitter": "disl_first"})
             for a in ANGLES:
                 out.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,

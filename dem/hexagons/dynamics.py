@@ -335,11 +335,11 @@ class Model:
     fseg: np.ndarray = None
     flam: np.ndarray = None
 
-    def fault_bundle(self) -> "Fault":
-        """The :class:`Fault` bundle: per interface its segment (-1: not a fault edge), the segments as
-        CSR (``sidx[sp[s]:sp[s+1]]``, edges in the order along the line), the edge weights ``sw`` (1;
-        1/2, 1, 1/2 in a triple) and each segment's weighted projected length over L,
-        ``slam[s] = sum_e sw flam[e]`` (computed once, not part of the state)."""
+    def fault_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Fault` bundle: per interface its segment (-1: not a fault
+        edge), the segments as CSR (``sidx[sp[s]:sp[s+1]]``, edges in the order along the line), the
+        edge weights ``sw`` (1; 1/2, 1, 1/2 in a triple) and each segment's weighted projected length
+        over L, ``slam[s] = sum_e sw flam[e]`` (computed once, not part of the state)."""
         if getattr(self, "_fargs", None) is not None and self._fkey is self.fseg \
                 and len(self._fargs.fseg) == len(self.ci):
             return self._fargs
@@ -410,9 +410,9 @@ class Model:
         self.contact = True
         return self
 
-    def contact_bundle(self) -> "Contact":
-        """The :class:`Contact` bundle (scratch arrays allocated once, not part of the state); tiny
-        dummies with ``on=False`` when the contact is off."""
+    def contact_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Contact` bundle (scratch arrays allocated once, not part of
+        the state); tiny dummies with ``on=False`` when the contact is off."""
         if not self.contact:
             i1 = np.zeros(1, np.int64)
             return Contact(False, np.zeros((1, 2)), -np.ones((1, 6), np.int64), i1, 0.0, 0.0, 0.0, np.zeros(5),
@@ -427,21 +427,22 @@ class Model:
                        kc=float(self.kc), cc=float(self.cc), grid=self.grid, head=head, nxt=nxt, cand=cand,
                        pos=pos, vel=vel)
 
-    def interfaces_bundle(self) -> "Interfaces":
-        """The :class:`Interfaces` bundle (the model's own arrays: the kernels update the state)."""
+    def interfaces_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Interfaces` bundle (the model's own arrays: the kernels
+        update the state)."""
         return Interfaces(ci=self.ci, ca=self.ca, cj=self.cj, cb=self.cb, nx=self.nx, ny=self.ny, L=float(self.L),
                           kn=self.kn, kt=self.kt, ft=self.ft, coh=self.coh, tanphi=self.tanphi,
                           tanphi_r=self.tanphi_r, vent=self.vent, sn0=self.sn0, sn=self.sn, tau=self.tau,
                           jtp=self.jtp, jnp=self.jnp, broken=self.broken, pg=self.pg, cdash=float(self.cdash))
 
-    def cells_bundle(self) -> "Cells":
-        """The :class:`Cells` bundle."""
+    def cells_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Cells` bundle."""
         cvis, kspr, uref = self.devices()
         return Cells(Kmat=self.Kmat, mat=self.mat, f0=self.f0, fext=self.fext, kspr=kspr, uref=uref, cvis=cvis,
                      mnode=self.mnode, minv=self.minv, alpha=float(self.alpha))
 
-    def walls_bundle(self) -> "Walls":
-        """The :class:`Walls` bundle."""
+    def walls_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Walls` bundle."""
         return Walls(wc=self.wc, wk=self.wk, FE0=self.FE0, ramp_kind=int(self.ramp_kind),
                      ramp_time=float(self.ramp_time))
 

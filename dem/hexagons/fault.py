@@ -152,7 +152,8 @@ def plane_benchmark_model(angle_deg: float, stress, phi_deg: float, c: float = 0
     """The one-plane benchmark: a W x H block [m] of identical elastic hexagons (E [Pa], nu, rho
     [kg/m^3]) under the uniform stress ``stress`` = (sxx, syy, sxy) [Pa] (prestress of every cell and
     interface, u = 0 is the exact equilibrium), every boundary edge node fixed, one straight fault
-    through the vertical axis (d sqrt3/4 above the centre) at ``angle_deg`` (counter-clockwise from +x, in (0, 180)) from the bottom to the
+    through the vertical axis (d sqrt3/4 above the centre) at ``angle_deg`` (counter-clockwise from +x,
+    in (0, 180)) from the bottom to the
     top, cohesion ``c`` [Pa], friction ``phi_deg`` [deg], no tension. Every other interface is
     unbreakable. ``law``: ``"plane"`` (Mohr-Coulomb on the true plane, this module) or ``"zigzag"``
     (each crossed edge on its own). The lattice is anchored at the centre with the pointy-top

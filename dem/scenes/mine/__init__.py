@@ -19,7 +19,8 @@ See docs/mine_scene.md. ``python -m dem.scenes.mine --help`` runs one scene from
 """
 from .build import Scene, build_scene
 from .geometry import Geometry, block_labels, block_names, resolve
-from .indicators import BlockIndicators, FaultIndicators, MineIndicators, SeamProfile, block_indicators, fault_indicators
+from .indicators import (BlockIndicators, FaultIndicators, MineIndicators, SeamProfile, block_indicators,
+                         fault_indicators)
 from .params import READINGS, MineParams, load_toml
 from .runner import RunResult, run_scene
 

@@ -27,7 +27,8 @@ from ...hexagons.dynamics import ACC, cell_stress
 from ...hexagons.fault import fault_frame, segments_cross
 from .geometry import block_names
 
-__all__ = ["BlockIndicators", "FaultIndicators", "fault_indicators", "SeamProfile", "MineIndicators", "cell_flags", "seam_row", "block_indicators",
+__all__ = ["BlockIndicators", "FaultIndicators", "fault_indicators", "SeamProfile", "MineIndicators", "cell_flags",
+           "seam_row", "block_indicators",
            "seam_profile", "broken_kinematics", "compute", "STAGES"]
 
 STAGES = (1.0, 0.75, 0.5, 0.25, 0.0)
