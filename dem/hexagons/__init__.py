@@ -8,6 +8,8 @@ next to the disk engine, with its own state, integrator, contact detection and t
 * :mod:`~dem.hexagons.lattice`: the regular hexagon lattice clipped to a rectangle;
 * :mod:`~dem.hexagons.dynamics`: the model state, explicit central differences (numba), new-neighbour
   contact, energy accounts and the Gershgorin time-step bound;
+* :mod:`~dem.hexagons.fault`: a straight fault whose Mohr-Coulomb law acts on the true plane (segments
+  of the zigzag of crossed edges) and its one-plane benchmark;
 * :mod:`~dem.hexagons.kirsch`: the static check against Kirsch's hole solution.
 
 SI units, tension positive, plane strain, per m of thickness. The mine scene that uses it is

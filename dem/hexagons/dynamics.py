@@ -22,6 +22,7 @@ A step above the Gershgorin bound is refused with ``ValueError`` naming ``dt`` a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,16 +34,116 @@ from .element import element_stiffness
 from .interface import mc_update, spring_stiffness_rule
 from .lattice import make_lattice
 
-__all__ = ["Model", "step", "advance", "model_forces", "assemble_stiffness", "gershgorin_dt",
+__all__ = ["Model", "Cells", "Walls", "Interfaces", "Fault", "Contact", "Kinematics", "step", "advance",
+           "model_forces", "assemble_stiffness", "gershgorin_dt",
            "power_dt", "energies", "cell_stress", "ramp_value", "RAMP_CODES", "forces_frozen",
            "free_cells_model", "stored_energy_abs"]
 
 RAMP_CODES = {"instant": 0, "linear": 1, "nonlinear": 2, "none": 3}
 # energy/contact accounts in Model.acc: W_E, W_gas, D_break, D_fric, D_damp, D_dash (accumulated);
 # V_contact (current contact energy), n_contacts (current), max overlap / d (so far)
+# and the parts of D_break, D_fric spent on the planar fault's segments (D_break_fault, D_fric_fault)
 ACC = {"W_E": 0, "W_gas": 1, "D_break": 2, "D_fric": 3, "D_damp": 4, "D_dash": 5, "V_contact": 6,
-       "n_contacts": 7, "max_overlap": 8}
+       "n_contacts": 7, "max_overlap": 8, "D_break_fault": 9, "D_fric_fault": 10}
 N_ACC = len(ACC)
+
+
+# Named bundles handed to the numba kernels (numba NamedTuples: fields are read by name, so a new field
+# or a reordering cannot swap two arrays silently). Built fresh from the Model at each call.
+class Cells(NamedTuple):
+    """Per-cell data of the kernels: element stiffness per material ``Kmat`` (nmat,12,12) [N/m per m],
+    material index ``mat`` (N,), prestress ``f0`` and dead loads ``fext`` (N,12) [N/m], ground spring
+    ``kspr`` [N/m per m] about ``uref`` [m], boundary dashpot ``cvis`` [N s/m per m] (N,12), node mass
+    ``mnode`` (N,) [kg/m], inverse node mass ``minv`` (N,12) [1/kg per m] (0 on supports), mass
+    damping ``alpha`` [1/s]."""
+    Kmat: np.ndarray
+    mat: np.ndarray
+    f0: np.ndarray
+    fext: np.ndarray
+    kspr: np.ndarray
+    uref: np.ndarray
+    cvis: np.ndarray
+    mnode: np.ndarray
+    minv: np.ndarray
+    alpha: float
+
+
+class Walls(NamedTuple):
+    """Eshelby wall loads: cell ``wc`` and node ``wk`` (nw,), force ``FE0`` (nw,2) [N/m] at g = 1, the
+    release ramp ``ramp_kind`` (a value of ``RAMP_CODES``) over ``ramp_time`` [s]."""
+    wc: np.ndarray
+    wk: np.ndarray
+    FE0: np.ndarray
+    ramp_kind: int
+    ramp_time: float
+
+
+class Interfaces(NamedTuple):
+    """The interfaces (constants, then the state arrays the kernels update in place); see
+    :class:`Model` for each field. ``cdash`` [N s/m per m] is the dashpot of cracked closed ones."""
+    ci: np.ndarray
+    ca: np.ndarray
+    cj: np.ndarray
+    cb: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    L: float
+    kn: np.ndarray
+    kt: np.ndarray
+    ft: np.ndarray
+    coh: np.ndarray
+    tanphi: np.ndarray
+    tanphi_r: np.ndarray
+    vent: np.ndarray
+    sn0: np.ndarray
+    sn: np.ndarray
+    tau: np.ndarray
+    jtp: np.ndarray
+    jnp: np.ndarray
+    broken: np.ndarray
+    pg: np.ndarray
+    cdash: float
+
+
+class Fault(NamedTuple):
+    """The planar fault's segments: per interface its segment ``fseg`` (-1: not a fault edge), the
+    segments as CSR ``sidx[sp[s]:sp[s+1]]`` (edges in the order along the line), the edge weights ``sw``
+    and each segment's weighted projected length over L, ``slam`` (:meth:`Model.fault_bundle`)."""
+    fseg: np.ndarray
+    sp: np.ndarray
+    sidx: np.ndarray
+    slam: np.ndarray
+    sw: np.ndarray
+
+
+class Contact(NamedTuple):
+    """The new-neighbour contact: switched ``on``, reference ``centres`` (N,2) [m], lattice neighbours
+    ``nbc`` (N,6), interface count ``nif`` (N,), contact distance ``cut`` [m], penalty ``kc`` [N/m per
+    m], dashpot ``cc`` [N s/m per m], binning ``grid`` (5,), scratch arrays ``head``, ``nxt``, ``cand``,
+    ``pos``, ``vel`` (not part of the state)."""
+    on: bool
+    centres: np.ndarray
+    nbc: np.ndarray
+    nif: np.ndarray
+    cut: float
+    kc: float
+    cc: float
+    grid: np.ndarray
+    head: np.ndarray
+    nxt: np.ndarray
+    cand: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+
+
+class Kinematics(NamedTuple):
+    """The kinematic state the kernels advance in place: displacements ``u``, half-step velocities
+    ``vh`` and ``vh_prev``, forces ``f`` (N,12) and the energy/contact accounts ``acc`` (``ACC``)."""
+    u: np.ndarray
+    vh: np.ndarray
+    vh_prev: np.ndarray
+    f: np.ndarray
+    acc: np.ndarray
 
 
 @dataclass
@@ -157,6 +258,11 @@ class Model:
         Per-dof ground spring [N/m per m] (None: zeros).
     uref : ndarray, shape (N, 12)
         Reference displacement of the ground springs [m] (None: zeros).
+    fseg : ndarray of int, shape (nif,)
+        Segment of the planar fault each interface belongs to, -1 if none (None: no planar fault;
+        :mod:`dem.hexagons.fault`).
+    flam : ndarray, shape (nif,)
+        n_e . n_f of each fault interface: its edge's projected length on the fault over L [-].
     """
     centres: np.ndarray           # (N,2) m
     mat: np.ndarray               # (N,) int material index
@@ -225,6 +331,40 @@ class Model:
     cvis: np.ndarray = None
     kspr: np.ndarray = None
     uref: np.ndarray = None
+    # the planar fault (None: no fault law; every interface follows its own edge's law)
+    fseg: np.ndarray = None
+    flam: np.ndarray = None
+
+    def fault_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Fault` bundle: per interface its segment (-1: not a fault
+        edge), the segments as CSR (``sidx[sp[s]:sp[s+1]]``, edges in the order along the line), the
+        edge weights ``sw`` (1; 1/2, 1, 1/2 in a triple) and each segment's weighted projected length
+        over L, ``slam[s] = sum_e sw flam[e]`` (computed once, not part of the state)."""
+        if getattr(self, "_fargs", None) is not None and self._fkey is self.fseg \
+                and len(self._fargs.fseg) == len(self.ci):
+            return self._fargs
+        nifc = len(self.ci)
+        if self.fseg is None or not np.any(self.fseg >= 0):
+            fseg = -np.ones(nifc, np.int64)
+            args = Fault(fseg, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+        else:
+            fseg = np.asarray(self.fseg, np.int64)
+            nseg = int(fseg.max()) + 1
+            e = np.nonzero(fseg >= 0)[0]
+            order = e[np.argsort(fseg[e], kind="stable")]
+            cnt = np.bincount(fseg[e], minlength=nseg)
+            sp_ = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
+            w = np.ones(len(order))
+            for s_ in np.nonzero(cnt == 3)[0]:          # a triple a, b, a: weights 1/2, 1, 1/2
+                q = np.arange(sp_[s_], sp_[s_] + 3)
+                fam = self.ca[order[q]]                    # the edge family (edge number of cell i)
+                for k in range(3):
+                    w[q[k]] = 1.0 if np.sum(fam == fam[k]) == 1 else 0.5
+            slam = np.bincount(fseg[order], weights=w * self.flam[order], minlength=nseg).astype(float)
+            args = Fault(fseg=fseg, sp=sp_, sidx=order.astype(np.int64), slam=slam, sw=w)
+        self._fkey = self.fseg
+        self._fargs = args
+        return args
 
     def devices(self):
         """(cvis, kspr, uref) arrays of shape (N,12), zeros when the scene has none."""
@@ -270,21 +410,41 @@ class Model:
         self.contact = True
         return self
 
-    def contact_args(self):
-        """Arguments of the numba contact kernel ``_contacts`` (scratch arrays allocated once, not part of the state)."""
+    def contact_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Contact` bundle (scratch arrays allocated once, not part of
+        the state); tiny dummies with ``on=False`` when the contact is off."""
+        if not self.contact:
+            i1 = np.zeros(1, np.int64)
+            return Contact(False, np.zeros((1, 2)), -np.ones((1, 6), np.int64), i1, 0.0, 0.0, 0.0, np.zeros(5),
+                           i1.copy(), i1.copy(), i1.copy(), np.zeros((1, 2)), np.zeros((1, 2)))
         N = self.n_cells
         if getattr(self, "_cscratch", None) is None:
             nbins = int(self.grid[3]) * int(self.grid[4])
             self._cscratch = (np.empty(nbins, np.int64), np.empty(N, np.int64), np.empty(N, np.int64),
                               np.empty((N, 2)), np.empty((N, 2)))
-        return (self.centres, self.nbc, self.nif, self.ci, self.cj, self.broken, self.c_cut, self.kc,
-                self.cc, self.grid, *self._cscratch)
+        head, nxt, cand, pos, vel = self._cscratch
+        return Contact(on=True, centres=self.centres, nbc=self.nbc, nif=self.nif, cut=float(self.c_cut),
+                       kc=float(self.kc), cc=float(self.cc), grid=self.grid, head=head, nxt=nxt, cand=cand,
+                       pos=pos, vel=vel)
 
-    def ifc_args(self):
-        """The interface arrays in the argument order of the numba force kernel."""
-        return (self.ci, self.ca, self.cj, self.cb, self.nx, self.ny, self.L, self.kn, self.kt, self.ft,
-                self.coh, self.tanphi, self.tanphi_r, self.vent, self.sn0,
-                self.sn, self.tau, self.jtp, self.jnp, self.broken, self.pg)
+    def interfaces_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Interfaces` bundle (the model's own arrays: the kernels
+        update the state)."""
+        return Interfaces(ci=self.ci, ca=self.ca, cj=self.cj, cb=self.cb, nx=self.nx, ny=self.ny, L=float(self.L),
+                          kn=self.kn, kt=self.kt, ft=self.ft, coh=self.coh, tanphi=self.tanphi,
+                          tanphi_r=self.tanphi_r, vent=self.vent, sn0=self.sn0, sn=self.sn, tau=self.tau,
+                          jtp=self.jtp, jnp=self.jnp, broken=self.broken, pg=self.pg, cdash=float(self.cdash))
+
+    def cells_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Cells` bundle."""
+        cvis, kspr, uref = self.devices()
+        return Cells(Kmat=self.Kmat, mat=self.mat, f0=self.f0, fext=self.fext, kspr=kspr, uref=uref, cvis=cvis,
+                     mnode=self.mnode, minv=self.minv, alpha=float(self.alpha))
+
+    def walls_bundle(self):
+        """The :class:`~dem.hexagons.dynamics.Walls` bundle."""
+        return Walls(wc=self.wc, wk=self.wk, FE0=self.FE0, ramp_kind=int(self.ramp_kind),
+                     ramp_time=float(self.ramp_time))
 
 
 @njit(cache=True)
@@ -303,9 +463,16 @@ def ramp_value(kind, Tr, t):
 
 
 @njit(cache=True)
-def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
-            ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-            sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt):
+def _forces(u, f, vh, acc, g, dt, cells, walls, ifc, fault):
+    """Node forces f (N,12) [N/m] of the displacements u at the Eshelby factor g; updates the interface
+    state (``ifc``) and the accounts ``acc`` (``vh``: the lagged velocity of the dashpots, ``dt`` [s])."""
+    Kmat, mat, f0, fext, kspr, uref = cells.Kmat, cells.mat, cells.f0, cells.fext, cells.kspr, cells.uref
+    wc, wk, FE0 = walls.wc, walls.wk, walls.FE0
+    ci, ca, cj, cb, nx, ny, L = ifc.ci, ifc.ca, ifc.cj, ifc.cb, ifc.nx, ifc.ny, ifc.L
+    kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0 = (ifc.kn, ifc.kt, ifc.ft, ifc.coh, ifc.tanphi, ifc.tanphi_r,
+                                                    ifc.vent, ifc.sn0)
+    sn, tau, jtp, jnp, broken, pg, cdash = ifc.sn, ifc.tau, ifc.jtp, ifc.jnp, ifc.broken, ifc.pg, ifc.cdash
+    fseg = fault.fseg
     N = u.shape[0]
     for c in range(N):
         K = Kmat[mat[c]]
@@ -324,6 +491,8 @@ def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
     w_gas = 0.0
     d_dash = 0.0
     for e in range(ci.shape[0]):
+        if fseg[e] >= 0:
+            continue                      # an edge of the planar fault: segment law below
         i = ci[e]
         a = ca[e]
         j = cj[e]
@@ -361,6 +530,14 @@ def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
         f[i, 2 * a + 1] += Fy
         f[j, 2 * b] -= Fx
         f[j, 2 * b + 1] -= Fy
+    if fault.sp.shape[0] > 1:
+        fb, ff, fg, fd = _fault_segments(u, f, vh, dt, ifc, fault)
+        d_break += fb
+        d_fric += ff
+        w_gas += fg
+        d_dash += fd
+        acc[9] += fb
+        acc[10] += ff
     acc[1] += w_gas
     acc[2] += d_break
     acc[3] += d_fric
@@ -368,8 +545,159 @@ def _forces(u, f, g, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
 
 
 @njit(cache=True)
-def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc, grid,
-              head, nxt, cand, pos, vel):
+def _fault_segments(u, f, vh, dt, ifc, fault):
+    """The planar fault: Mohr-Coulomb on the true plane, per segment of the zigzag of lattice edges.
+
+    Segment ``s`` owns the interfaces ``sidx[sp[s]:sp[s+1]]`` with weights ``sw`` (1 and 1 for a pair,
+    1/2, 1, 1/2 for the triple that closes a line crossing an odd number of edges) and has
+    ``lam = slam[s] = sum_e w_e n_e . n_f`` (consecutive edges along the fault line,
+    one of each of the two edge orientations). Their frame (``nx``, ``ny``) is the fault's normal
+    n_f, their preload ``sn0``, ``tau0`` is the virgin traction vector sigma0 n_e of the edge in that
+    frame, and the gas pressure ``pg`` is p_g (n_e . n_f), so that for a uniform stress sigma the
+    sums over a segment are exact:
+
+        sum_e w_e sn_e = lam sigma_nf,  sum_e w_e tau_e = lam tau_f,  sum_e w_e pg_e = lam p_g,
+        lam = sum_e w_e n_e . n_f      (sum_e w_e n_e = lam n_f: the two families weigh the same)
+
+    The strength check uses the fault tractions sigma_f = sum w sn / lam, tau_f = sum w tau / lam (tension
+    if sigma_f + p_g >= ft, shear if |tau_f| >= c - (sigma_f + p_g) tan phi); once broken, every edge
+    keeps the no-tension cut-off of the broken law (gas on the faces, vented per edge) and the
+    segment's weighted shear sum is returned onto |sum w tau| <= -sum w (sn + pg) tan phi_r by one
+    plastic slip shared by its edges (equal shear decrements: the edges have the same kt). Energies as
+    in :func:`dem.hexagons.interface.mc_update`: the drop at a break in d_break, the plastic work (the
+    edges' shear forces times the slip) in d_fric. Returns (d_break, d_fric, w_gas, d_dash) [J/m]."""
+    ci, ca, cj, cb, nx, ny, L = ifc.ci, ifc.ca, ifc.cj, ifc.cb, ifc.nx, ifc.ny, ifc.L
+    kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0 = (ifc.kn, ifc.kt, ifc.ft, ifc.coh, ifc.tanphi, ifc.tanphi_r,
+                                                    ifc.vent, ifc.sn0)
+    sn, tau, jtp, jnp, broken, pg, cdash = ifc.sn, ifc.tau, ifc.jtp, ifc.jnp, ifc.broken, ifc.pg, ifc.cdash
+    sp, sidx, slam, sw = fault.sp, fault.sidx, fault.slam, fault.sw
+    d_break = 0.0
+    d_fric = 0.0
+    w_gas = 0.0
+    d_dash = 0.0
+    nseg = sp.shape[0] - 1
+    for s in range(nseg):
+        lo = sp[s]
+        hi = sp[s + 1]
+        m = hi - lo
+        if m == 0:
+            continue
+        e0 = sidx[lo]
+        lam = slam[s]
+        n_tr = 0.0
+        t_tr = 0.0
+        p_sum = 0.0
+        e_before = 0.0
+        for q in range(lo, hi):
+            e = sidx[q]
+            i = ci[e]
+            a = ca[e]
+            j = cj[e]
+            b = cb[e]
+            dux = u[j, 2 * b] - u[i, 2 * a]
+            duy = u[j, 2 * b + 1] - u[i, 2 * a + 1]
+            jn = dux * nx[e] + duy * ny[e]
+            jt = -dux * ny[e] + duy * nx[e]
+            s_tr = sn0[e] + kn[e] * jn
+            t_e = tau[e] + kt[e] * (jt - jtp[e])
+            # keep the trial values in the state arrays (overwritten below); jumps in jnp/jtp after use
+            sn[e] = s_tr
+            tau[e] = t_e
+            w = sw[q]
+            n_tr += w * s_tr
+            t_tr += w * t_e
+            p_sum += w * pg[e]
+            e_before += 0.5 * s_tr * s_tr / kn[e] + 0.5 * t_e * t_e / kt[e]
+        br = broken[e0]
+        newly = False
+        if br == 0:
+            spf = (n_tr + p_sum) / lam
+            lim = coh[e0] - spf * tanphi[e0]
+            if spf >= ft[e0]:
+                br = 1
+                newly = True
+            elif abs(t_tr) / lam >= lim:
+                br = 2
+                newly = True
+        d_vent = 0.0
+        if br > 0:
+            n_eff = 0.0
+            for q in range(lo, hi):
+                e = sidx[q]
+                pge = pg[e]
+                spb = sn[e] + pge
+                if spb > 0.0 and pge > 0.0:
+                    # gas work on the open faces (pressure before venting), as in the edge law
+                    dux = u[cj[e], 2 * cb[e]] - u[ci[e], 2 * ca[e]]
+                    duy = u[cj[e], 2 * cb[e] + 1] - u[ci[e], 2 * ca[e] + 1]
+                    w_gas += L * pge * (dux * nx[e] + duy * ny[e] - jnp[e])
+                if spb > 0.0:
+                    if pge > 0.0 and spb / kn[e] > vent[e]:
+                        d_vent += 0.5 * pge * pge / kn[e]
+                        pge = 0.0
+                        pg[e] = 0.0
+                    spb = 0.0
+                sn[e] = spb - pge
+                n_eff += sw[q] * spb
+            limr = -n_eff * tanphi_r[e0]
+            t_new = t_tr
+            if t_tr > limr:
+                t_new = limr
+            elif t_tr < -limr:
+                t_new = -limr
+            wsum = 0.0
+            for q in range(lo, hi):
+                wsum += sw[q]
+            dl = (t_tr - t_new) / wsum          # the shear decrement of every edge: one shared slip
+            t_all = 0.0
+            if dl != 0.0:
+                for q in range(lo, hi):
+                    tau[sidx[q]] -= dl
+                    t_all += tau[sidx[q]]
+            if newly:
+                e_after = 0.0
+                for q in range(lo, hi):
+                    e = sidx[q]
+                    e_after += 0.5 * sn[e] * sn[e] / kn[e] + 0.5 * tau[e] * tau[e] / kt[e]
+                d_break += L * (e_before - e_after)
+            else:
+                d_fric += L * t_all * dl / kt[e0]       # sum of the edge forces times the slip dl/kt
+                d_break += L * d_vent
+        for q in range(lo, hi):
+            e = sidx[q]
+            i = ci[e]
+            a = ca[e]
+            j = cj[e]
+            b = cb[e]
+            n_x = nx[e]
+            n_y = ny[e]
+            dux = u[j, 2 * b] - u[i, 2 * a]
+            duy = u[j, 2 * b + 1] - u[i, 2 * a + 1]
+            jn = dux * n_x + duy * n_y
+            jt = -dux * n_y + duy * n_x
+            pge = pg[e]
+            jtp[e] = jt
+            jnp[e] = jn
+            broken[e] = br
+            s_n = sn[e]
+            ta = tau[e]
+            Fx = L * (s_n * n_x - ta * n_y)
+            Fy = L * (s_n * n_y + ta * n_x)
+            if br > 0 and cdash > 0.0 and (s_n + pge) < 0.0:
+                dvx = vh[j, 2 * b] - vh[i, 2 * a]
+                dvy = vh[j, 2 * b + 1] - vh[i, 2 * a + 1]
+                Fx += cdash * dvx
+                Fy += cdash * dvy
+                d_dash += cdash * (dvx * dvx + dvy * dvy) * dt
+            f[i, 2 * a] += Fx
+            f[i, 2 * a + 1] += Fy
+            f[j, 2 * b] -= Fx
+            f[j, 2 * b + 1] -= Fy
+    return d_break, d_fric, w_gas, d_dash
+
+
+@njit(cache=True)
+def _contacts(u, vh, f, acc, dt, ifc, con):
     """Proximity contact between cells that were not lattice neighbours (new-neighbour contact).
 
     Candidates: cells with a broken interface or without any interface. A pair (i, j) with at least
@@ -381,6 +709,9 @@ def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc,
     only). Binning on a fixed grid of spacing >= cut (positions clamped into it, which keeps
     neighbouring bins neighbouring). Writes V_contact, n_contacts, max overlap/cut into acc[6:9];
     returns the dashpot work of the step [J/m]."""
+    ci, cj, broken = ifc.ci, ifc.cj, ifc.broken
+    centres, nbc, nif, cut, kc, cc, grid = con.centres, con.nbc, con.nif, con.cut, con.kc, con.cc, con.grid
+    head, nxt, cand, pos, vel = con.head, con.nxt, con.cand, con.pos, con.vel
     N = u.shape[0]
     nc = 0
     for c in range(N):
@@ -485,11 +816,13 @@ def _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc,
 
 
 @njit(cache=True)
-def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
-             Kmat, mat, f0, fext, cvis, kspr, uref, wc, wk, FE0,
-             ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-             sn, tau, jtp, jnp, broken, pg, acc, mnode, cdash, vabort,
-             contact, centres, nbc, nif, cut, kc, cc, grid, head, nxt, cand, pos, vel):
+def _advance(nsteps, dt, t0, vabort, kin, cells, walls, ifc, fault, con):
+    """``nsteps`` central-difference steps of ``dt`` [s] from the time ``t0`` [s] (the state ``kin`` and
+    the interface state in ``ifc`` advanced in place). Returns the end time, or -(steps done) when a
+    node speed exceeded ``vabort`` [m/s] or became NaN."""
+    u, vh, vh_prev, f, acc = kin.u, kin.vh, kin.vh_prev, kin.f, kin.acc
+    minv, alpha, cvis, mnode = cells.minv, cells.alpha, cells.cvis, cells.mnode
+    wc, wk, FE0, ramp_kind, Tr = walls.wc, walls.wk, walls.FE0, walls.ramp_kind, walls.ramp_time
     N = u.shape[0]
     t = t0
     for s in range(nsteps):
@@ -519,12 +852,9 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
         acc[0] += w_e
         acc[4] += d_damp
         t = t0 + (s + 1) * dt
-        _forces(u, f, g_new, Kmat, mat, f0, fext, kspr, uref, wc, wk, FE0,
-                ci, ca, cj, cb, nx, ny, L, kn, kt, ft, coh, tanphi, tanphi_r, vent, sn0,
-                sn, tau, jtp, jnp, broken, pg, acc, vh, cdash, dt)
-        if contact:
-            acc[5] += _contacts(u, vh, f, acc, dt, centres, nbc, nif, ci, cj, broken, cut, kc, cc, grid,
-                                head, nxt, cand, pos, vel)
+        _forces(u, f, vh, acc, g_new, dt, cells, walls, ifc, fault)
+        if con.on:
+            acc[5] += _contacts(u, vh, f, acc, dt, ifc, con)
         vm = 0.0
         for c in range(N):
             for r in range(12):
@@ -535,32 +865,16 @@ def _advance(nsteps, dt, t0, u, vh, vh_prev, f, minv, alpha, ramp_kind, Tr,
     return t
 
 
-_NO_CONTACT = None
-
-
-def _contact_call_args(model: Model):
-    """(contact flag, arrays) for the fused loop; tiny dummies when the scene has no contact."""
-    global _NO_CONTACT
-    if model.contact:
-        a = model.contact_args()
-        return (True, a[0], a[1], a[2], a[6], a[7], a[8], a[9], a[10], a[11], a[12], a[13], a[14])
-    if _NO_CONTACT is None:
-        i1 = np.zeros(1, np.int64)
-        _NO_CONTACT = (False, np.zeros((1, 2)), -np.ones((1, 6), np.int64), i1, 0.0, 0.0, 0.0, np.zeros(5),
-                       i1.copy(), i1.copy(), i1.copy(), np.zeros((1, 2)), np.zeros((1, 2)))
-    return _NO_CONTACT
-
-
 def model_forces(model: Model, u: np.ndarray, t: float) -> np.ndarray:
     """F(u, t) of the model (updates the interface states: call once per step)."""
     f = np.empty_like(u)
     g = ramp_value(model.ramp_kind, model.ramp_time, t)
     vh = model.vh if model.vh is not None else np.zeros_like(u)
-    _forces(u, f, g, model.Kmat, model.mat, model.f0, model.fext, *model.devices()[1:], model.wc, model.wk,
-            model.FE0,
-            *model.ifc_args(), model.acc, vh, float(model.cdash), float(model.dt_last))
+    ifc = model.interfaces_bundle()
+    _forces(u, f, vh, model.acc, g, float(model.dt_last), model.cells_bundle(), model.walls_bundle(), ifc,
+            model.fault_bundle())
     if model.contact:
-        model.acc[5] += _contacts(u, vh, f, model.acc, float(model.dt_last), *model.contact_args())
+        model.acc[5] += _contacts(u, vh, f, model.acc, float(model.dt_last), ifc, model.contact_bundle())
     return f
 
 
@@ -598,11 +912,9 @@ def advance(model: Model, nsteps: int, dt: float, dt_limit: float | None = None)
                          "(Gershgorin bound 2/sqrt(max_i sum_j |K_ij|/m_i))")
     if model.f is None:
         model.f = model_forces(model, model.u, model.t)
-    t = _advance(int(nsteps), float(dt), float(model.t), model.u, model.vh, model.vh_prev, model.f,
-                 model.minv, float(model.alpha), int(model.ramp_kind), float(model.ramp_time),
-                 model.Kmat, model.mat, model.f0, model.fext, *model.devices(), model.wc, model.wk, model.FE0,
-                 *model.ifc_args(), model.acc, model.mnode, float(model.cdash), float(model.v_abort),
-                 *_contact_call_args(model))
+    kin = Kinematics(u=model.u, vh=model.vh, vh_prev=model.vh_prev, f=model.f, acc=model.acc)
+    t = _advance(int(nsteps), float(dt), float(model.t), float(model.v_abort), kin, model.cells_bundle(),
+                 model.walls_bundle(), model.interfaces_bundle(), model.fault_bundle(), model.contact_bundle())
     model.dt_last = float(dt)
     if t < 0:
         done = int(-t)

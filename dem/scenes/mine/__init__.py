@@ -19,10 +19,11 @@ See docs/mine_scene.md. ``python -m dem.scenes.mine --help`` runs one scene from
 """
 from .build import Scene, build_scene
 from .geometry import Geometry, block_labels, block_names, resolve
-from .indicators import BlockIndicators, MineIndicators, SeamProfile, block_indicators
+from .indicators import (BlockIndicators, FaultIndicators, MineIndicators, SeamProfile, block_indicators,
+                         fault_indicators)
 from .params import READINGS, MineParams, load_toml
 from .runner import RunResult, run_scene
 
 __all__ = ["MineParams", "READINGS", "load_toml", "Scene", "build_scene", "Geometry", "resolve", "block_labels",
-           "block_names", "BlockIndicators", "MineIndicators", "SeamProfile", "block_indicators", "RunResult",
-           "run_scene"]
+           "block_names", "BlockIndicators", "FaultIndicators", "MineIndicators", "SeamProfile", "block_indicators",
+           "fault_indicators", "RunResult", "run_scene"]

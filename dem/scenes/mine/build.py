@@ -12,10 +12,11 @@ import numpy as np
 
 from ...hexagons.dynamics import RAMP_CODES, Model, forces_frozen, stored_energy_abs
 from ...hexagons.element import element_stiffness, isotropic_from_C, periodic_moduli
+from ...hexagons.fault import plane_fault
 from ...hexagons.interface import spring_stiffness_rule
 from ...hexagons.lattice import classify_free_edges, make_lattice
 from .excavation import excavate, virgin_state, virgin_utilisation
-from .gas import eigenstrain_forces, gassy_cells, interface_pressure
+from .gas import eigenstrain_forces, gassy_cells, interface_pressure, release_gas_with_excavation
 from .geometry import Geometry, block_labels, resolve, segments_cross
 from .params import G_ACC, MineParams
 
@@ -133,7 +134,7 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     for seg in g.dislocations:
         is_disl |= segments_cross(C[ci], C[cj], seg[0], seg[1])
     ft[is_disl] = 0.0
-    coh[is_disl] = 0.0
+    coh[is_disl] = p.disl_c
     phi[is_disl] = p.coal_phi_deg if p.disl_phi_deg < 0 else p.disl_phi_deg
     phir = phi if p.friction_residual_deg < 0 else np.full_like(phi, p.friction_residual_deg)
     layer = (C[ci, 1] >= g.y_elastic - tol) & (C[cj, 1] >= g.y_elastic - tol) & ~any_coal
@@ -146,6 +147,20 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     sn0 = s0[:, 0] * n[:, 0] ** 2 + s0[:, 1] * n[:, 1] ** 2 + 2 * s0[:, 2] * n[:, 0] * n[:, 1]
     tau0 = (s0[:, 0] * n[:, 0] * t[:, 0] + s0[:, 1] * n[:, 1] * t[:, 1]
             + s0[:, 2] * (n[:, 0] * t[:, 1] + n[:, 1] * t[:, 0]))
+    nf = n.copy()
+    fseg = flam = None
+    if p.fault_law == "plane" and len(g.dislocations):
+        # the planar fault: the crossed edges take the fault's frame and act in segments
+        fseg = -np.ones(len(ci), np.int64)
+        flam = np.zeros(len(ci))
+        nseg = 0
+        for seg in g.dislocations:
+            cr = segments_cross(C[ci], C[cj], seg[0], seg[1]) & (fseg < 0)
+            pf = plane_fault(n, mid, cr, seg[0], seg[1], s0, first_segment=nseg)
+            k = pf["idx"]
+            nf[k, 0], nf[k, 1] = pf["nx"], pf["ny"]
+            sn0[k], tau0[k], flam[k], fseg[k] = pf["sn0"], pf["tau0"], pf["flam"], pf["fseg"]
+            nseg = int(fseg.max()) + 1
 
     # element prestress, dead loads, gas, supports
     nn = geo["n"]
@@ -160,8 +175,10 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     fext[fc, 2 * fe + 1] += fb[:, 1]
     if p.gravity:
         fext[:, 1::2] -= (mnode * G_ACC)[:, None]
-    gassy = gassy_cells(N, ci, cj, is_disl, is_coal) if p.gas == "eigenstrain" else np.zeros(N, bool)
-    fext += eigenstrain_forces(gassy, nn, L, p.gas_pressure)
+    gassy = gassy_cells(N, ci, cj, is_disl, is_coal) if p.gas in ("eigenstrain", "released") else np.zeros(N, bool)
+    f_gas = eigenstrain_forces(gassy, nn, L, p.gas_pressure)
+    if p.gas == "eigenstrain":
+        fext += f_gas                     # part of the virgin equilibrium
     minv = np.full((N, 12), 1.0 / mnode[0])
     fixed = [(LEFT, 0), (RIGHT, 0), (BOTTOM, 1)]
     if p.floor == "no_slip":
@@ -174,14 +191,21 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
 
     zeros = np.zeros(len(ci))
     full = Model(centres=C, mat=mat, is_coal=is_coal, Kmat=Kmat, f0=f0, fext=fext, mnode=mnode, minv=minv,
-                 geo=geo, ci=ci.copy(), ca=ca.copy(), cj=cj.copy(), cb=cb.copy(), nx=n[:, 0].copy(),
-                 ny=n[:, 1].copy(), L=L, kn=np.full(len(ci), kn), kt=np.full(len(ci), kt), ft=ft, coh=coh,
+                 geo=geo, ci=ci.copy(), ca=ca.copy(), cj=cj.copy(), cb=cb.copy(), nx=nf[:, 0].copy(),
+                 ny=nf[:, 1].copy(), L=L, kn=np.full(len(ci), kn), kt=np.full(len(ci), kt), ft=ft, coh=coh,
                  tanphi=np.tan(np.radians(phi)), tanphi_r=np.tan(np.radians(phir)),
                  vent=np.full(len(ci), p.gas_vent_opening), sn0=sn0, is_disl=is_disl, sn=sn0.copy(),
                  tau=tau0.copy(), jtp=zeros.copy(), jnp=zeros.copy(), broken=np.zeros(len(ci), np.int64),
-                 pg=interface_pressure(p, is_disl), wc=np.zeros(0, np.int64), wk=np.zeros(0, np.int64),
-                 FE0=np.zeros((0, 2)), ramp_kind=RAMP_CODES["none"], ramp_time=0.0)
+                 pg=interface_pressure(p, is_disl) * (1.0 if flam is None else np.where(fseg >= 0, flam, 1.0)),
+                 wc=np.zeros(0, np.int64), wk=np.zeros(0, np.int64),
+                 FE0=np.zeros((0, 2)), ramp_kind=RAMP_CODES["none"], ramp_time=0.0, fseg=fseg, flam=flam)
     full.u = np.zeros((N, 12))
+    uf = virgin_utilisation(full, fault_only=True)[0] if fseg is not None else 0.0
+    if virgin_check and not p.elastic and uf >= 1.0:     # checked on the preloads, before any solve
+        raise ValueError(f"disl_phi_deg={p.disl_phi_deg}, disl_c={p.disl_c}: the planar dislocation fails at the "
+                         f"virgin state (K0={p.K0:.3f}, utilisation {uf:.3f} on the true plane); raise "
+                         "disl_phi_deg, disl_c or K0 (docs/mine_scene.md, the paper's data are not "
+                         "self-consistent)")
     residual = virgin_state(full, kn, kt)
     util, nfail = virgin_utilisation(full)
     util = 0.0 if p.elastic else util
@@ -191,6 +215,9 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
                          "orientation_deg=0 (normals at 0, +-60 deg)")
 
     model, keep = excavate(full, in_open, RAMP_CODES[p.ramp], p.ramp_time, p.damping, p.v_abort)
+    n_eshelby = len(model.wc)
+    if p.gas == "released":
+        release_gas_with_excavation(model, f_gas[keep])
     _boundary_devices(p, model, fc, fe, side, keep, N, full.u)
     model.cdash = p.contact_damping * 2.0 * np.sqrt(L * kn * mnode[0] / 2.0)
     if p.contact:
@@ -212,7 +239,8 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
                 E_eff=E_eff, virgin_residual=residual, virgin_utilisation=util,
                 sigma0=virgin_stress(p, g, np.array(g.H)))
     sc_.info = {"n_cells_full": int(N), "n_cells": int(len(keep)), "n_interfaces": int(model.n_ifc),
-                "n_wall_nodes": int(len(model.wc)), "n_disl_interfaces": int(model.is_disl.sum()),
+                "n_wall_nodes": int(n_eshelby), "n_gas_nodes": int(len(model.wc) - n_eshelby),
+                "n_disl_interfaces": int(model.is_disl.sum()),
                 "kn": kn, "kt": kt, "rho": p.rho, "p_top": p.p_top}
     return sc_
 

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from ...hexagons.dynamics import Model, assemble_stiffness, forces_frozen
+from ...hexagons.fault import segment_tractions
 
 __all__ = ["virgin_state", "virgin_utilisation", "excavate", "wall_forces", "static_excavation"]
 
@@ -45,14 +46,31 @@ def virgin_state(full: Model, kn, kt):
     return float(np.abs(Fv.ravel()[free]).max() / scale)
 
 
-def virgin_utilisation(m: Model):
-    """Largest Mohr-Coulomb utilisation over the interfaces (>= 1: failing) and their count."""
-    spv = m.sn + m.pg
-    lim = m.coh - spv * m.tanphi
+def _utilisation(sp, tau, ft, coh, tanphi):
+    lim = coh - sp * tanphi
     with np.errstate(divide="ignore", invalid="ignore"):
-        ut = np.where(m.ft > 0, spv / np.where(m.ft > 0, m.ft, 1.0), np.where(spv >= 0, np.inf, 0.0))
-        us = np.where(lim > 0, np.abs(m.tau) / np.maximum(lim, 1e-300), np.inf)
-    return float(max(ut.max(), us.max())), int(np.sum((ut >= 1) | (us >= 1)))
+        ut = np.where(ft > 0, sp / np.where(ft > 0, ft, 1.0), np.where(sp >= 0, np.inf, 0.0))
+        us = np.where(lim > 0, np.abs(tau) / np.maximum(lim, 1e-300), np.inf)
+    return np.maximum(ut, us)
+
+
+def virgin_utilisation(m: Model, fault_only: bool = False):
+    """Largest Mohr-Coulomb utilisation over the interfaces (>= 1: failing) and their count. The
+    edges of a planar fault count once per segment, with the segment's tractions on the true plane
+    (:func:`dem.hexagons.fault.segment_tractions`); ``fault_only``: only those segments."""
+    plane = m.fseg is not None and np.any(m.fseg >= 0)
+    edge = np.ones(m.n_ifc, bool) if not plane else (m.fseg < 0)
+    u = _utilisation((m.sn + m.pg)[edge], m.tau[edge], m.ft[edge], m.coh[edge], m.tanphi[edge])
+    if fault_only:
+        u = u[:0]
+    if plane:
+        st = segment_tractions(m)
+        e0 = np.array([np.nonzero(m.fseg == s)[0][0] for s in st["seg"]])
+        u = np.concatenate([u, _utilisation(st["sigma"] + st["pg"], st["tau"], m.ft[e0], m.coh[e0],
+                                            m.tanphi[e0])])
+    if u.size == 0:
+        return 0.0, 0
+    return float(u.max()), int(np.sum(u >= 1))
 
 
 def wall_forces(full: Model, in_open, newidx):
@@ -82,6 +100,9 @@ def excavate(full: Model, in_open, ramp_kind, ramp_time, alpha=0.0, v_abort=1e3)
     per_ifc = ("nx", "ny", "kn", "kt", "ft", "coh", "tanphi", "tanphi_r", "vent", "sn0", "is_disl", "sn", "tau",
                "jtp", "jnp", "pg")
     kw = {k: getattr(full, k)[ki].copy() for k in per_ifc}
+    for k in ("fseg", "flam"):                      # the planar fault, when there is one
+        if getattr(full, k) is not None:
+            kw[k] = getattr(full, k)[ki].copy()
     per_cell = ("centres", "mat", "is_coal", "f0", "fext", "mnode", "minv")
     kw.update({k: getattr(full, k)[keep].copy() for k in per_cell})
     m = Model(Kmat=full.Kmat, geo=full.geo, L=full.L, ci=newidx[full.ci[ki]], ca=full.ca[ki].copy(),

@@ -11,13 +11,18 @@ Units: Pa, N/m per m of thickness. Tension positive.
   constant-strain part (A B^T D mu), the force p_g n_k L on every edge node k of each cell along
   a dislocation: an active load before any failure. It is part of the virgin equilibrium (the gas
   was there before the adit), so excavation releases it with the rest.
+* ``gas="released"``: the same eigenstress, but released *with the excavation*: it is not in the
+  virgin equilibrium and acts as (1 - g(t)) times its forces, g the Eshelby factor of the face
+  (1 virgin, 0 excavated). The gas of the cracked zone pushes only as the face passes, so it is a
+  load after excavation (the ``eigenstrain`` reading, inside the virgin equilibrium, drives
+  nothing after it).
 * ``gas="none"``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["interface_pressure", "gassy_cells", "eigenstrain_forces"]
+__all__ = ["interface_pressure", "gassy_cells", "eigenstrain_forces", "release_gas_with_excavation"]
 
 
 def interface_pressure(p, is_disl):
@@ -41,3 +46,17 @@ def eigenstrain_forces(cells, normals, L, p_g):
     f[cells, 0::2] = p_g * L * normals[None, :, 0]
     f[cells, 1::2] = p_g * L * normals[None, :, 1]
     return f
+
+
+def release_gas_with_excavation(model, f_gas):
+    """Apply the eigenstress forces ``f_gas`` (N,12) [N/m] of the excavated model as (1 - g(t)) f_gas:
+    a dead load f_gas (booked in W_dead) plus wall loads -f_gas scaled by g(t) like the Eshelby forces
+    (booked in W_E), so the energy accounts need nothing new. In place; returns the model."""
+    c, r = np.nonzero((f_gas[:, 0::2] != 0.0) | (f_gas[:, 1::2] != 0.0))
+    if not len(c):
+        return model
+    model.fext = model.fext + f_gas
+    model.wc = np.concatenate([model.wc, c.astype(np.int64)])
+    model.wk = np.concatenate([model.wk, r.astype(np.int64)])
+    model.FE0 = np.concatenate([model.FE0, -np.stack([f_gas[c, 2 * r], f_gas[c, 2 * r + 1]], axis=1)])
+    return model

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...hexagons.fault import segments_cross
+
 __all__ = ["Geometry", "resolve", "segments_cross", "block_labels", "block_names"]
 
 
@@ -75,17 +77,6 @@ def resolve(p) -> Geometry:
     return Geometry(W=W, H=H, seam_lo=lo, seam_hi=hi, open_x0=ox0, open_x1=ox1, rib_x=rib, side=side,
                     y_elastic=H - p.elastic_layer - extra, r_in=p.r_in, named_end=named,
                     dislocations=tuple(segs))
-
-
-def segments_cross(p1, p2, q1, q2):
-    """Vectorised proper intersection of the segments p1p2 ((m,2) arrays) with one segment q1q2."""
-    def orient(a, b, c):
-        return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
-    d1 = orient(q1, q2, p1)
-    d2 = orient(q1, q2, p2)
-    d3 = orient(p1, p2, q1)
-    d4 = orient(p1, p2, q2)
-    return (d1 * d2 < 0) & (d3 * d4 < 0)
 
 
 def block_labels(g: Geometry, centres, is_coal):

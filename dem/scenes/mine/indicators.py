@@ -10,6 +10,8 @@ displacement moves toward the opening.
   dislocation) evaluated on the same partition.
 * :class:`SeamProfile`: vertical stress along the seam mid-height row at successive excavation stages
   (g = 1 virgin ... 0 excavated, and the end of the run): the paper's Fig. 1.
+* :class:`FaultIndicators`: slip along the dislocation line(s), slipped length, energy released by
+  the fault's slip and radiated; ``minus(control)`` as for the blocks.
 * :class:`MineIndicators`: the whole run.
 """
 from __future__ import annotations
@@ -22,9 +24,11 @@ import numpy as np
 from microhom.results import Result
 
 from ...hexagons.dynamics import ACC, cell_stress
+from ...hexagons.fault import fault_frame, segments_cross
 from .geometry import block_names
 
-__all__ = ["BlockIndicators", "SeamProfile", "MineIndicators", "cell_flags", "seam_row", "block_indicators",
+__all__ = ["BlockIndicators", "FaultIndicators", "fault_indicators", "SeamProfile", "MineIndicators", "cell_flags",
+           "seam_row", "block_indicators",
            "seam_profile", "broken_kinematics", "compute", "STAGES"]
 
 STAGES = (1.0, 0.75, 0.5, 0.25, 0.0)
@@ -66,6 +70,97 @@ class BlockIndicators(Result):
         kw = {f.name: getattr(self, f.name) - getattr(control, f.name) for f in dataclasses.fields(self)
               if f.name not in ("name", "n_cells", "mass_kg_per_m")}
         return dataclasses.replace(self, **kw)
+
+
+@dataclass(frozen=True)
+class FaultIndicators(Result):
+    """Indicators on the dislocation line(s) themselves (SI per m of thickness).
+
+    Measured across the *geometric* lines, so a control run (no dislocation) is measured across the
+    same lines (through intact coal) and ``minus(control)`` is meaningful. Slip and opening are the
+    jumps of the node displacements since the start of the run (excavation included) across every
+    interface the line crosses, along the line's tangent t (from its floor end to its roof end) and
+    its normal n = (t_y, -t_x), the side of +n moving relative to the other.
+
+    Attributes
+    ----------
+    slip_mean_m : float
+        Mean slip along the line, weighted by the crossed edges' projected lengths [m] (signed:
+        positive when the +n side moves toward the roof end).
+    slip_max_m : float
+        Largest ``|slip|`` of a crossed edge [m].
+    slipped_length_m : float
+        Projected length of the line over which ``|slip|`` >= ``slip_threshold_m`` [m].
+    opening_max_m : float
+        Largest opening of a crossed edge [m].
+    n_broken : int
+        Broken interfaces on the line(s).
+    released_J_per_m : float
+        Energy released by the fault's slip: the work dissipated on the planar fault's segments
+        (friction and break drops, ``acc`` D_fric_fault + D_break_fault) [J/m]; 0 without a planar
+        fault (``fault_law="zigzag"`` or a control run).
+    radiated_J_per_m : float
+        Kinetic energy radiated out of the model: work of the absorbing boundaries' dashpots and of
+        mass damping (``D_damp``) at the end [J/m]; 0 without either.
+    peak_Ek_rock_J_per_m : float
+        Largest kinetic energy of the rock cells over the run (waves radiated into the strata) [J/m].
+    slip_threshold_m : float
+        The slip that counts as slipped [m].
+    """
+    slip_mean_m: float
+    slip_max_m: float
+    slipped_length_m: float
+    opening_max_m: float
+    n_broken: int
+    released_J_per_m: float
+    radiated_J_per_m: float
+    peak_Ek_rock_J_per_m: float
+    slip_threshold_m: float = 1e-4
+
+    def minus(self, control: "FaultIndicators") -> "FaultIndicators":
+        """These indicators with the control run's values (same lines) subtracted."""
+        kw = {f.name: getattr(self, f.name) - getattr(control, f.name) for f in dataclasses.fields(self)
+              if f.name != "slip_threshold_m"}
+        return dataclasses.replace(self, **kw)
+
+
+def fault_indicators(scene, series, lines=None, slip_threshold=1e-4) -> FaultIndicators:
+    """:class:`FaultIndicators` of a run across ``lines`` (tuple of (2,2) arrays: floor end, roof
+    end [m]; default the scene's own dislocations) from its final state and ``series["Ek_cells"]``."""
+    m = scene.model
+    lines = scene.geometry.dislocations if lines is None else lines
+    ekc = np.asarray(series["Ek_cells"])
+    rock = ~m.is_coal
+    pk_rock = float(ekc[:, rock].sum(axis=1).max()) if ekc.size and rock.any() else 0.0
+    d_damp = float(np.asarray(series["D_damp"])[-1]) if len(series["D_damp"]) else 0.0
+    released = float(m.acc[ACC["D_break_fault"]] + m.acc[ACC["D_fric_fault"]]) if m.fseg is not None else 0.0
+    slips, opens, ells, brk = [], [], [], []
+    seen = np.zeros(m.n_ifc, bool)
+    ne = m.geo["n"][m.ca]                          # geometric edge normal, from cell i to cell j
+    du = m.u - m.u0
+    for seg in lines:
+        cr = segments_cross(m.centres[m.ci], m.centres[m.cj], seg[0], seg[1]) & ~seen
+        seen |= cr
+        e = np.nonzero(cr)[0]
+        if not len(e):
+            continue
+        t_l, n_l = fault_frame(seg[0], seg[1])
+        cosn = ne[e] @ n_l
+        s = np.sign(cosn)
+        jx = du[m.cj[e], 2 * m.cb[e]] - du[m.ci[e], 2 * m.ca[e]]
+        jy = du[m.cj[e], 2 * m.cb[e] + 1] - du[m.ci[e], 2 * m.ca[e] + 1]
+        slips.append(s * (jx * t_l[0] + jy * t_l[1]))
+        opens.append(s * (jx * n_l[0] + jy * n_l[1]))
+        ells.append(m.L * np.abs(cosn))
+        brk.append(m.broken[e] > 0)
+    if not slips:
+        return FaultIndicators(0.0, 0.0, 0.0, 0.0, 0, released, d_damp, pk_rock, slip_threshold)
+    sl, op, ell, bk = (np.concatenate(a) for a in (slips, opens, ells, brk))
+    return FaultIndicators(
+        slip_mean_m=float(np.sum(sl * ell) / np.sum(ell)), slip_max_m=float(np.abs(sl).max()),
+        slipped_length_m=float(ell[np.abs(sl) >= slip_threshold].sum()), opening_max_m=float(op.max()),
+        n_broken=int(bk.sum()), released_J_per_m=released, radiated_J_per_m=d_damp,
+        peak_Ek_rock_J_per_m=pk_rock, slip_threshold_m=slip_threshold)
 
 
 @dataclass(frozen=True)
@@ -159,6 +254,8 @@ class MineIndicators(Result):
         Why the run stopped early ("" if it ran to the end).
     blocks : tuple of BlockIndicators
         The blocks of the scene's own partition.
+    fault : FaultIndicators
+        Slip, slipped length, released and radiated energy on the scene's own dislocation lines.
     profile : SeamProfile
         sigma_yy along the seam row at the excavation stages (not exported by ``as_dict``).
     """
@@ -194,6 +291,7 @@ class MineIndicators(Result):
     wall_time_s: float
     stopped: str = ""
     blocks: tuple = ()
+    fault: FaultIndicators = None
     profile: SeamProfile = field(default=None, metadata={"export": False})
 
     def block(self, name: str) -> BlockIndicators:
@@ -315,7 +413,8 @@ def compute(scene, series, wall_time, nsteps, dt, stopped="", names=None) -> Min
     dr = g.side * (mid[:, 0] - g.rib_x)
     seam_b = brk & (mid[:, 1] <= g.seam_hi + g.r_in) & (mid[:, 1] >= g.seam_lo - g.r_in) & (dr > -g.r_in)
     ux = _toward(scene)
-    rib = np.unique(m.wc[m.is_coal[m.wc]])
+    wc = m.wc[:scene.info.get("n_wall_nodes", len(m.wc))]          # the Eshelby loads (not the released gas)
+    rib = np.unique(wc[m.is_coal[wc]])
     rib = rib[g.side * (m.centres[rib, 0] - g.rib_x) > -g.r_in] if len(rib) else rib
     Ek = np.asarray(series["Ek"])
     WE = np.asarray(series["W_E"])
@@ -338,4 +437,5 @@ def compute(scene, series, wall_time, nsteps, dt, stopped="", names=None) -> Min
         D_dash_over_W_ext=float(np.asarray(series["D_dash"])[-1] / scale),
         contacts_end=int(m.acc[ACC["n_contacts"]]), contact_max_overlap_rel=float(m.acc[ACC["max_overlap"]]),
         **broken_kinematics(m), steps=int(nsteps), dt_s=float(dt), wall_time_s=float(wall_time), stopped=stopped,
-        blocks=block_indicators(scene, series, scene.labels, names), profile=prof)
+        blocks=block_indicators(scene, series, scene.labels, names), fault=fault_indicators(scene, series),
+        profile=prof)

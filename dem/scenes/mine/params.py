@@ -16,7 +16,8 @@ for each value in docs/mine_scene.md section 3:
   (``tall_extra`` m more rock above, traction on its top); ``absorbing`` adds Lysmer-Kuhlemeyer
   dashpots on the far boundaries;
 * ``gas``: ``"interface"`` (effective stress on the dislocation interfaces), ``"eigenstrain"`` (the
-  paper's eigenstrain in the cells along the dislocation), ``"none"``;
+  paper's eigenstrain in the cells along the dislocation, inside the virgin equilibrium),
+  ``"released"`` (the same eigenstrain released with the excavation, (1 - g(t)) of it), ``"none"``;
 * ``lattice``: ``"inner"`` (``cell_size`` is the inner radius: 1117 cells after excavation) or
   ``"side"`` (``cell_size`` is the side: 1527 cells, the paper's 1532);
 * ``model``: ``"half"`` (the left boundary is the adit's symmetry plane, domain ``width``) or
@@ -44,12 +45,13 @@ READINGS = {
     "placement": ("near", "far"),
     "floor": ("rollers", "no_slip", "rock"),
     "loading": ("traction", "rollers", "spring", "tall"),
-    "gas": ("interface", "eigenstrain", "none"),
+    "gas": ("interface", "eigenstrain", "released", "none"),
     "lattice": ("inner", "side"),
     "model": ("half", "full"),
     "disl_side": ("right", "left"),
     "element": ("hybrid", "bem"),
     "ramp": tuple(RAMP_CODES),
+    "fault_law": ("zigzag", "plane"),
 }
 
 UNITS = {
@@ -59,7 +61,7 @@ UNITS = {
     "coal_ft": "Pa", "unit_weight": "N/m^3", "friction_residual_deg": "deg", "penalty_factor": "-",
     "kn": "Pa/m", "kt_over_kn": "-", "depth": "m", "K0": "-", "floor_layer": "m",
     "overburden_height": "m", "tall_extra": "m", "ramp_time": "s", "disl_angle_deg": "deg",
-    "disl_first": "m", "disl_spacing": "m", "disl_phi_deg": "deg", "gas_pressure": "Pa",
+    "disl_first": "m", "disl_spacing": "m", "disl_phi_deg": "deg", "disl_c": "Pa", "gas_pressure": "Pa",
     "gas_vent_opening": "m", "elastic_layer": "m", "duration": "s", "dt_safety": "-", "damping": "1/s",
     "contact_damping": "-", "contact_factor": "-", "v_abort": "m/s", "output_every": "s",
 }
@@ -140,6 +142,12 @@ class MineParams:
         Rib holding the dislocations (``"left"`` only in the full model).
     disl_phi_deg : float
         Friction angle of the dislocations [deg]; < 0: the coal's.
+    disl_c : float
+        Cohesion of the dislocations [Pa] (their tensile strength is 0).
+    fault_law : str
+        ``"zigzag"``: every interface the dislocation line crosses is checked on its own edge (the
+        lattice's two edge families bias the fault); ``"plane"``: Mohr-Coulomb on the true plane, per
+        segment of two crossed edges (:mod:`dem.hexagons.fault`).
     gas_pressure : float
         Gas pressure [Pa].
     gas_vent_opening : float
@@ -216,6 +224,8 @@ class MineParams:
     disl_spacing: float = 5.0
     disl_side: str = "right"         # rib holding the dislocations ('left' only in the full model)
     disl_phi_deg: float = -1.0       # <0: coal friction angle
+    disl_c: float = 0.0              # cohesion of the dislocation [Pa]
+    fault_law: str = "zigzag"        # 'zigzag' (edge by edge) | 'plane' (Mohr-Coulomb on the true plane)
     gas_pressure: float = 1e6
     gas_vent_opening: float = 0.01   # crack opening above which the gas has escaped
     # run
@@ -261,7 +271,7 @@ class MineParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 bad(name, "strength must be a finite number >= 0 Pa")
-        for name in ("gas_pressure", "depth", "ramp_time", "duration", "damping", "contact_damping", "kn",
+        for name in ("gas_pressure", "depth", "ramp_time", "duration", "damping", "contact_damping", "kn", "disl_c",
                      "disl_first", "gas_vent_opening", "elastic_layer"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
