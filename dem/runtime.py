@@ -8,6 +8,9 @@ from __future__ import annotations
 import glob
 import os
 import tempfile
+from dataclasses import dataclass, field
+
+from microhom.results import Result
 
 __all__ = ["InstabilityError", "RunReport", "run_report", "atomic_write", "remove_stale_temporaries"]
 
@@ -32,15 +35,45 @@ def run_report(n, steps, wall, phases, detail, *, unit="particle", what="particl
              "Section     |  time (s) |   %"]
     for k, v in phases.items():
         lines.append(f"{k:<11s} | {v:9.4f} | {100 * v / wall if wall > 0 else 0:5.1f}")
-    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=phases, stopped=stopped,
-                     table="\n".join(lines))
+    return RunReport(steps=steps, wall=wall, particle_steps_per_s=ps, phases=dict(phases),
+                     stopped=stopped, table="\n".join(lines))
 
 
-class RunReport(dict):
-    """Summary of one ``Simulation.run`` call (dict) with a LAMMPS-like ``table`` string."""
+@dataclass(frozen=True)
+class RunReport(Result):
+    """Summary of one run (``Simulation.run`` or a mine scene's run), read-only.
+
+    Attributes
+    ----------
+    steps : int
+        Time steps taken.
+    wall : float
+        Wall time of the loop [s].
+    particle_steps_per_s : float
+        Throughput, particles (or cells) x steps per second [1/s].
+    phases : dict
+        Wall time per phase of the step [s] (neighbours, forces, integration, ...).
+    stopped : bool
+        True when a callback stopped the run early.
+    table : str
+        The LAMMPS-like text (loop time, performance, per-phase table); ``str(report)``.
+    """
+
+    steps: int
+    wall: float
+    particle_steps_per_s: float
+    phases: dict = field(default_factory=dict)
+    stopped: bool = False
+    table: str = ""
 
     def __str__(self):
-        return self["table"]
+        return self.table
+
+    def __getitem__(self, key):
+        """``report["steps"]`` as ``report.steps`` (the fields only)."""
+        if key not in self.__dataclass_fields__:
+            raise KeyError(f"RunReport has no field {key!r}; fields: {sorted(self.__dataclass_fields__)}")
+        return getattr(self, key)
 
 
 def _temp_prefix(path):

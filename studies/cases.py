@@ -70,7 +70,7 @@ def get_packing(case: dict):
                             dispersity=p["dispersity"], seed=int(p["seed"]), **PROTOCOL)
     res = pack(proto, checkpoint=folder / f"{packing_key(case)}.partial.npz")
     wall = time.perf_counter() - t0
-    res.report = res.report.annotate(wall_time=wall)
+    res = res.replace(report=res.report.annotate(wall_time=wall))
     res.save(final)
     partial = folder / f"{packing_key(case)}.partial.npz"
     if partial.exists():

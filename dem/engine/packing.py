@@ -93,7 +93,7 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from numba import njit
@@ -530,7 +530,7 @@ class PackReport(Result):
     For the code written against the earlier dict report, ``report["key"]``, ``key in report``,
     ``report.get`` and ``report.items()`` read the fields. The report is read-only:
     :meth:`annotate` returns a copy with a caller's annotations in ``extra`` (saved with the
-    packing), e.g. ``res.report = res.report.annotate(wall_time=12.5)``.
+    packing), e.g. ``res = res.replace(report=res.report.annotate(wall_time=12.5))``.
     """
 
     n: int
@@ -625,9 +625,9 @@ class PackReport(Result):
         return cls(**kw)
 
 
-@dataclass
-class PackingResult:
-    """Final state of a packing run (see :func:`pack`).
+@dataclass(frozen=True, eq=False)
+class PackingResult(Result):
+    """Final state of a packing run (see :func:`pack`); read-only (``replace`` makes a variant).
 
     Attributes
     ----------
@@ -637,14 +637,18 @@ class PackingResult:
     protocol : the :class:`PackingProtocol` that made it (None for a file written before
         protocols were stored).
     """
-    state: State
-    law: object
-    report: PackReport
+    state: State = field(metadata={"export": False})
+    law: object = field(metadata={"export": False})
+    report: PackReport = None
     protocol: PackingProtocol | None = None
 
     def to_network(self):
         """The :class:`microhom.network.ContactNetwork` of the packing (forces included)."""
         return network_from_state(self.state, self.law)
+
+    def replace(self, **changes) -> "PackingResult":
+        """A copy with some fields replaced (e.g. ``report=res.report.annotate(...)``)."""
+        return replace(self, **changes)
 
     def save(self, path):
         """One npz that is a checkpoint (``load``, bit-exact state) and a ``dem.io``
@@ -661,7 +665,11 @@ class PackingResult:
         cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
                             velocities=st.v, meta=meta)
         extra = {k: v for k, v in st.arrays().items() if k != "ids"}   # ids: the schema's own
-        net = self.to_network()        # stored too: the analysis reads it without the simulator
+        # the contact network is stored too (the analysis reads it without the simulator), its
+        # particle indices turned from id order (network_from_state) into the file's row order
+        net = self.to_network()
+        perm = np.argsort(st.ids, kind="stable")
+        net = replace(net, positions=cfg.positions, pairs=perm[net.pairs])
         atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra, network=net))
         return path
 

@@ -329,22 +329,23 @@ def read_csv(path) -> Configuration:
 
 def read_npz_network(path):
     """The contact network stored in an npz file by ``write_npz(..., network=)``, or None when the
-    file carries none. Positions, radii, cell and origin are the configuration's (:func:`read_npz`);
-    the contacts, branch vectors, stiffnesses [N/m], sliding flags and forces are the stored ones.
+    file carries none. Its particles are the rows of the file's ``positions`` and ``radii`` in the
+    order written (which :func:`read_npz` may sort by id), with the file's cell and origin; the
+    contacts, branch vectors, stiffnesses [N/m], sliding flags and forces are the stored ones.
     """
     from microhom.network import ContactNetwork
-    cfg = read_npz(path)
+    read_npz(path)                       # the schema's own checks (format, version, arrays)
     path = os.fspath(path)
     with np.load(path, allow_pickle=False) as z:
         if "network:pairs" not in z.files:
             return None
         got = {k: z[f"network:{k}"] for k in _NETWORK_KEYS if f"network:{k}" in z.files}
+        geometry = {k: z[k] for k in ("positions", "radii", "cell", "origin") if k in z.files}
     missing = [k for k in ("branch", "kn", "kt", "sliding") if k not in got]
     if missing:
         raise FormatError(path, None, f"network:{missing[0]}", "missing (the network: keys are "
                           "written together)")
     try:
-        return ContactNetwork(positions=cfg.positions, radii=cfg.radii, cell=cfg.cell,
-                              origin=cfg.origin, **got)
+        return ContactNetwork(**geometry, **({} if "cell" in geometry else {"cell": None}), **got)
     except ValueError as exc:
         raise FormatError(path, None, "network:pairs", f"inconsistent stored network ({exc})") from None

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from microhom.results import Result
+
 from ...runtime import InstabilityError, RunReport, atomic_write, run_report   # shared with the disk engine
 from ...hexagons.dynamics import advance, energies, gershgorin_dt, ramp_value
 from .build import Scene, build_scene
@@ -24,8 +26,8 @@ SERIES = ["t", "g", "Ek", "Ek_coal", "Ek_free", "U", "W_ext", "W_E", "W_gas", "D
 _STATE = ["u", "vh", "vh_prev", "f", "sn", "tau", "jtp", "jnp", "broken", "pg", "acc"]
 
 
-@dataclass
-class RunResult:
+@dataclass(frozen=True, eq=False)
+class RunResult(Result):
     """One run of a mine scene (SI per m of thickness). ``S`` samples, ``N`` cells, ``n`` cells
     on the seam row.
 
@@ -55,8 +57,8 @@ class RunResult:
     error : InstabilityError or None
         Set when the runaway guard stopped the run (``dem.runtime.InstabilityError``).
     """
-    scene: Scene
-    series: dict
+    scene: Scene = field(metadata={"export": False})
+    series: dict = field(metadata={"export": False})
     indicators: MineIndicators
     dt: float
     dt_gershgorin: float
@@ -64,7 +66,7 @@ class RunResult:
     timings: dict = field(default_factory=dict)
     stopped: str = ""
     report: RunReport = None          # LAMMPS-like timing table (dem.runtime.RunReport)
-    error: InstabilityError = None    # set when the runaway guard stopped the run
+    error: InstabilityError = field(default=None, metadata={"export": False})   # set when the runaway guard stopped the run
 
 
 def _sample(scene, g):
