@@ -221,8 +221,8 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
             if fac is not None:
                 fac.release()
             fac = factor((H - sh * M).tocsr(), backend=be, max_memory=max_memory)
-        elif fac is None:
-            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory)
+        elif fac is None:    # matching only where H may be strongly indefinite (pre-stress)
+            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory, matching=not psd)
         else:
             fac.refactor(pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
         return _neg(fac)
