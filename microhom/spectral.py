@@ -221,8 +221,8 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
             if fac is not None:
                 fac.release()
             fac = factor((H - sh * M).tocsr(), backend=be, max_memory=max_memory)
-        elif fac is None:
-            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory)
+        elif fac is None:    # matching only where H may be strongly indefinite (pre-stress)
+            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory, matching=not psd)
         else:
             fac.refactor(pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
         return _neg(fac)
@@ -233,13 +233,13 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
         n_zero = n_low - n_neg
         if n_low >= n:
             return out(None, None, None, None, n_zero, n_neg, "no eigenvalue above eps", be)
-        k = int(min(2, n - n_low))
+        k = 1          # the certificate (step 3) catches a missed eigenvalue; 10 Lanczos vectors
         if n <= 50 or n - n_low <= k + 1:
             w = _dense_eigs(H, M)
             est = float(w[w > eps].min())
         else:
             op = LinearOperator((n, n), matvec=fac.solve, dtype=float)
-            w = eigsh(H, k=k, M=M, sigma=eps, which="LA", OPinv=op, tol=tol, ncv=min(n, 16),
+            w = eigsh(H, k=k, M=M, sigma=eps, which="LA", OPinv=op, tol=tol, ncv=min(n - 1, 10),
                       return_eigenvectors=False)
             w = w[w > eps]
             if not w.size:

@@ -1,4 +1,5 @@
 """Tests of dem.analysis.stiffness against closed forms and independent computations (never its own output)."""
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -531,3 +532,16 @@ def test_predicted_memory_covers_the_measured_peaks():
     assert 2.0e9 <= pm(99_960, 295_246, "splu") <= 3 * 2.0e9
     assert 5.3e9 <= pm(999_750, 2_955_742, "cholmod") <= 3 * 5.3e9
     assert pm(4_000_000, 12_000_000, "pardiso") > 23e9
+
+
+@needs_pardiso
+def test_pardiso_stiffness_ratio_keeps_the_floppy_count():
+    """Row 7 with PARDISO's inertia count: kt/kn up to 1e8 keeps the 3 floppy modes of kt/kn = 1
+    (counted by SuperLU's pivots in test_stiffness_ratio_keeps_the_floppy_count)."""
+    net = _diluted(10, 10, z=3.6, kt=1.0, seed=2)
+    ref = stiffness(net, solver="splu")
+    for ratio in (1.0, 1e4, 1e8):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)    # "ill-conditioned" above 1e6
+            r = stiffness(net.with_stiffness(kt=net.kt * ratio), solver="pardiso")
+        assert r.count_method == "inertia" and r.n_floppy == ref.n_floppy == 3 and r.residual < 1e-12

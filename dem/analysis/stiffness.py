@@ -415,7 +415,8 @@ class _PardisoLDL:
         self.shift = shift
         self.first_inertia = None
         s0 = shift if first_shift is None else first_shift
-        self.f = _factor._Pardiso(pencil.matrix(s0), upper=True, max_memory=max_memory)
+        self.f = _factor._Pardiso(pencil.matrix(s0), upper=True, max_memory=max_memory,
+                                  matching=first_shift is not None)    # pre-stress: indefinite
         if first_shift is not None:   # count at first_shift, then refactor on the same analysis
             self.first_inertia = (self.f.inertia(), self.f.n_perturbed)
             self.f.refactor(pencil.at(shift))
