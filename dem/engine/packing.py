@@ -665,12 +665,11 @@ class PackingResult(Result):
         cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
                             velocities=st.v, meta=meta)
         extra = {k: v for k, v in st.arrays().items() if k != "ids"}   # ids: the schema's own
-        # the contact network is stored too (the analysis reads it without the simulator), its
-        # particle indices turned from id order (network_from_state) into the file's row order
+        # the contact network is stored too (the analysis reads it without the simulator); it
+        # numbers the particles in id order (network_from_state), the file's rows are the state's
         net = self.to_network()
-        perm = np.argsort(st.ids, kind="stable")
-        net = replace(net, positions=cfg.positions, pairs=perm[net.pairs])
-        atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra, network=net))
+        rows = np.argsort(st.ids, kind="stable")
+        atomic_write(path, lambda fh: write_npz(fh, cfg, extra=extra, network=net, network_rows=rows))
         return path
 
     @classmethod

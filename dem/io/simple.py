@@ -21,6 +21,7 @@ key                    shape       meaning
 ``network:kn``, ``:kt``  (C,)      float64 contact stiffnesses [N/m]
 ``network:sliding``    (C,)        bool, contacts at the Coulomb limit
 ``network:fn``, ``:ft``  (C,)      optional normal (compression positive) and tangential forces
+``network:rows``       (N,)        int64, the row of each network particle in ``positions``
 =====================  ==========  =========================================================
 
 The ``network:`` keys are written together (:func:`write_npz` with ``network=``) and read by
@@ -84,17 +85,22 @@ def _jsonable_meta(meta):
 _NETWORK_KEYS = ("pairs", "branch", "kn", "kt", "sliding", "fn", "ft")
 
 
-def _network_arrays(network, n_particles):
-    """The ``network:`` arrays of a :class:`microhom.network.ContactNetwork` (2D)."""
+def _network_arrays(network, n_particles, rows=None):
+    """The ``network:`` arrays of a :class:`microhom.network.ContactNetwork` (2D); ``rows`` (N,):
+    the configuration row of each of the network's particles (default: the same order)."""
     if network.n_particles != n_particles:
         raise ValueError(f"network has {network.n_particles} particles but the configuration "
                          f"{n_particles}: write the network of this configuration")
+    rows = np.arange(n_particles) if rows is None else np.asarray(rows, dtype=np.int64)
+    if rows.shape != (n_particles,) or not np.array_equal(np.sort(rows), np.arange(n_particles)):
+        raise ValueError(f"network_rows must be a permutation of the {n_particles} configuration rows")
     out = {f"network:{k}": getattr(network, k) for k in _NETWORK_KEYS
            if getattr(network, k) is not None}
+    out["network:rows"] = rows
     return out
 
 
-def write_npz(path, config, *, compressed=False, extra=None, network=None):
+def write_npz(path, config, *, compressed=False, extra=None, network=None, network_rows=None):
     """Write ``config`` as an npz file (schema in the module docstring): the one writer of the
     schema.
 
@@ -104,7 +110,8 @@ def write_npz(path, config, *, compressed=False, extra=None, network=None):
     the schema's, or starts with ``field:`` or ``network:``, raises ``ValueError``;
     :func:`read_npz` ignores them. ``network``: the configuration's
     :class:`~microhom.network.ContactNetwork` (same particles, same order), stored under the
-    ``network:`` keys for :func:`read_npz_network`.
+    ``network:`` keys for :func:`read_npz_network`; ``network_rows`` (N,): the configuration row
+    of each network particle when the network numbers them in another order.
     """
     arrays = {"format": np.array(_MAGIC), "format_version": np.array(FORMAT_VERSION),
               "positions": config.positions, "radii": config.radii, "origin": config.origin,
@@ -123,7 +130,7 @@ def write_npz(path, config, *, compressed=False, extra=None, network=None):
     if clash:
         raise ValueError(f"extra arrays {clash} clash with the npz schema's keys {sorted(_SCHEMA_KEYS)}")
     if network is not None:
-        arrays.update(_network_arrays(network, len(config.radii)))
+        arrays.update(_network_arrays(network, len(config.radii), network_rows))
     arrays = {**(extra or {}), **arrays}
     save = np.savez_compressed if compressed else np.savez
     if hasattr(path, "write"):
@@ -329,9 +336,9 @@ def read_csv(path) -> Configuration:
 
 def read_npz_network(path):
     """The contact network stored in an npz file by ``write_npz(..., network=)``, or None when the
-    file carries none. Its particles are the rows of the file's ``positions`` and ``radii`` in the
-    order written (which :func:`read_npz` may sort by id), with the file's cell and origin; the
-    contacts, branch vectors, stiffnesses [N/m], sliding flags and forces are the stored ones.
+    file carries none. Its particles are the file's ``positions`` and ``radii`` in the network's own
+    order (``network:rows``), with the file's cell and origin; the contacts, branch vectors,
+    stiffnesses [N/m], sliding flags and forces are the stored ones.
     """
     from microhom.network import ContactNetwork
     read_npz(path)                       # the schema's own checks (format, version, arrays)
@@ -341,6 +348,11 @@ def read_npz_network(path):
             return None
         got = {k: z[f"network:{k}"] for k in _NETWORK_KEYS if f"network:{k}" in z.files}
         geometry = {k: z[k] for k in ("positions", "radii", "cell", "origin") if k in z.files}
+        rows = z["network:rows"] if "network:rows" in z.files else None
+    if rows is not None:
+        if rows.shape != geometry["radii"].shape or not np.array_equal(np.sort(rows), np.arange(len(rows))):
+            raise FormatError(path, None, "network:rows", "not a permutation of the particle rows")
+        geometry["positions"], geometry["radii"] = geometry["positions"][rows], geometry["radii"][rows]
     missing = [k for k in ("branch", "kn", "kt", "sliding") if k not in got]
     if missing:
         raise FormatError(path, None, f"network:{missing[0]}", "missing (the network: keys are "
