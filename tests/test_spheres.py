@@ -261,3 +261,27 @@ def test_frictional_rotations_match_a_direct_minimisation():
         assert 2 * W(E) == pytest.approx(C[p, p], rel=1e-7)
     # the check has teeth: the relaxation is far above its tolerance
     assert affine_tensor(net)[3, 3] - C[3, 3] > 1e-3 * C[3, 3]
+
+
+def test_exact_solver_on_spheres_matches_closed_forms_and_the_dense_relaxation():
+    """dem.analysis.stiffness on 3D networks: the FCC closed form, and on a disordered frictional
+    packing (rotations relax) the dense pseudo-inverse above, with and without pre-stress."""
+    from dem.analysis.stiffness import stiffness
+    D, kn, kt = 0.8, 3.0, 0.4
+    r = stiffness(lattices.fcc(2, diameter=D, kn=kn, kt=kt))
+    expected = cubic(SQ2 * (kn + kt) / D, (kn - kt) / (SQ2 * D), SQ2 * (kn + kt) / D)
+    np.testing.assert_allclose(r.C_mandel, expected, rtol=0, atol=1e-10 * kn / D)
+    assert r.C_mandel.shape == (6, 6) and r.u.shape == (6, 32, 3) and r.omega.shape == (6, 32, 3)
+    assert r.n_floppy == 0 and not r.flags
+    rng = np.random.default_rng(5)
+    net = _jammed_like(rng, kt=0.5, jitter=0.03)
+    net = from_pairs(net.positions, net.radii, net.cell, net.pairs, shifts=net.image_shifts(),
+                     kn=1.0, kt=0.5, fn=net.overlaps)
+    for pre in (False, True):
+        C, _ = relaxed(net, prestress=pre)
+        if pre:
+            C = C + tensors.prestress_correction(stress0(net))
+        got = stiffness(net, prestress=pre)
+        np.testing.assert_allclose(got.C_mandel, C, rtol=0, atol=1e-9 * np.abs(C).max())
+        K, G = tensors.isotropic_moduli(C)
+        assert got.K == pytest.approx(K, rel=1e-9) and got.G == pytest.approx(G, rel=1e-9)

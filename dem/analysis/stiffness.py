@@ -47,7 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh, splu
 
-from microhom.kinematics import affine_tensor, assemble, stress0
+from microhom.kinematics import affine_tensor, assemble, rotational_dofs, stress0
 from microhom.network import ContactNetwork
 from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
@@ -94,6 +94,10 @@ class StiffnessResult(Result):
     ``count_method`` how the floppy modes were counted (see :func:`count_modes`); ``step_times``
     the wall time of each named step [s]. Not exported: ``u`` (3, N, 2) relaxed fluctuations [m]
     and ``omega`` (3, N) spins [rad] per Mandel unit strain, ``rattler_mask`` (N,) bool.
+
+    3D networks (spheres, ``docs/spheres.md``) give the same fields in 3D shapes: (6, 6) Mandel
+    tensors over [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy] [Pa], ``u`` (6, N, 3), ``omega``
+    (6, N, 3) rotations, ``stress0_mandel`` (6,), three global translations.
     """
 
     C_mandel: np.ndarray
@@ -259,10 +263,11 @@ def reduce_system(asm) -> Reduced:
     Hr = H[idx][:, idx].tocsc() if zero.any() else H
     dr = np.abs(Hr.diagonal())
     dr = np.where(dr > 0, dr, dr.max() if dr.size else 1.0)
-    N = asm.net.n_particles
+    N, dim = asm.net.n_particles, asm.net.dim
+    rot = rotational_dofs(dim)
     full = np.flatnonzero(asm.dof_map >= 0)                 # full numbering of each unknown
     part = np.empty(asm.ndof, dtype=np.int64)
-    part[asm.dof_map[full]] = np.where(full < 2 * N, full // 2, full - 2 * N)
+    part[asm.dof_map[full]] = np.where(full < dim * N, full // dim, (full - dim * N) // rot)
     return Reduced(H=Hr, F=asm.F[idx], d=dr, idx=idx, n_zero=int(zero.sum()), particle=part[idx])
 
 
@@ -577,7 +582,7 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50):
     zero modes are not excited (F lies in the range of H). Returns (Q (m, 3), residual, n_refine)
     with the residual relative to the norm of the per-contact affine forces ``F_scale``."""
     if red.H.shape[0] == 0:
-        return np.zeros((0, 3)), 0.0, 0
+        return np.zeros((0, red.F.shape[1])), 0.0, 0
     Xr = factor.solve(-red.F)
     fn_ = F_scale if F_scale > 0 else 1.0
     n_ref = 0
@@ -712,7 +717,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
-    memory_check(predicted_memory(net.n_particles, solver=solver),
+    memory_check(predicted_memory(net.n_particles, (net.dim + rotational_dofs(net.dim)) * net.n_particles,
+                                  solver=solver),
                  f"exact stiffness of {net.n_particles} particles ({solver} solver)", max_memory)
     asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     c_aff = affine_stiffness(net, prestress=prestress)
@@ -741,7 +747,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     if factor is not None and hasattr(factor, "release"):
         factor.release()
     del factor
-    Q = np.zeros((asm.ndof, 3))
+    Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
     Q[red.idx] = Xr
     t_solve = time.perf_counter() - t1
     if resid > 1e-8:
@@ -749,7 +755,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                      f"{resid:.2e})")
 
     tc = time.perf_counter()
-    c_rel, consistency = relaxed_tensor(asm, Q, net.area)
+    c_rel, consistency = relaxed_tensor(asm, Q, net.volume)
     steps["tensor"] = time.perf_counter() - tc
     if prestress:
         c_rel = c_rel + prestress_correction(sigma0)
@@ -768,11 +774,13 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                f"{s:.3g}; rescale the stiffnesses (the moduli are proportional to kn)")
         flags.append(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    N = net.n_particles
-    full = np.zeros((3 * N + 1, 3))
+    N, dim = net.n_particles, net.dim
+    rot, nm = rotational_dofs(dim), Q.shape[1]
+    full = np.zeros(((dim + rot) * N + 1, nm))
     full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
-    u_f = np.stack([full[0:2 * N, b].reshape(N, 2) for b in range(3)])
-    w_f = np.stack([full[2 * N:3 * N, b] for b in range(3)])
+    u_f = np.stack([full[0:dim * N, b].reshape(N, dim) for b in range(nm)])
+    w_f = np.stack([full[dim * N:(dim + rot) * N, b] if rot == 1 else
+                    full[dim * N:(dim + rot) * N, b].reshape(N, rot) for b in range(nm)])
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
         n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),
