@@ -839,6 +839,10 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
     if network.cell is None:
         raise ValueError("network must be periodic (cell is None): the hierarchy estimates the "
                          "stiffness of a periodic cell")
+    if network.dim != 2:
+        raise NotImplementedError("the relaxation hierarchy takes 2D networks (disks) so far: its "
+                                  "multilevel near-null space is the disks' one; for spheres use "
+                                  "dem.analysis.stiffness.stiffness (docs/spheres.md)")
     if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
         raise ValueError(f"tol must be a relative width in (0, 1), got {tol!r}")
     if int(max_order) != max_order or not (1 <= max_order <= 10000):
