@@ -348,3 +348,110 @@ def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path
     assert a.n_contacts == b.n_contacts > 0
     assert np.allclose(a.kn, 1.0) and np.allclose(b.kn, 1.0)
     assert np.allclose(a.kt, 2 / 7) and np.allclose(b.kt, 2 / 7)
+
+
+# ---- the JSON, CSV and table of the committed test files, byte for byte (issue 23.3) ----------
+# tests/data/analyse_expected.json was written by the code BEFORE AnalysisResult held the typed
+# results (run this file as a script to rewrite it; only ever on purpose): the typed result must
+# print exactly what the dict sections printed. Wall times and the checkout's path are masked.
+
+#: (name, command-line arguments after the file) on the committed files of tests/data
+GOLDEN_FILES = [
+    ("radius.dump", ["--kn", "2"]),                           # theory flagged, stress n/a
+    ("D0001", ["--kn", "2", "--kn-convention", "oval"]),       # every section, the lattice
+    ("D0001", ["--no-exact", "--no-hierarchy"]),               # "not computed", OVAL note
+    ("frictionless_lowp.data", ["--kt", "0", "--prestress", "--hierarchy-tol", "0.5"]),  # warnings
+    ("diameter.dump", []),                                     # not jammed, open
+    ("sheared.data", ["--rho-neighbours", "contacts", "--alpha", "1.5", "--branch-length", "radii"]),
+    ("triclinic.dump", ["--spin-arm", "contact", "--min-contacts", "2"]),
+    ("ortho.data", ["--kt-ratio", "0.2857"]),
+]
+_TIME_KEYS = ("read_s", "analyse_s", "time_s")
+
+
+def _golden_networks():
+    """In-memory networks for the sections no committed file reaches: contact forces (stress,
+    pre-stress from the file's fn) and an open cluster (no hierarchy)."""
+    from dataclasses import replace
+
+    from microhom import lattices
+    from microhom.network import from_overlaps
+    lat = lattices.triangular(4, 4, diameter=1.0, kn=1.0, kt=0.5)
+    forced = replace(lat, fn=np.full(lat.n_contacts, 1e-2), ft=np.zeros(lat.n_contacts))
+    ring = np.array([[np.cos(a), np.sin(a)] for a in np.arange(6) * np.pi / 3])
+    cluster = from_overlaps(np.vstack([[0.0, 0.0], 0.99 * ring]), 0.5, None, kn=1.0, kt=1.0)
+    return [("lattice with forces, prestress", forced, {"prestress": True}),
+            ("open cluster", cluster, {})]
+
+
+def _mask_text(text):
+    import re
+    text = text.replace(str(DATA), "tests/data")
+    text = re.sub(r'("(?:%s)": )[-+0-9.eE]+' % "|".join(_TIME_KEYS), r'\1"<wall time>"', text)
+    return re.sub(r"\b\d+\.\d{3} s\b", "<t> s", text)
+
+
+def _mask_csv(text):
+    head, *rows = list(csv.reader(io.StringIO(text)))
+    for row in rows:
+        for i, h in enumerate(head):
+            if h.split(".")[-1] in _TIME_KEYS:
+                row[i] = "<wall time>"
+    buf = io.StringIO()
+    csv.writer(buf).writerows([head, *rows])
+    return buf.getvalue().replace(str(DATA), "tests/data")
+
+
+def _golden_outputs(capsys):
+    """name -> {"json", "csv", "table"}: the command line's three outputs, masked."""
+    from dem.analysis import analyse as dan
+    out = {}
+    for name, args in GOLDEN_FILES:
+        key = " ".join([name, *args])
+        got = {}
+        for flag in ("--json", "--csv", None):
+            p = run_in(capsys, DATA / name, *args, *([flag] if flag else []))
+            assert p.returncode == 0, (key, p.stderr)
+            got[(flag or "--table")[2:]] = _mask_csv(p.stdout) if flag == "--csv" else _mask_text(p.stdout)
+        out[key] = got
+    for name, net, kw in _golden_networks():
+        res = dan.analyse(net, **kw)
+        flat = dan.flatten(res)
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(flat))
+        w.writeheader()
+        w.writerow(flat)
+        out[name] = {"json": _mask_text(json.dumps(res.as_dict(), indent=1, allow_nan=False) + "\n"),
+                     "csv": _mask_csv(buf.getvalue()), "table": _mask_text(dan.format_table(res) + "\n")}
+    return out
+
+
+GOLDEN = DATA / "analyse_expected.json"
+
+
+def test_outputs_unchanged_byte_for_byte(capsys):
+    """The JSON, CSV and table of every golden case equal, character for character, what the
+    dict-section code printed (tests/data/analyse_expected.json; wall times masked)."""
+    expected = json.loads(GOLDEN.read_text())
+    got = _golden_outputs(capsys)
+    assert list(got) == list(expected)
+    for case, outputs in expected.items():
+        for kind, text in outputs.items():
+            assert got[case][kind] == text, f"{case}: {kind} changed"
+
+
+if __name__ == "__main__":      # rewrite the expected outputs (only on purpose: they are the contract)
+    class _Cap:
+        def readouterr(self):
+            from types import SimpleNamespace
+            o, e = sys.stdout.getvalue(), sys.stderr.getvalue()
+            sys.stdout.seek(0), sys.stdout.truncate(), sys.stderr.seek(0), sys.stderr.truncate()
+            return SimpleNamespace(out=o, err=e)
+    real = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = io.StringIO(), io.StringIO()
+    try:
+        outputs = _golden_outputs(_Cap())
+    finally:
+        sys.stdout, sys.stderr = real
+    GOLDEN.write_text(json.dumps(outputs, indent=1) + "\n")
+    print(f"wrote {GOLDEN}: {len(outputs)} cases")
