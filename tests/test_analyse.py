@@ -348,3 +348,207 @@ def test_kt_ratio_is_a_ratio_of_the_physical_stiffnesses_for_oval_files(tmp_path
     assert a.n_contacts == b.n_contacts > 0
     assert np.allclose(a.kn, 1.0) and np.allclose(b.kn, 1.0)
     assert np.allclose(a.kt, 2 / 7) and np.allclose(b.kt, 2 / 7)
+
+
+# ---- the JSON, CSV and table of the committed test files, byte for byte (issue 23.3) ----------
+# tests/data/analyse_expected.json was written by the code BEFORE AnalysisResult held the typed
+# results (run this file as a script to rewrite it; only ever on purpose): the typed result must
+# print exactly what the dict sections printed. Wall times and the checkout's path are masked.
+
+#: (name, command-line arguments after the file) on the committed files of tests/data
+GOLDEN_FILES = [
+    ("radius.dump", ["--kn", "2"]),                           # theory flagged, stress n/a
+    ("D0001", ["--kn", "2", "--kn-convention", "oval"]),       # every section, the lattice
+    ("D0001", ["--no-exact", "--no-hierarchy"]),               # "not computed", OVAL note
+    ("frictionless_lowp.data", ["--kt", "0", "--prestress", "--hierarchy-tol", "0.5"]),  # warnings
+    ("diameter.dump", []),                                     # not jammed, open
+    ("sheared.data", ["--rho-neighbours", "contacts", "--alpha", "1.5", "--branch-length", "radii"]),
+    ("triclinic.dump", ["--spin-arm", "contact", "--min-contacts", "2"]),
+    ("ortho.data", ["--kt-ratio", "0.2857"]),
+]
+_TIME_KEYS = ("read_s", "analyse_s", "time_s")
+
+
+def _golden_networks():
+    """In-memory networks for the sections no committed file reaches: contact forces (stress,
+    pre-stress from the file's fn) and an open cluster (no hierarchy)."""
+    from dataclasses import replace
+
+    from microhom import lattices
+    from microhom.network import from_overlaps
+    lat = lattices.triangular(4, 4, diameter=1.0, kn=1.0, kt=0.5)
+    forced = replace(lat, fn=np.full(lat.n_contacts, 1e-2), ft=np.zeros(lat.n_contacts))
+    ring = np.array([[np.cos(a), np.sin(a)] for a in np.arange(6) * np.pi / 3])
+    cluster = from_overlaps(np.vstack([[0.0, 0.0], 0.99 * ring]), 0.5, None, kn=1.0, kt=1.0)
+    return [("lattice with forces, prestress", forced, {"prestress": True}),
+            ("open cluster", cluster, {})]
+
+
+def _mask_text(text):
+    import re
+    text = text.replace(str(DATA), "tests/data")
+    text = re.sub(r'("(?:%s)": )[-+0-9.eE]+' % "|".join(_TIME_KEYS), r'\1"<wall time>"', text)
+    return re.sub(r"\b\d+\.\d{3} s\b", "<t> s", text)
+
+
+def _mask_csv(text):
+    head, *rows = list(csv.reader(io.StringIO(text)))
+    for row in rows:
+        for i, h in enumerate(head):
+            if h.split(".")[-1] in _TIME_KEYS:
+                row[i] = "<wall time>"
+    buf = io.StringIO()
+    csv.writer(buf).writerows([head, *rows])
+    return buf.getvalue().replace(str(DATA), "tests/data")
+
+
+def _golden_outputs(capsys):
+    """name -> {"json", "csv", "table"}: the command line's three outputs, masked."""
+    from dem.analysis import analyse as dan
+    out = {}
+    for name, args in GOLDEN_FILES:
+        key = " ".join([name, *args])
+        got = {}
+        for flag in ("--json", "--csv", None):
+            p = run_in(capsys, DATA / name, *args, *([flag] if flag else []))
+            assert p.returncode == 0, (key, p.stderr)
+            got[(flag or "--table")[2:]] = _mask_csv(p.stdout) if flag == "--csv" else _mask_text(p.stdout)
+        out[key] = got
+    for name, net, kw in _golden_networks():
+        res = dan.analyse(net, **kw)
+        flat = dan.flatten(res)
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(flat))
+        w.writeheader()
+        w.writerow(flat)
+        out[name] = {"json": _mask_text(json.dumps(res.as_dict(), indent=1, allow_nan=False) + "\n"),
+                     "csv": _mask_csv(buf.getvalue()), "table": _mask_text(dan.format_table(res) + "\n")}
+    return out
+
+
+GOLDEN = DATA / "analyse_expected.json"
+
+
+def test_outputs_unchanged_byte_for_byte(capsys):
+    """The JSON, CSV and table of every golden case equal, character for character, what the
+    dict-section code printed (tests/data/analyse_expected.json; wall times masked)."""
+    expected = json.loads(GOLDEN.read_text())
+    got = _golden_outputs(capsys)
+    assert list(got) == list(expected)
+    for case, outputs in expected.items():
+        for kind, text in outputs.items():
+            assert got[case][kind] == text, f"{case}: {kind} changed"
+
+
+
+# ---- one result vocabulary: the sections are the library's typed results (issue 23.3) ---------
+
+def test_sections_are_the_typed_results_on_the_lattice(capsys):
+    """On the triangular lattice (D = 1, Z = 6, kn = kt = 1, affine) every estimate has the closed
+    form K = Nc phi kn / (2 pi); the typed fields carry it, and the JSON is their view."""
+    import dataclasses
+
+    from dem.analysis.analyse import (AnalysisResult, ClosureInputs, Comparison, FileInfo,
+                                      NetworkSummary, SectionWarnings, TheoryResult, analyse_file)
+    from dem.analysis.measure import Coordination
+    from dem.analysis.stiffness import StiffnessResult
+    from microhom.closure import ClosurePrediction
+    from microhom.hierarchy import HierarchyResult
+    from microhom.moduli import Prediction
+    from microhom.results import Result
+    from microhom.structural_sums import NetworkStatistics
+
+    res = analyse_file(DATA / "D0001", kn=2.0, kn_convention="oval")
+    K = 6 * (np.pi / (2 * np.sqrt(3))) * 1.0 / (2 * np.pi)
+    assert isinstance(res.file, FileInfo) and res.file.format == "oval" and res.file.read_s >= 0
+    assert isinstance(res.network, NetworkSummary) and res.network.n_contacts == 48
+    assert isinstance(res.coordination, Coordination) and res.coordination.z == 6.0
+    assert isinstance(res.structural, NetworkStatistics)
+    assert res.structural.vbar == pytest.approx(res.structural.vbar_theory, rel=1e-12)
+    assert isinstance(res.theory, TheoryResult)
+    assert isinstance(res.theory.rho_prediction, Prediction) and isinstance(res.theory.alpha_prediction, Prediction)
+    assert float(res.theory.rho_prediction.K_mf) == pytest.approx(K, rel=1e-12)
+    assert isinstance(res.closure, ClosurePrediction) and isinstance(res.closure_inputs, ClosureInputs)
+    assert res.closure_inputs.nc == 6.0
+    assert isinstance(res.hierarchy, HierarchyResult) and res.hierarchy_s >= 0
+    assert res.hierarchy.K.upper == pytest.approx(K, rel=1e-10)          # affine lattice: exact
+    assert isinstance(res.stiffness, StiffnessResult) and res.stiffness.K == pytest.approx(K, rel=1e-10)
+    assert np.asarray(res.stiffness.C_mandel).shape == (3, 3)
+    assert isinstance(res.warnings, SectionWarnings) and isinstance(res.comparison, Comparison)
+    assert res.comparison.K_hierarchy_over_exact == pytest.approx(1.0, rel=1e-10)
+    assert res.comparison.K_mf_over_exact == float(res.theory.rho_prediction.K_mf) / res.stiffness.K
+    # the JSON is a view of these fields, value for value
+    d = res.as_dict()
+    assert d["hierarchy"]["K_upper"] == res.hierarchy.K.upper and d["hierarchy"]["order"] == res.hierarchy.order
+    assert d["theory"]["K_rho"] == float(res.theory.rho_prediction.K)
+    assert d["theory"]["G_alpha"] == float(res.theory.alpha_prediction.G)
+    assert d["stiffness"]["C_mandel"] == np.asarray(res.stiffness.C_mandel).tolist()
+    assert d["structural"]["rho"] == res.structural.rho and d["closure"]["K"] == float(res.closure.K)
+    assert d["file"]["read_s"] == res.file.read_s
+    # every section is a frozen Result (or a plain wall time / the notes)
+    for f in dataclasses.fields(AnalysisResult):
+        v = getattr(res, f.name)
+        if f.name in ("hierarchy_s", "notes", "rho_neighbours"):
+            continue
+        assert isinstance(v, Result) and type(v).__dataclass_params__.frozen, f.name
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(res, f.name, None)
+
+
+def test_a_section_not_computed_says_why_and_raises():
+    from dem.analysis.analyse import SectionError, analyse, format_table
+    from microhom import lattices
+
+    res = analyse(lattices.triangular(4, 4), exact=False, hierarchy=False)
+    for sec in (res.stiffness, res.hierarchy, res.stress):
+        assert isinstance(sec, SectionError)
+    assert res.stiffness == SectionError("not computed") and res.hierarchy_s is None
+    with pytest.raises(AttributeError, match=r"'K': this section was not computed \(not computed\)"):
+        res.stiffness.K
+    with pytest.raises(AttributeError, match="no contact forces"):
+        res.stress.pressure
+    assert res.as_dict()["stress"] == {"error": "no contact forces in the file"}
+    assert res.as_dict()["comparison"] == {} and res.comparison.K_mf_over_exact is None
+    assert res.file is None and res.as_dict()["file"] == {}
+    assert "exact: n/a (not computed)" in format_table(res)
+    with pytest.raises(TypeError, match="AnalysisResult"):
+        format_table(res.as_dict())
+
+
+def test_a_missing_field_raises_never_none():
+    """The views name every field they print: a result without one raises (no getattr default
+    that would turn a renamed field into a silent None in the report)."""
+    import dataclasses
+    import re
+    from types import SimpleNamespace
+
+    from dem.analysis import analyse as dan
+    from microhom import lattices
+    from microhom.structural_sums import network_statistics
+
+    st = network_statistics(lattices.triangular(4, 4))
+    fields = {f.name: getattr(st, f.name) for f in dataclasses.fields(st)}
+    assert dan._statistics_view(SimpleNamespace(**fields), "near")["rho_note"] == st.rho_note
+    del fields["rho_note"]
+    with pytest.raises(AttributeError, match="rho_note"):
+        dan._statistics_view(SimpleNamespace(**fields), "near")
+    src = Path(dan.__file__).read_text()
+    assert not re.search(r"getattr\([^()]*,[^()]*,", src), "a getattr with a default"
+    assert ".get(" not in src.split("def format_table")[1], "the table reads the typed results"
+
+
+if __name__ == "__main__":      # rewrite the expected outputs (only on purpose: they are the contract)
+    class _Cap:
+        def readouterr(self):
+            from types import SimpleNamespace
+            o, e = sys.stdout.getvalue(), sys.stderr.getvalue()
+            sys.stdout.seek(0), sys.stdout.truncate(), sys.stderr.seek(0), sys.stderr.truncate()
+            return SimpleNamespace(out=o, err=e)
+    real = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = io.StringIO(), io.StringIO()
+    try:
+        outputs = _golden_outputs(_Cap())
+    finally:
+        sys.stdout, sys.stderr = real
+    GOLDEN.write_text(json.dumps(outputs, indent=1) + "\n")
+    print(f"wrote {GOLDEN}: {len(outputs)} cases")

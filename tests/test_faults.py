@@ -14,7 +14,7 @@ import pytest
 
 from dem import io
 from dem.__main__ import main as dem_main
-from dem.analysis.analyse import NOT_JAMMED, analyse
+from dem.analysis.analyse import NOT_JAMMED, SectionError, analyse
 from dem.io import Configuration, FormatError
 from studies.common import EXIT_NO_OUTPUT, cli_out_dir
 
@@ -256,8 +256,10 @@ def test_all_rattler_gas_is_flagged_not_jammed(tmp_path):
     res = analyse(cfg.network(kn=1.0))
     assert not res.jammed
     for sec in (res.structural, res.theory, res.stiffness):
-        assert sec == {"error": NOT_JAMMED}
-    assert res.coordination["z"] is None and NOT_JAMMED in res.notes
+        assert isinstance(sec, SectionError) and sec.message == NOT_JAMMED
+        assert sec.as_dict() == {"error": NOT_JAMMED}
+    assert np.isnan(res.coordination.z) and NOT_JAMMED in res.notes
+    assert res.as_dict()["coordination"]["z"] is None
     assert "nan" not in json.dumps(res.as_dict()).lower()
 
 

@@ -73,8 +73,8 @@ def test_exact_stiffness_differs_by_the_overlap_and_lammps_files_use_radius(tmp_
     path = tmp_path / "lat.dump"
     io.write(path, io.Configuration(positions=pos, radii=0.5 * 1.02, cell=lat.cell))
     res = analyse_file(path, kn=1.0, kt=0.5, hierarchy=False)
-    assert res.file["spin_arm"] == "radius"
+    assert res.file.spin_arm == "radius"
     assert any("spin arms of the exact stiffness: 'radius'" in s for s in res.notes)
-    assert res.stiffness["G"] == pytest.approx(r.G, rel=1e-9)
+    assert res.stiffness.G == pytest.approx(r.G, rel=1e-9)
     res2 = analyse_file(path, kn=1.0, kt=0.5, hierarchy=False, spin_arm="contact")
-    assert res2.stiffness["G"] == pytest.approx(c.G, rel=1e-9)
+    assert res2.stiffness.G == pytest.approx(c.G, rel=1e-9)

@@ -15,39 +15,43 @@ The engine behind ``python -m dem analyse FILE`` (see ``docs/scale_out.md``):
   stated error, the relaxation hierarchy of :mod:`microhom.hierarchy` (moduli with a rigorous upper
   bound and a stated error, without a factorisation), and the exact stiffness tensor of
   :func:`dem.analysis.stiffness.stiffness` (with the pre-stress terms when asked).
-* :class:`AnalysisResult` holds the result (frozen; ``as_dict()`` is the JSON of the command
-  line, NaN as ``null``); :func:`format_table`, :func:`flatten` render it as text or as one flat
-  record (the CSV row).
+* :class:`AnalysisResult` holds the typed results themselves (frozen): ``res.structural.rho``,
+  ``res.theory.rho_prediction.K``, ``res.hierarchy.K.upper``, ``res.stiffness.C_mandel``, ...
+  ``as_dict()`` is the JSON of the command line (NaN as ``null``), built by one view per section
+  (:meth:`AnalysisResult.sections`); :func:`format_table`, :func:`flatten` render it as text or
+  as one flat record (the CSV row).
 
 Units: whatever the file's (lengths) and kn's (N/m); 2D moduli and stresses in N/m (force per
 length); vbar, ebar in N m (kn times a length squared). A section that cannot be computed (e.g.
-the theory below phi = pi/4, the stiffness of an open packing, any statistic of a network whose
-particles are all rattlers) holds ``{"error": "..."}`` with the reason instead of failing the
-whole analysis or reporting a 0/0 as a number.
+the stiffness of an open packing, any statistic of a network whose particles are all rattlers)
+holds a :class:`SectionError` with the reason (``{"error": "..."}`` in the JSON) instead of failing
+the whole analysis or reporting a 0/0 as a number; reading a field of it raises
+``AttributeError`` naming the reason.
 """
 from __future__ import annotations
 
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from microhom.closure import closure_inputs, predict_closure
-from microhom.hierarchy import DEFAULT_TOL, relaxation_hierarchy
-from microhom.moduli import predict_from_network
-from microhom.results import Result
-from microhom.structural_sums import network_statistics
+from microhom.closure import ClosurePrediction, closure_inputs, predict_closure
+from microhom.hierarchy import DEFAULT_TOL, HierarchyResult, relaxation_hierarchy
+from microhom.moduli import Prediction, predict_from_network
+from microhom.results import Result, to_plain
+from microhom.structural_sums import NetworkStatistics, network_statistics
 
 from .. import io
 from ..io.lammps_run import read_run
-from .measure import coordination, stress
-from .stiffness import stiffness
+from .measure import Coordination, coordination, stress
+from .stiffness import StiffnessResult, stiffness
 
 __all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS",
-           "AnalysisResult", "NOT_JAMMED"]
+           "AnalysisResult", "SectionError", "SectionWarnings", "FileInfo", "NetworkSummary",
+           "StressResult", "TheoryResult", "ClosureInputs", "Comparison", "NOT_JAMMED"]
 
 #: the reason given for every statistic of a network without a contact between non-rattlers
 NOT_JAMMED = ("not jammed: every particle is a rattler (no contact left once particles with fewer "
@@ -55,79 +59,435 @@ NOT_JAMMED = ("not jammed: every particle is a rattler (no contact left once par
 #: radii spread (max/min) above which the identical-disk theory gets a note
 DISPERSITY_NOTE = 1.0 + 1e-6
 
+#: the sections of the report, in the order of the JSON and the CSV
+SECTIONS = ("file", "network", "coordination", "structural", "stress", "theory", "closure",
+            "hierarchy", "stiffness", "comparison", "notes")
+
+
+@dataclass(frozen=True)
+class SectionError(Result):
+    """A section of :class:`AnalysisResult` that could not be computed, and why.
+
+    Attributes
+    ----------
+    message : str
+        The reason (e.g. :data:`NOT_JAMMED`, ``"not computed"``, the error the library raised).
+
+    ``as_dict()`` is the section's JSON, ``{"error": message}``. Reading any other attribute (as
+    if the section had been computed, ``res.hierarchy.K``) raises ``AttributeError`` naming the
+    reason, never a silent ``None``.
+    """
+
+    message: str
+
+    def as_dict(self) -> dict:
+        """``{"error": message}``, the section as the JSON prints it."""
+        return {"error": self.message}
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        raise AttributeError(f"{name!r}: this section was not computed "
+                             f"({self.__dict__.get('message', '?')})")
+
+
+@dataclass(frozen=True)
+class SectionWarnings(Result):
+    """The warnings a section's computation raised, one sentence each (empty: none); the JSON
+    lists them as the section's ``warnings`` key, the table as notes.
+
+    Attributes
+    ----------
+    coordination, structural, stress, theory, closure, hierarchy, stiffness : tuple of str
+        Per section of :class:`AnalysisResult`.
+    """
+
+    coordination: tuple = ()
+    structural: tuple = ()
+    stress: tuple = ()
+    theory: tuple = ()
+    closure: tuple = ()
+    hierarchy: tuple = ()
+    stiffness: tuple = ()
+
+
+@dataclass(frozen=True)
+class FileInfo(Result):
+    """What :func:`analyse_file` read and how long it took (the JSON's ``file`` section).
+
+    Attributes
+    ----------
+    source : str
+        The path as given.
+    format : str
+        One of :data:`FORMATS`.
+    forces : str or None
+        ``"from file"`` when the file carries contact forces and its own contact law, else None.
+    kn, kt : float
+        Mean contact stiffnesses of the network built [N/m] (NaN without contacts).
+    branch_length : str
+        ``"distance"`` or ``"radii"`` (:func:`load_network`).
+    spin_arm : str
+        Spin kinematics of the exact stiffness, ``"contact"`` or ``"radius"``.
+    read_s, analyse_s : float
+        Wall times of reading and of :func:`analyse` [s].
+    """
+
+    source: str
+    format: str
+    forces: str | None
+    kn: float
+    kt: float
+    branch_length: str
+    spin_arm: str
+    read_s: float
+    analyse_s: float
+
+
+@dataclass(frozen=True)
+class NetworkSummary(Result):
+    """Size and contact law of the network analysed (the JSON's ``network`` section).
+
+    Attributes
+    ----------
+    n_particles, n_contacts : int
+        Particles N and contacts C.
+    periodic : bool
+        True with a periodic cell.
+    kn_mean, kt_mean : float or None
+        Mean contact stiffnesses [N/m]; None without contacts.
+    forces : bool
+        True when the network carries contact forces ``fn``.
+    """
+
+    n_particles: int
+    n_contacts: int
+    periodic: bool
+    kn_mean: float | None
+    kt_mean: float | None
+    forces: bool
+
+
+@dataclass(frozen=True)
+class StressResult(Result):
+    """Love-Weber stress of the contact forces [N/m, 2D force per length], tension positive.
+
+    Attributes
+    ----------
+    pressure : float
+        ``-tr(sigma)/2`` [N/m].
+    sxx, syy, sxy : float
+        Components [N/m].
+    p_over_kn : float
+        Pressure over the mean ``kn`` [-].
+    """
+
+    pressure: float
+    sxx: float
+    syy: float
+    sxy: float
+    p_over_kn: float
+
+
+@dataclass(frozen=True)
+class TheoryResult(Result):
+    """The theory's two predictions (:func:`microhom.moduli.predict_from_network`, eqs. (37),
+    (50)-(51)); moduli [N/m].
+
+    Attributes
+    ----------
+    rho_prediction : microhom.moduli.Prediction
+        With the rho measured on the network (its ``K_mf``, ``G_mf`` are the mean field (37)).
+    alpha_prediction : microhom.moduli.Prediction
+        With rho of the alignment model (54) at ``alpha``.
+    alpha : float
+        The alignment width used, in [0, 2] (default ``2 (1 - 1/Nbar)``) [-].
+    """
+
+    rho_prediction: Prediction
+    alpha_prediction: Prediction
+    alpha: float
+
+
+@dataclass(frozen=True)
+class ClosureInputs(Result):
+    """The inputs of :func:`microhom.closure.predict_closure` measured on the network
+    (:func:`microhom.closure.closure_inputs`).
+
+    Attributes
+    ----------
+    nc : float
+        Mean coordination Z of the non-rattlers [-].
+    r : float
+        ``var(Z)/Z^2`` [-].
+    phi : float
+        Solid fraction [-].
+    kt_over_kn : float
+        Mean kt of the non-sliding contacts over the mean kn [-].
+    dispersity : float
+        Relative spread of the radii [-].
+    kn : float
+        Mean kn [N/m].
+    sliding_fraction, rattler_fraction : float
+        Fractions of contacts at the Coulomb limit and of particles that are rattlers [-].
+    size_coordination : float
+        Size-coordination correlation [-].
+    p_over_kn : float or None
+        Love-Weber pressure over kn [-]; None when not positive (then not passed to the closure).
+    """
+
+    nc: float
+    r: float
+    phi: float
+    kt_over_kn: float
+    dispersity: float
+    kn: float
+    sliding_fraction: float
+    rattler_fraction: float
+    size_coordination: float
+    p_over_kn: float | None = None
+
+
+@dataclass(frozen=True)
+class Comparison(Result):
+    """Each estimate's modulus over the exact one (dimensionless); None where either side was
+    not computed or the exact modulus is 0 (the JSON leaves those keys out).
+
+    Attributes
+    ----------
+    K_mf_over_exact, K_rho_over_exact, K_alpha_over_exact : float or None
+        The theory's mean field (37) and its corrections with the measured rho and with alpha.
+    K_closure_over_exact, K_hierarchy_over_exact : float or None
+        The closure and the hierarchy's best value.
+    G_mf_over_exact, G_rho_over_exact, G_alpha_over_exact : float or None
+        As above, shear modulus.
+    G_closure_over_exact, G_hierarchy_over_exact : float or None
+        As above, shear modulus.
+    """
+
+    K_mf_over_exact: float | None = None
+    K_rho_over_exact: float | None = None
+    K_alpha_over_exact: float | None = None
+    K_closure_over_exact: float | None = None
+    K_hierarchy_over_exact: float | None = None
+    G_mf_over_exact: float | None = None
+    G_rho_over_exact: float | None = None
+    G_alpha_over_exact: float | None = None
+    G_closure_over_exact: float | None = None
+    G_hierarchy_over_exact: float | None = None
+
+
+def _ok(x) -> bool:
+    """True when a section was computed (not a :class:`SectionError`)."""
+    return not isinstance(x, SectionError)
+
 
 @dataclass(frozen=True)
 class AnalysisResult(Result):
     """What ``python -m dem analyse`` reports on one packing file (:func:`analyse_file`).
 
-    Every field is one section of the report, a mapping of plain values (``{"error": reason}``
-    when the section cannot be computed); ``as_dict()`` is the command line's JSON (NaN -> null).
+    Every section is the library's own typed result, or a :class:`SectionError` saying why it
+    could not be computed. ``as_dict()`` is the command line's JSON (NaN -> null), one dict per
+    section in the order of :data:`SECTIONS` (:meth:`sections` gives the views; the key names
+    are the JSON's, e.g. ``hierarchy.K_upper`` is ``res.hierarchy.K.upper``).
 
     Attributes
     ----------
-    file : dict
-        ``source``, ``format``, ``forces`` ("from file" or None), ``kn``, ``kt`` (mean contact
-        stiffnesses used [N/m]), ``branch_length``, ``read_s``, ``analyse_s`` (wall times [s]).
-    network : dict
-        ``n_particles``, ``n_contacts``, ``periodic``, ``kn_mean``, ``kt_mean`` [N/m], ``forces``
-        (bool).
-    coordination : dict
-        ``z_all``, ``z`` (mean contacts per particle with / without rattlers), ``n_rattlers``,
-        ``rattler_fraction``, ``hist_all``, ``hist`` (contact-count histograms).
-    structural : dict
-        The statistics of :func:`microhom.structural_sums.network_statistics` (``nc``, ``r``,
-        ``rho`` with and without rattlers, ``phi``, ``nbar_phi``, ``diameter`` [m],
-        ``sliding_fraction``, ``vbar``, ``ebar`` measured and ``*_theory`` (37) [N m],
-        ``odd_norm``); ``r``, ``rho`` are ``None`` (not 0) when no particle is left.
-    stress : dict
-        Love-Weber stress [N/m], tension positive: ``sxx``, ``syy``, ``sxy``, ``pressure``
-        (``-tr/2``) and ``p_over_kn`` (pressure over the mean ``kn``, dimensionless).
-    theory : dict
-        Moduli of :mod:`microhom.moduli` [N/m]: mean field ``K_mf``, ``G_mf``; corrected with the
-        measured rho ``K_rho``, ``G_rho`` (``valid_rho``, ``reason_rho``); with the alignment model
-        ``K_alpha``, ``G_alpha`` at ``alpha`` (``rho_alpha``, ``valid_alpha``, ``reason_alpha``).
-    closure : dict
-        :func:`microhom.closure.predict_closure` on the inputs measured by
-        :func:`microhom.closure.closure_inputs` (Z as ``nc``, r, phi, kt/kn, dispersity, sliding
-        and rattler fractions, size-coordination, p/kn; all in the dict too): ``K``, ``G`` [N/m],
-        their stated errors ``error_K``, ``error_G`` [N/m] (per prediction, from the
-        leave-one-protocol-out residuals, docs/results/closure.md), ``valid`` and ``reason``.
-    hierarchy : dict
-        :func:`microhom.hierarchy.relaxation_hierarchy` (same pre-stress choice as the exact
-        stiffness; tolerance 1e-3, at most 16 CG steps): ``K``, ``G`` (best values), ``K_upper``,
-        ``G_upper`` (rigorous upper bounds), ``K_lower``, ``G_lower`` (rigorous lower bounds or
-        None), ``K_error``, ``G_error`` (stated errors) [N/m], ``order`` (CG steps),
-        ``converged``, ``unstable``, ``reasons``, ``time_s`` [s].
-    stiffness : dict
-        :func:`dem.analysis.stiffness.stiffness`: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m],
-        ``C_mandel`` (3, 3) [N/m], ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``,
-        ``n_dof``, ``residual``, ``time_s`` [s].
-    comparison : dict
-        ``{K,G}_{mf,rho,alpha,closure,hierarchy}_over_exact`` ratios (dimensionless).
-    notes : list of str
-        The assumptions made (kn, kt, frame) and what the reader warned.
+    network : NetworkSummary
+        Particles, contacts, periodicity, mean ``kn``, ``kt`` [N/m], forces.
+    coordination : dem.analysis.measure.Coordination or SectionError
+        Mean contacts per particle with (``z_all``) and without (``z``) rattlers, histograms,
+        rattlers. ``z`` is NaN (JSON null) when every particle is a rattler.
+    structural : microhom.structural_sums.NetworkStatistics or SectionError
+        Nc, r, rho with and without rattlers, phi, Nbar(phi), mean diameter [m], sliding
+        fraction, vbar, ebar measured and of (37) [N m], odd-sum norm; :data:`NOT_JAMMED` when no
+        contact is left between non-rattlers.
+    stress : StressResult or SectionError
+        Love-Weber stress [N/m], when the network has contact forces.
+    theory : TheoryResult or SectionError
+        The predictions with the measured rho (``theory.rho_prediction``) and with the alignment
+        model (``theory.alpha_prediction``, ``theory.alpha``) [N/m].
+    closure : microhom.closure.ClosurePrediction or SectionError
+        The statistics-only closure (0-d arrays): ``K``, ``G`` [N/m] and their stated errors
+        ``error_K``, ``error_G`` [N/m] (per prediction, leave-one-protocol-out residuals,
+        docs/results/closure.md), ``valid``, ``reason``.
+    closure_inputs : ClosureInputs or SectionError
+        What the closure was given (Z, r, phi, kt/kn, ...); printed in the JSON's ``closure``
+        section after the prediction.
+    hierarchy : microhom.hierarchy.HierarchyResult or SectionError
+        The relaxation hierarchy (same pre-stress choice as the exact stiffness, at most 16 CG
+        steps): ``hierarchy.K.value``, ``.upper`` (rigorous upper bound), ``.lower`` (rigorous
+        lower bound or None), ``.error`` (stated) [N/m], ``order``, ``converged``, ``unstable``,
+        ``valid``, ``certified``, ``calibrated``, ``reasons``.
+    hierarchy_s : float or None
+        Wall time of the hierarchy [s] (None when not computed).
+    stiffness : dem.analysis.stiffness.StiffnessResult or SectionError
+        The exact stiffness: ``K``, ``G``, ``K_affine``, ``G_affine`` [N/m], ``C_mandel``
+        (3, 3) [N/m], ``prestress``, ``n_rattlers``, ``n_floppy``, ``n_unstable``, ``n_dof``,
+        ``residual``; its wall time is ``assembly_time + solve_time`` [s].
+    rho_neighbours : str
+        The neighbourhood of the measured rho asked for, ``"near"`` or ``"contacts"`` (the JSON's
+        ``structural.rho_neighbours``); ``structural.rho_neighbours`` is the one used, ``"contacts"``
+        when no near neighbourhood fits (``structural.rho_note`` says why).
+    warnings : SectionWarnings
+        What each section's computation warned.
+    notes : tuple of str
+        The assumptions made (kn, kt, frame, spin arms) and what the reader warned.
+    file : FileInfo or None
+        What was read and the wall times [s]; None from :func:`analyse` (JSON ``{}``).
+    comparison : Comparison
+        (property) Each estimate over the exact modulus.
     """
 
-    file: dict = field(default_factory=dict)
-    network: dict = field(default_factory=dict)
-    coordination: dict = field(default_factory=dict)
-    structural: dict = field(default_factory=dict)
-    stress: dict = field(default_factory=dict)
-    theory: dict = field(default_factory=dict)
-    closure: dict = field(default_factory=dict)
-    hierarchy: dict = field(default_factory=dict)
-    stiffness: dict = field(default_factory=dict)
-    comparison: dict = field(default_factory=dict)
-    notes: list = field(default_factory=list)
-
-    def sections(self) -> dict:
-        """The sections as they are (numpy scalars and NaN kept), in report order."""
-        return {name: getattr(self, name) for name in self.__dataclass_fields__}
+    network: NetworkSummary
+    coordination: Coordination | SectionError
+    structural: NetworkStatistics | SectionError
+    stress: StressResult | SectionError
+    theory: TheoryResult | SectionError
+    closure: ClosurePrediction | SectionError
+    closure_inputs: ClosureInputs | SectionError
+    hierarchy: HierarchyResult | SectionError
+    hierarchy_s: float | None
+    stiffness: StiffnessResult | SectionError
+    rho_neighbours: str = "near"
+    warnings: SectionWarnings = field(default_factory=SectionWarnings)
+    notes: tuple = ()
+    file: FileInfo | None = None
 
     @property
     def jammed(self) -> bool:
         """False when no contact is left between non-rattlers (see :data:`NOT_JAMMED`)."""
-        return self.structural.get("error") != NOT_JAMMED
+        return _ok(self.structural) or self.structural.message != NOT_JAMMED
+
+    @property
+    def comparison(self) -> Comparison:
+        """Each estimate's modulus over the exact one (:class:`Comparison`)."""
+        ex, th, cl, hi = self.stiffness, self.theory, self.closure, self.hierarchy
+        out = {}
+        if _ok(ex):
+            exact = {"K": ex.K, "G": ex.G}
+            for k in ("K", "G"):
+                if exact[k] == 0:
+                    continue
+                if _ok(th):
+                    p, pa = th.rho_prediction, th.alpha_prediction
+                    est = {"mf": float(getattr(p, f"{k}_mf")), "rho": float(getattr(p, k)),
+                           "alpha": float(getattr(pa, k))}
+                    for lab in ("mf", "rho", "alpha"):
+                        out[f"{k}_{lab}_over_exact"] = est[lab] / exact[k]
+                if _ok(cl):
+                    out[f"{k}_closure_over_exact"] = float(getattr(cl, k)) / exact[k]
+                if _ok(hi):
+                    out[f"{k}_hierarchy_over_exact"] = getattr(hi, k).value / exact[k]
+        return Comparison(**out)
+
+    def sections(self) -> dict:
+        """The JSON sections, in report order (:data:`SECTIONS`), as plain dicts of the typed
+        results' values (numpy scalars and NaN kept; ``as_dict()`` makes them JSON-ready)."""
+        w = self.warnings
+
+        def warned(view, sec):
+            extra = getattr(w, sec)
+            return {**view, "warnings": list(extra)} if extra else view
+
+        return {
+            "file": {} if self.file is None else _file_view(self.file),
+            "network": _network_view(self.network),
+            "coordination": warned(_view(self.coordination, _coordination_view), "coordination"),
+            "structural": warned(_view(self.structural,
+                                       lambda st: _statistics_view(st, self.rho_neighbours)),
+                                 "structural"),
+            "stress": warned(_view(self.stress, _stress_view), "stress"),
+            "theory": warned(_view(self.theory, _theory_view), "theory"),
+            "closure": warned(_view(self.closure, lambda p: _closure_view(p, self.closure_inputs)),
+                              "closure"),
+            "hierarchy": warned(_view(self.hierarchy, lambda h: _hierarchy_view(h, self.hierarchy_s)),
+                                "hierarchy"),
+            "stiffness": warned(_view(self.stiffness, _stiffness_view), "stiffness"),
+            "comparison": _comparison_view(self.comparison),
+            "notes": list(self.notes),
+        }
+
+    def as_dict(self) -> dict:
+        """The command line's JSON: :meth:`sections` as plain Python (NaN/inf -> None)."""
+        return {name: to_plain(view) for name, view in self.sections().items()}
+
+
+# ---- the views: each typed result as its JSON section (the keys the command line has always
+# written; a field the view names and the result lacks raises AttributeError) --------------------
+
+def _view(x, view):
+    return x.as_dict() if isinstance(x, SectionError) else view(x)
+
+
+def _file_view(f: FileInfo) -> dict:
+    return {k.name: getattr(f, k.name) for k in fields(f)}
+
+
+def _network_view(n: NetworkSummary) -> dict:
+    return {k.name: getattr(n, k.name) for k in fields(n)}
+
+
+def _coordination_view(c: Coordination) -> dict:
+    z = None if isinstance(c.z, float) and math.isnan(c.z) else c.z   # the mean over no particle
+    return {"z_all": c.z_all, "z": z, "n_rattlers": c.n_rattlers,
+            "rattler_fraction": c.rattler_fraction,
+            "hist_all": np.asarray(c.hist_all).tolist(), "hist": np.asarray(c.hist).tolist()}
+
+
+_STAT_KEYS = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi",
+              "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
+              "ebar_theory", "odd_norm", "rho_nbar", "rho_note")
+
+
+def _statistics_view(st: NetworkStatistics, rho_neighbours: str) -> dict:
+    out = {k: getattr(st, k) for k in _STAT_KEYS}
+    out["rho_neighbours"] = rho_neighbours     # as asked (st.rho_neighbours: as used)
+    # r = var/mean^2 and rho = sum V.W / sum V^2 are 0/0 without contacts: None, never 0
+    if not out["nc_all"]:
+        out["r_all"] = out["rho_all"] = None
+    if not out["nc"]:
+        out["r"] = out["rho"] = None
+    return out
+
+
+def _stress_view(s: StressResult) -> dict:
+    return {k.name: getattr(s, k.name) for k in fields(s)}
+
+
+def _theory_view(t: TheoryResult) -> dict:
+    p, pa = t.rho_prediction, t.alpha_prediction
+    return {"K_mf": float(p.K_mf), "G_mf": float(p.G_mf), "K_rho": float(p.K), "G_rho": float(p.G),
+            "rho": float(p.rho), "nbar": float(p.nbar), "valid_rho": bool(p.valid),
+            "reason_rho": str(p.reason),
+            "alpha": float(t.alpha), "K_alpha": float(pa.K), "G_alpha": float(pa.G),
+            "rho_alpha": float(pa.rho), "valid_alpha": bool(pa.valid), "reason_alpha": str(pa.reason)}
+
+
+def _closure_view(p: ClosurePrediction, x: ClosureInputs) -> dict:
+    inputs = {k.name: float(getattr(x, k.name)) for k in fields(x) if getattr(x, k.name) is not None}
+    return {"K": float(p.K), "G": float(p.G), "error_K": float(p.error_K), "error_G": float(p.error_G),
+            "valid": bool(p.valid), "reason": str(p.reason), **inputs}
+
+
+def _hierarchy_view(h: HierarchyResult, time_s) -> dict:
+    return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
+            "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
+            "order": h.order, "converged": h.converged, "unstable": h.unstable,
+            "valid": h.valid, "certified": h.certified, "calibrated": h.calibrated,
+            "reasons": list(h.reasons), "time_s": time_s}
+
+
+def _stiffness_view(r: StiffnessResult) -> dict:
+    return {"K": r.K, "G": r.G, "K_affine": r.K_affine, "G_affine": r.G_affine,
+            "C_mandel": np.asarray(r.C_mandel).tolist(), "prestress": r.prestress,
+            "n_rattlers": r.n_rattlers, "n_floppy": r.n_floppy, "n_unstable": r.n_unstable,
+            "n_dof": r.n_dof, "residual": r.residual, "time_s": r.assembly_time + r.solve_time}
+
+
+def _comparison_view(c: Comparison) -> dict:
+    return {k.name: getattr(c, k.name) for k in fields(c) if getattr(c, k.name) is not None}
+
 
 #: accepted ``format`` names: dem.io's plus the packing checkpoint and a LAMMPS run folder
 FORMATS = ("lammps-data", "lammps-dump", "oval", "npz", "csv", "vtk", "packing", "lammps-run")
@@ -249,89 +609,39 @@ def _elastic_normal_forces(net):
 
 
 def _section(fn, *args, **kwargs):
+    """``(fn(...), warnings raised)``, or ``(SectionError(reason), ())`` when it fails."""
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             out = fn(*args, **kwargs)
-        if caught:
-            out["warnings"] = [str(w.message) for w in caught]
-        return out
+        return out, tuple(str(w.message) for w in caught)
     except (ValueError, np.linalg.LinAlgError, RuntimeError) as exc:
-        return {"error": str(exc)}
+        return SectionError(str(exc)), ()
 
 
-def _get(obj, key):
-    """``obj[key]`` for a dict, ``obj.key`` for a result dataclass (either shape is accepted)."""
-    return obj[key] if isinstance(obj, dict) else getattr(obj, key)
-
-
-def _coordination(net, min_contacts):
-    c = coordination(net, min_contacts)
-    return {"z_all": _get(c, "z_all"), "z": _get(c, "z"), "n_rattlers": _get(c, "n_rattlers"),
-            "rattler_fraction": _get(c, "rattler_fraction"),
-            "hist_all": np.asarray(_get(c, "hist_all")).tolist(),
-            "hist": np.asarray(_get(c, "hist")).tolist()}
-
-
-_STAT_KEYS = ("n_particles", "n_contacts", "nc_all", "nc", "r_all", "r", "rho_all", "rho", "phi",
-              "nbar_phi", "diameter", "sliding_fraction", "vbar", "ebar", "vbar_theory",
-              "ebar_theory", "odd_norm", "rho_nbar", "rho_note")
-
-
-def _statistics(net, min_contacts, rho_neighbours="near"):
-    st = network_statistics(net, min_contacts, rho_neighbours=rho_neighbours)
-    get = (lambda k: st.get(k)) if isinstance(st, dict) else (lambda k: getattr(st, k, None))
-    out = {k: get(k) for k in _STAT_KEYS}
-    out["rho_neighbours"] = rho_neighbours
-    # r = var/mean^2 and rho = sum V.W / sum V^2 are 0/0 without contacts: None, never 0
-    if not out["nc_all"]:
-        out["r_all"] = out["rho_all"] = None
-    if not out["nc"]:
-        out["r"] = out["rho"] = None
-    return out
-
-
-def _stress(net):
+def _stress(net) -> StressResult:
     s = stress(net)
-    return {"pressure": float(-np.trace(s) / 2), "sxx": float(s[0, 0]), "syy": float(s[1, 1]),
-            "sxy": float(s[0, 1]), "p_over_kn": float(-np.trace(s) / 2 / np.mean(net.kn))}
+    return StressResult(pressure=float(-np.trace(s) / 2), sxx=float(s[0, 0]), syy=float(s[1, 1]),
+                        sxy=float(s[0, 1]), p_over_kn=float(-np.trace(s) / 2 / np.mean(net.kn)))
 
 
-def _theory(net, alpha, min_contacts, rho_neighbours="near"):
+def _theory(net, alpha, min_contacts, rho_neighbours="near") -> TheoryResult:
     p = predict_from_network(net, warn=False, min_contacts=min_contacts, rho_neighbours=rho_neighbours)
-    out = {"K_mf": float(p.K_mf), "G_mf": float(p.G_mf), "K_rho": float(p.K), "G_rho": float(p.G),
-           "rho": float(p.rho), "nbar": float(p.nbar), "valid_rho": bool(p.valid),
-           "reason_rho": str(p.reason)}
     pa = predict_from_network(net, warn=False, measured_rho=False, alpha=alpha, min_contacts=min_contacts)
     a = alpha if alpha is not None else 2.0 * (1.0 - 1.0 / float(pa.nbar))
-    out.update({"alpha": float(a), "K_alpha": float(pa.K), "G_alpha": float(pa.G), "rho_alpha": float(pa.rho),
-                "valid_alpha": bool(pa.valid), "reason_alpha": str(pa.reason)})
-    return out
+    return TheoryResult(rho_prediction=p, alpha_prediction=pa, alpha=float(a))
 
 
-def _closure(net, structural):
-    x = closure_inputs(net)       # Z, r, phi, sliding and rattler fractions, dispersity, size-coordination, p/kn
-    p = predict_closure(**x)
-    return {"K": float(p.K), "G": float(p.G), "error_K": float(p.error_K), "error_G": float(p.error_G),
-            "valid": bool(p.valid), "reason": str(p.reason), **{k: float(v) for k, v in x.items()}}
+def _closure(net):
+    x = ClosureInputs(**closure_inputs(net))   # Z, r, phi, sliding and rattler fractions, dispersity, ...
+    kw = {k.name: getattr(x, k.name) for k in fields(x) if getattr(x, k.name) is not None}
+    return predict_closure(**kw), x
 
 
 def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
     t0 = time.perf_counter()
     h = relaxation_hierarchy(net, prestress=prestress, tol=tol, max_order=16, min_contacts=min_contacts)
-    return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
-            "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
-            "order": h.order, "converged": h.converged, "unstable": h.unstable,
-            "valid": h.valid, "certified": h.certified, "calibrated": h.calibrated,
-            "reasons": list(h.reasons), "time_s": time.perf_counter() - t0}
-
-
-def _stiffness(net, prestress, min_contacts, spin_arm="contact"):
-    r = stiffness(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
-    return {"K": r.K, "G": r.G, "K_affine": r.K_affine, "G_affine": r.G_affine,
-            "C_mandel": np.asarray(r.C_mandel).tolist(), "prestress": r.prestress,
-            "n_rattlers": r.n_rattlers, "n_floppy": r.n_floppy, "n_unstable": r.n_unstable,
-            "n_dof": r.n_dof, "residual": r.residual, "time_s": r.assembly_time + r.solve_time}
+    return h, time.perf_counter() - t0
 
 
 def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
@@ -369,73 +679,79 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     Returns
     -------
     AnalysisResult
-        Its ``file`` section empty. A network without a contact between non-rattlers is not
-        jammed: its statistics, theory and stiffness sections hold ``{"error": NOT_JAMMED}``
-        instead of 0/0 values.
+        Its ``file`` None. A network without a contact between non-rattlers is not jammed: its
+        statistics, theory, closure, hierarchy and stiffness hold ``SectionError(NOT_JAMMED)``
+        instead of 0/0 values, and its coordination's ``z`` is NaN.
     """
     notes = []
-    network = {"n_particles": net.n_particles, "n_contacts": net.n_contacts,
-               "periodic": net.cell is not None,
-               "kn_mean": float(np.mean(net.kn)) if net.n_contacts else None,
-               "kt_mean": float(np.mean(net.kt)) if net.n_contacts else None,
-               "forces": net.fn is not None}
-    coord = _section(_coordination, net, min_contacts)
-    jammed = "error" in coord or coord["n_rattlers"] < net.n_particles
+    network = NetworkSummary(n_particles=net.n_particles, n_contacts=net.n_contacts,
+                             periodic=net.cell is not None,
+                             kn_mean=float(np.mean(net.kn)) if net.n_contacts else None,
+                             kt_mean=float(np.mean(net.kt)) if net.n_contacts else None,
+                             forces=net.fn is not None)
+    w = {}
+    coord, w["coordination"] = _section(coordination, net, min_contacts)
+    jammed = not _ok(coord) or coord.n_rattlers < net.n_particles
     if not jammed:
-        coord["z"] = None  # the mean over no particle
-    structural = _section(_statistics, net, min_contacts, rho_neighbours) if jammed else {"error": NOT_JAMMED}
-    stress_ = (_section(_stress, net) if net.fn is not None and net.n_contacts
-               else {"error": "no contact forces in the file" if net.fn is None else "no contacts"})
-    theory = _section(_theory, net, alpha, min_contacts, rho_neighbours) if jammed else {"error": NOT_JAMMED}
-    closure = (_section(_closure, net, structural) if jammed and "error" not in structural
-               else {"error": structural.get("error", NOT_JAMMED)})
+        coord = replace(coord, z=float("nan"))   # the mean over no particle
+    not_jammed = SectionError(NOT_JAMMED)
+    if jammed:
+        structural, w["structural"] = _section(network_statistics, net, min_contacts,
+                                               rho_neighbours=rho_neighbours)
+    else:
+        structural = not_jammed
+    if net.fn is not None and net.n_contacts:
+        stress_, w["stress"] = _section(_stress, net)
+    else:
+        stress_ = SectionError("no contact forces in the file" if net.fn is None else "no contacts")
+    theory = not_jammed
+    if jammed:
+        theory, w["theory"] = _section(_theory, net, alpha, min_contacts, rho_neighbours)
+    if jammed and _ok(structural):
+        cl, w["closure"] = _section(_closure, net)
+        closure, closure_in = cl if _ok(cl) else (cl, cl)
+    else:
+        closure = closure_in = structural if not _ok(structural) else not_jammed
     snet = net
     if prestress and net.fn is None and (exact or hierarchy):
         snet = replace(net, fn=_elastic_normal_forces(net))
         notes.append("--prestress: the file has no contact forces; fn = kn * overlap (linear law)")
+    hier_s = None
     if not hierarchy:
-        hier = {"error": "not computed"}
+        hier = SectionError("not computed")
     elif not jammed:
-        hier = {"error": NOT_JAMMED}
+        hier = not_jammed
     elif net.cell is None:
-        hier = {"error": "open packing: the hierarchy estimates the stiffness of a periodic cell"}
+        hier = SectionError("open packing: the hierarchy estimates the stiffness of a periodic cell")
     else:
-        hier = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol)
+        h, w["hierarchy"] = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol)
+        hier, hier_s = h if _ok(h) else (h, None)
     if not exact:
-        stiff = {"error": "not computed"}
+        stiff = SectionError("not computed")
     elif not jammed:
-        stiff = {"error": NOT_JAMMED}
+        stiff = not_jammed
     else:
-        stiff = _section(_stiffness, snet, prestress, min_contacts, spin_arm)
+        stiff, w["stiffness"] = _section(stiffness, snet, prestress=prestress,
+                                         min_contacts=min_contacts, spin_arm=spin_arm)
     if not jammed:
         notes.append(NOT_JAMMED)
     if net.n_particles and net.radii.max() > DISPERSITY_NOTE * net.radii.min():
         notes.append(f"the radii differ (max/min = {net.radii.max() / net.radii.min():.3g}, "
                      f"relative spread {np.std(net.radii) / np.mean(net.radii):.3g}): the theory "
                      "is for identical disks, its moduli are a reference for this packing")
-    cmp = {}
-    if "error" not in stiff:
-        for k in ("K", "G"):
-            if stiff[k] == 0:
-                continue
-            if "error" not in theory:
-                for lab in ("mf", "rho", "alpha"):
-                    cmp[f"{k}_{lab}_over_exact"] = theory[f"{k}_{lab}"] / stiff[k]
-            if "error" not in closure:
-                cmp[f"{k}_closure_over_exact"] = closure[k] / stiff[k]
-            if "error" not in hier:
-                cmp[f"{k}_hierarchy_over_exact"] = hier[k] / stiff[k]
     return AnalysisResult(network=network, coordination=coord, structural=structural,
-                          stress=stress_, theory=theory, closure=closure, hierarchy=hier,
-                          stiffness=stiff, comparison=cmp, notes=notes)
+                          stress=stress_, theory=theory, closure=closure, closure_inputs=closure_in,
+                          hierarchy=hier, hierarchy_s=hier_s, stiffness=stiff,
+                          rho_neighbours=rho_neighbours,
+                          warnings=SectionWarnings(**w), notes=tuple(notes))
 
 
 def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
                  branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
                  radius=None, exact=True, hierarchy=True, spin_arm=None,
                  hierarchy_tol=DEFAULT_TOL, rho_neighbours="near") -> AnalysisResult:
-    """:func:`load_network` then :func:`analyse`; the result's ``file`` section says what was read
-    and how long it took, its notes start with the assumptions made while reading.
+    """:func:`load_network` then :func:`analyse`; the result's ``file`` (:class:`FileInfo`) says
+    what was read and how long it took, its notes start with the assumptions made while reading.
 
     ``spin_arm=None`` (default) matches the exact stiffness's spin kinematics to the file's code:
     ``"radius"`` for LAMMPS files and run folders (``gran/*`` turns spins about the radius),
@@ -453,9 +769,9 @@ def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
         why = "matched to the file's code" if file_arm == "radius" else "the exact solver's default"
     else:
         why = "as asked" + ("" if spin_arm == file_arm else f"; the file's code uses {file_arm!r}")
-    info["spin_arm"] = spin_arm
+    notes = list(info["notes"])
     if exact:
-        info["notes"].append(
+        notes.append(
             f"spin arms of the exact stiffness: {spin_arm!r} ({why}; "
             + ("the radius r_i, as LAMMPS gran/*" if spin_arm == "radius" else
                "the distance to the contact point |c| r_i/(r_i + r_j)")
@@ -463,13 +779,15 @@ def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact,
                   hierarchy=hierarchy, spin_arm=spin_arm, hierarchy_tol=hierarchy_tol,
                   rho_neighbours=rho_neighbours)
-    notes = info.pop("notes") + res.notes
-    return replace(res, file={**info, "read_s": t1 - t0, "analyse_s": time.perf_counter() - t1},
-                   notes=notes)
+    file = FileInfo(source=info["source"], format=info["format"], forces=info["forces"],
+                    kn=info["kn"], kt=info["kt"], branch_length=info["branch_length"],
+                    spin_arm=spin_arm, read_s=t1 - t0, analyse_s=time.perf_counter() - t1)
+    return replace(res, file=file, notes=tuple(notes) + res.notes)
 
 
 def flatten(res) -> dict:
-    """One flat record ``section.key -> scalar`` (lists joined with spaces), for CSV/JSON rows."""
+    """One flat record ``section.key -> scalar`` (lists joined with spaces), for CSV/JSON rows;
+    ``res`` an :class:`AnalysisResult` (or its :meth:`~AnalysisResult.sections`)."""
     sections = res.sections() if isinstance(res, AnalysisResult) else res
     flat = {}
     for sec, d in sections.items():
@@ -493,109 +811,114 @@ def _g(x, fmt=".6g"):
     return format(x, fmt) if isinstance(x, (int, float, np.floating, np.integer)) else str(x)
 
 
-def format_table(res) -> str:
-    """The readable report of :func:`analyse_file` (an :class:`AnalysisResult`)."""
-    if isinstance(res, AnalysisResult):
-        res = res.sections()
+def format_table(res: AnalysisResult) -> str:
+    """The readable report of :func:`analyse_file` (an :class:`AnalysisResult`), read from its
+    typed results."""
+    if not isinstance(res, AnalysisResult):
+        raise TypeError(f"format_table needs an AnalysisResult, got {type(res).__name__}")
     L = []
-    f = res.get("file", {})
-    nw = res["network"]
-    L.append(f"file: {f.get('source', '?')}  (format {f.get('format', '?')}, read in {_g(f.get('read_s'), '.3f')} s, "
-             f"analysed in {_g(f.get('analyse_s'), '.3f')} s)")
-    L.append(f"network: N = {nw['n_particles']}, contacts = {nw['n_contacts']}, "
-             f"{'periodic' if nw['periodic'] else 'open'}, kn = {_g(nw['kn_mean'])}, kt = {_g(nw['kt_mean'])}, "
-             f"branch = {f.get('branch_length', 'distance')}, forces: {'yes' if nw['forces'] else 'no'}")
-    c = res["coordination"]
+    f, nw = res.file, res.network
+    src, fmt = (f.source, f.format) if f is not None else ("?", "?")
+    read_s, analyse_s = (f.read_s, f.analyse_s) if f is not None else (None, None)
+    L.append(f"file: {src}  (format {fmt}, read in {_g(read_s, '.3f')} s, "
+             f"analysed in {_g(analyse_s, '.3f')} s)")
+    L.append(f"network: N = {nw.n_particles}, contacts = {nw.n_contacts}, "
+             f"{'periodic' if nw.periodic else 'open'}, kn = {_g(nw.kn_mean)}, kt = {_g(nw.kt_mean)}, "
+             f"branch = {f.branch_length if f is not None else 'distance'}, "
+             f"forces: {'yes' if nw.forces else 'no'}")
+    c, s = res.coordination, res.structural
     L.append("")
     L.append("coordination")
-    if "error" in c:
-        L.append(f"  n/a: {c['error']}")
+    if not _ok(c):
+        L.append(f"  n/a: {c.message}")
     else:
         L.append(f"  {'':28}{'all particles':>16}{'no rattlers':>16}")
-        s = res["structural"]
-        L.append(f"  {'mean Z':28}{_g(c['z_all'], '.5f'):>16}{_g(c['z'], '.5f'):>16}")
-        if "error" not in s:
-            L.append(f"  {'r = var(Z)/Z^2':28}{_g(s['r_all'], '.5f'):>16}{_g(s['r'], '.5f'):>16}")
-            hood = ("V over contacts" if s.get("rho_neighbours") == "contacts"
-                    else f"V over Nbar = {_g(s.get('rho_nbar'), '.3g')}")
-            L.append(f"  {'rho (' + hood + ')':28}{_g(s['rho_all'], '.5f'):>16}{_g(s['rho'], '.5f'):>16}")
-            if s.get("rho_note"):
-                L.append(f"  rho: {s['rho_note']}")
-        L.append(f"  rattlers: {c['n_rattlers']} ({100 * c['rattler_fraction']:.2f} %); "
-                 f"contact-count histogram (0, 1, 2, ...): {c['hist_all']}")
-    s = res["structural"]
+        L.append(f"  {'mean Z':28}{_g(c.z_all, '.5f'):>16}{_g(c.z, '.5f'):>16}")
+        if _ok(s):
+            L.append(f"  {'r = var(Z)/Z^2':28}{_g(s.r_all, '.5f'):>16}{_g(s.r, '.5f'):>16}")
+            hood = ("V over contacts" if res.rho_neighbours == "contacts"
+                    else f"V over Nbar = {_g(s.rho_nbar, '.3g')}")
+            L.append(f"  {'rho (' + hood + ')':28}{_g(s.rho_all, '.5f'):>16}{_g(s.rho, '.5f'):>16}")
+            if s.rho_note:
+                L.append(f"  rho: {s.rho_note}")
+        L.append(f"  rattlers: {c.n_rattlers} ({100 * c.rattler_fraction:.2f} %); "
+                 f"contact-count histogram (0, 1, 2, ...): {np.asarray(c.hist_all).tolist()}")
     L.append("")
     L.append("structural sums (mean A4 over non-rattlers, isotropic fit) vs (37)")
-    if "error" in s:
-        L.append(f"  n/a: {s['error']}")
+    if not _ok(s):
+        L.append(f"  n/a: {s.message}")
     else:
         L.append(f"  {'':10}{'measured':>14}{'(37)':>14}{'ratio':>10}")
-        for k in ("vbar", "ebar"):
-            m, t = s.get(k), s.get(k + "_theory")
+        for k, m, t in (("vbar", s.vbar, s.vbar_theory), ("ebar", s.ebar, s.ebar_theory)):
             ratio = (m / t) if (m is not None and t) else None
             L.append(f"  {k + ' [N m]':10}{_g(m):>14}{_g(t):>14}{_g(ratio, '.4f'):>10}")
-        L.append(f"  phi = {_g(s['phi'], '.5f')}, Nbar(phi) = {_g(s['nbar_phi'], '.4f')}, "
-                 f"mean D = {_g(s['diameter'], '.5g')}, sliding fraction = {_g(s['sliding_fraction'], '.4f')}, "
-                 f"odd-sum norm |A3|/(kn D) = {_g(s.get('odd_norm'), '.4g')}")
-    st = res["stress"]
+        L.append(f"  phi = {_g(s.phi, '.5f')}, Nbar(phi) = {_g(s.nbar_phi, '.4f')}, "
+                 f"mean D = {_g(s.diameter, '.5g')}, sliding fraction = {_g(s.sliding_fraction, '.4f')}, "
+                 f"odd-sum norm |A3|/(kn D) = {_g(s.odd_norm, '.4g')}")
+    st = res.stress
     L.append("")
-    if "error" in st:
-        L.append(f"stress: n/a ({st['error']})")
+    if not _ok(st):
+        L.append(f"stress: n/a ({st.message})")
     else:
-        L.append(f"stress (Love-Weber, tension positive, force/length): sxx = {_g(st['sxx'])}, "
-                 f"syy = {_g(st['syy'])}, sxy = {_g(st['sxy'])}; pressure = {_g(st['pressure'])} "
-                 f"(p/kn = {_g(st['p_over_kn'], '.4g')})")
-    th, ex = res["theory"], res["stiffness"]
+        L.append(f"stress (Love-Weber, tension positive, force/length): sxx = {_g(st.sxx)}, "
+                 f"syy = {_g(st.syy)}, sxy = {_g(st.sxy)}; pressure = {_g(st.pressure)} "
+                 f"(p/kn = {_g(st.p_over_kn, '.4g')})")
+    th, ex, cmp = res.theory, res.stiffness, res.comparison
     L.append("")
     L.append("moduli (2D, force/length)")
     L.append(f"  {'estimate':44}{'K [N/m]':>14}{'G [N/m]':>14}{'K/exact':>10}{'G/exact':>10}")
-    cmp = res.get("comparison", {})
-    if "error" in th:
-        L.append(f"  theory: n/a ({th['error']})")
+
+    def ratios(lab):
+        return (f"{_g(getattr(cmp, f'K_{lab}_over_exact'), '.4f'):>10}"
+                f"{_g(getattr(cmp, f'G_{lab}_over_exact'), '.4f'):>10}")
+
+    def flag(p):
+        return "" if bool(p.valid) else "  FLAGGED: " + str(p.reason)
+
+    if not _ok(th):
+        L.append(f"  theory: n/a ({th.message})")
     else:
-        rows = [("mean field (37)", "mf", ""),
-                (f"corrected, measured rho = {th['rho']:.4f}", "rho",
-                 "" if th["valid_rho"] else "  FLAGGED: " + th["reason_rho"]),
-                (f"corrected, alpha = {th['alpha']:.4g} (rho = {th['rho_alpha']:.4f})", "alpha",
-                 "" if th["valid_alpha"] else "  FLAGGED: " + th["reason_alpha"])]
-        for name, lab, flag in rows:
-            L.append(f"  {name:44}{_g(th['K_' + lab]):>14}{_g(th['G_' + lab]):>14}"
-                     f"{_g(cmp.get(f'K_{lab}_over_exact'), '.4f'):>10}{_g(cmp.get(f'G_{lab}_over_exact'), '.4f'):>10}{flag}")
-    cl, hi = res.get("closure", {}), res.get("hierarchy", {})
-    if cl and "error" not in cl:
-        flag = "" if cl["valid"] else "  FLAGGED: " + cl["reason"]
-        L.append(f"  {'closure (statistics only)':44}{_g(cl['K']):>14}{_g(cl['G']):>14}"
-                 f"{_g(cmp.get('K_closure_over_exact'), '.4f'):>10}{_g(cmp.get('G_closure_over_exact'), '.4f'):>10}{flag}")
-        L.append(f"  {'  stated error (this prediction)':44}{_g(cl['error_K'], '.3g'):>14}{_g(cl['error_G'], '.3g'):>14}")
-    elif cl:
-        L.append(f"  closure: n/a ({cl['error']})")
-    if hi and "error" not in hi:
-        flag = "" if hi.get("valid", True) else "  FLAGGED: not valid (see notes)"
-        L.append(f"  {'hierarchy (%d CG steps), value' % hi['order']:44}{_g(hi['K']):>14}{_g(hi['G']):>14}"
-                 f"{_g(cmp.get('K_hierarchy_over_exact'), '.4f'):>10}{_g(cmp.get('G_hierarchy_over_exact'), '.4f'):>10}{flag}")
-        L.append(f"  {'  rigorous upper bound':44}{_g(hi['K_upper']):>14}{_g(hi['G_upper']):>14}")
-        L.append(f"  {'  rigorous lower bound':44}{_g(hi['K_lower']):>14}{_g(hi['G_lower']):>14}")
-        L.append(f"  {'  stated error':44}{_g(hi['K_error'], '.3g'):>14}{_g(hi['G_error'], '.3g'):>14}"
-                 f"  ({'converged' if hi['converged'] else 'tolerance not met'}"
-                 f"{', UNSTABLE' if hi['unstable'] else ''}, {hi['time_s']:.3f} s)")
-    elif hi:
-        L.append(f"  hierarchy: n/a ({hi['error']})")
-    if "error" in ex:
-        L.append(f"  exact: n/a ({ex['error']})")
+        p, pa = th.rho_prediction, th.alpha_prediction
+        rows = [("mean field (37)", "mf", float(p.K_mf), float(p.G_mf), ""),
+                (f"corrected, measured rho = {float(p.rho):.4f}", "rho", float(p.K), float(p.G), flag(p)),
+                (f"corrected, alpha = {th.alpha:.4g} (rho = {float(pa.rho):.4f})", "alpha",
+                 float(pa.K), float(pa.G), flag(pa))]
+        for name, lab, K, G, fl in rows:
+            L.append(f"  {name:44}{_g(K):>14}{_g(G):>14}{ratios(lab)}{fl}")
+    cl, hi = res.closure, res.hierarchy
+    if _ok(cl):
+        L.append(f"  {'closure (statistics only)':44}{_g(float(cl.K)):>14}{_g(float(cl.G)):>14}"
+                 f"{ratios('closure')}{flag(cl)}")
+        L.append(f"  {'  stated error (this prediction)':44}{_g(float(cl.error_K), '.3g'):>14}"
+                 f"{_g(float(cl.error_G), '.3g'):>14}")
     else:
-        L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex['K_affine']):>14}{_g(ex['G_affine']):>14}")
-        L.append(f"  {'exact' + (' with prestress' if ex['prestress'] else '') + ' (dem.analysis.stiffness)':44}"
-                 f"{_g(ex['K']):>14}{_g(ex['G']):>14}")
-        C = np.asarray(ex["C_mandel"])
+        L.append(f"  closure: n/a ({cl.message})")
+    if _ok(hi):
+        fl = "" if hi.valid else "  FLAGGED: not valid (see notes)"
+        L.append(f"  {'hierarchy (%d CG steps), value' % hi.order:44}{_g(hi.K.value):>14}{_g(hi.G.value):>14}"
+                 f"{ratios('hierarchy')}{fl}")
+        L.append(f"  {'  rigorous upper bound':44}{_g(hi.K.upper):>14}{_g(hi.G.upper):>14}")
+        L.append(f"  {'  rigorous lower bound':44}{_g(hi.K.lower):>14}{_g(hi.G.lower):>14}")
+        L.append(f"  {'  stated error':44}{_g(hi.K.error, '.3g'):>14}{_g(hi.G.error, '.3g'):>14}"
+                 f"  ({'converged' if hi.converged else 'tolerance not met'}"
+                 f"{', UNSTABLE' if hi.unstable else ''}, {res.hierarchy_s:.3f} s)")
+    else:
+        L.append(f"  hierarchy: n/a ({hi.message})")
+    if not _ok(ex):
+        L.append(f"  exact: n/a ({ex.message})")
+    else:
+        L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex.K_affine):>14}{_g(ex.G_affine):>14}")
+        L.append(f"  {'exact' + (' with prestress' if ex.prestress else '') + ' (dem.analysis.stiffness)':44}"
+                 f"{_g(ex.K):>14}{_g(ex.G):>14}")
         L.append("  exact C (Mandel [xx, yy, sqrt2 xy]):")
-        for row in C:
+        for row in np.asarray(ex.C_mandel).tolist():
             L.append("    " + "".join(f"{v:>14.6g}" for v in row))
-        L.append(f"  rattlers removed {ex['n_rattlers']}, floppy modes {ex['n_floppy']}, dof {ex['n_dof']}, "
-                 f"residual {ex['residual']:.1e}, solve {ex['time_s']:.3f} s")
-    notes = list(res.get("notes", []))
+        L.append(f"  rattlers removed {ex.n_rattlers}, floppy modes {ex.n_floppy}, dof {ex.n_dof}, "
+                 f"residual {ex.residual:.1e}, solve {ex.assembly_time + ex.solve_time:.3f} s")
+    notes = list(res.notes)
     for sec in ("coordination", "structural", "stress", "theory", "closure", "hierarchy", "stiffness"):
-        notes += [f"{sec}: {w}" for w in res.get(sec, {}).get("warnings", [])]
-    notes += [f"hierarchy: {r}" for r in hi.get("reasons", [])] if hi and "error" not in hi else []
+        notes += [f"{sec}: {w}" for w in getattr(res.warnings, sec)]
+    notes += [f"hierarchy: {r}" for r in hi.reasons] if _ok(hi) else []
     if notes:
         L.append("")
         L.append("notes:")
