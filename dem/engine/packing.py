@@ -662,11 +662,8 @@ class PackingResult(Result):
         meta = {"source": "dem.engine.packing", "note": _CONFIG_NOTE, "timestep": int(st.step),
                 **self.report.scalars(), "law": st.meta["packing_law"],
                 "protocol": None if self.protocol is None else self.protocol.as_dict()}
-        # the configuration in original-label order, the order of the stored network
-        # (network_from_state): its pairs index these positions and radii
-        perm = np.argsort(st.ids, kind="stable")
-        cfg = Configuration(positions=wrap(st.x, st.h)[0][perm], radii=st.radius[perm], cell=st.h,
-                            ids=st.ids[perm], velocities=st.v[perm], meta=meta)
+        cfg = Configuration(positions=wrap(st.x, st.h)[0], radii=st.radius, cell=st.h, ids=st.ids,
+                            velocities=st.v, meta=meta)
         extra = {k: v for k, v in st.arrays().items() if k != "ids"}   # ids: the schema's own
         # the contact network is stored too (the analysis reads it without the simulator); it
         # numbers the particles in id order (network_from_state), the file's rows are the state's
