@@ -850,15 +850,17 @@ class Cell(NamedTuple):
 
 def bodies_of(state, spin):
     """The :class:`Bodies` of a :class:`dem.engine.state.State` (spins, rotations, inertias empty unless
-    ``spin``)."""
+    ``spin``) as a plain tuple in field order, the fast form for the kernels (see
+    :func:`pair_forces`)."""
     e = _EMPTY
-    return Bodies(state.x, state.v, state.omega if spin else e, state.theta if spin else e, state.radius,
-                  state.mass, state.inertia if spin else e, state.x_ref)
+    return (state.x, state.v, state.omega if spin else e, state.theta if spin else e, state.radius, state.mass,
+            state.inertia if spin else e, state.x_ref)
 
 
 def cell_of(h, L):
-    """The :class:`Cell` of shape matrix ``h`` and velocity gradient ``L`` ((2, 2) arrays)."""
-    return Cell(L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1])
+    """The :class:`Cell` of shape matrix ``h`` and velocity gradient ``L`` ((2, 2) arrays), as a
+    plain tuple in field order (the fast form for the kernels)."""
+    return (L[0, 0], L[0, 1], L[1, 0], L[1, 1], h[0, 0], h[0, 1], h[1, 0], h[1, 1])
 
 
 _EMPTY = np.zeros(0)
@@ -1028,11 +1030,12 @@ def _flat(bodies, forces):
 @njit(cache=True)
 def kick_all(bodies, forces, kick):
     """:func:`kick_range` over every particle of ``bodies`` (:class:`Bodies`) with the forces and
-    torques of ``forces`` (:class:`Forces`). Returns its five sums. (In this module, next to
-    :func:`kick_range`: numba's disk cache of a function is invalidated by changes to its own
-    file only.) Bundles may come as plain tuples in field order (numba types those faster)."""
+    torques of ``forces`` (:class:`Forces`) and the :class:`Kick` ``kick``. Returns its five sums.
+    (In this module, next to :func:`kick_range`: numba's disk cache of a function is invalidated
+    by changes to its own file only.) The bundles may come as plain tuples in field order, which
+    numba types faster (see :func:`pair_forces`)."""
     fb, fo = _flat(Bodies(*bodies), Forces(*forces))
-    return kick_range(0, fb.mass.shape[0], fb, fo, kick, (0.0, 0.0, 0.0, 0.0, 0.0), np.empty(KICK_SCRATCH))
+    return kick_range(0, fb.mass.shape[0], fb, fo, Kick(*kick), (0.0, 0.0, 0.0, 0.0, 0.0), np.empty(KICK_SCRATCH))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1309,9 +1312,10 @@ _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of on
     step (0: history not advanced); tally: whether to fill ``out``. Fills ``forces``
     (:class:`Forces`): f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.engine.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
-    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`. The array bundles may also be plain
-    tuples in field order: numba types a plain tuple of arrays in C, a NamedTuple through Python
-    (about 0.4 us per array per call), so :func:`pair_forces` passes them as plain tuples.
+    fused kick, ``acc`` (5,) = the sums of :func:`kick_range`. Every bundle but ``models`` may be
+    a plain tuple in field order, the fast form: numba types a plain tuple of arrays or floats in
+    C, a NamedTuple through Python (microseconds per call; :func:`bodies_of`, :func:`cell_of` and
+    :class:`dem.engine.integrate.Simulation` pass plain tuples).
 """
 
 
@@ -1380,14 +1384,14 @@ def _chunked(p_lo, p_hi, bodies, pairs, cell, models, kick, dt, tally, forces):
 @njit(cache=True, error_model="numpy")
 def pair_forces_chunked(bodies, pairs, cell, models, kick, dt, tally, forces):
     pl = Pairs(*pairs)
-    _chunked(0, pl.jc.shape[0], Bodies(*bodies), pl, cell, models, kick, dt, tally, Forces(*forces))
+    _chunked(0, pl.jc.shape[0], Bodies(*bodies), pl, Cell(*cell), models, Kick(*kick), dt, tally, Forces(*forces))
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def pair_forces_span(p_lo, p_hi, bodies, pairs, cell, models, dt, tally, forces):
     """The forces of pairs p_lo..p_hi-1 alone, into their own ``forces`` (the chunked loop, no
     kick). Releases the GIL: :func:`pair_forces_threaded` runs one per thread."""
-    _chunked(p_lo, p_hi, Bodies(*bodies), Pairs(*pairs), cell, models, NO_KICK, dt, tally, Forces(*forces))
+    _chunked(p_lo, p_hi, Bodies(*bodies), Pairs(*pairs), Cell(*cell), models, NO_KICK, dt, tally, Forces(*forces))
 
 
 @njit(cache=True, nogil=True)
@@ -1465,7 +1469,7 @@ def _serial(bodies, pairs, cell, models, kick, dt, tally, forces):
 
 @njit(cache=True, error_model="numpy")
 def pair_forces_serial(bodies, pairs, cell, models, kick, dt, tally, forces):
-    _serial(Bodies(*bodies), Pairs(*pairs), cell, models, kick, dt, tally, Forces(*forces))
+    _serial(Bodies(*bodies), Pairs(*pairs), Cell(*cell), models, Kick(*kick), dt, tally, Forces(*forces))
 
 
 pair_forces_serial.__doc__ = _PAIR_FORCES_DOC + """
@@ -1503,6 +1507,7 @@ _THREADS = _Threads()
 
 
 def pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads):
+    bodies, pairs, forces, kick = Bodies(*bodies), Pairs(*pairs), Forces(*forces), Kick(*kick)
     n = bodies.x.shape[0]
     spin = bodies.omega.shape[0] > 0
     pool, parts = _THREADS.get(threads, n, spin)
@@ -1510,7 +1515,7 @@ def pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, t
     # contiguous ranges of pairs, cut at chunk boundaries: the same cut for the same list
     cuts = [min(npair, CHUNK * int(round(k * npair / (threads * CHUNK)))) for k in range(threads + 1)]
     cuts[-1] = npair
-    common = (tuple(bodies), tuple(pairs), cell, models, dt, tally)
+    common = (tuple(bodies), tuple(pairs), tuple(cell), models, dt, tally)
     # the first range into forces itself, the others into their own buffers
     jobs = [pool.submit(pair_forces_span, cuts[k], cuts[k + 1], *common,
                         tuple(Forces(*(a[k - 1] for a in parts))))
@@ -1520,7 +1525,7 @@ def pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, t
         job.result()
     _sum_parts(parts, 0, n, forces, spin, tally)
     if kick.fused:
-        forces.acc[:] = kick_all(tuple(bodies), tuple(forces), kick)
+        forces.acc[:] = kick_all(tuple(bodies), tuple(forces), tuple(kick))
 
 
 pair_forces_threaded.__doc__ = _PAIR_FORCES_DOC + """
@@ -1550,7 +1555,7 @@ def pair_forces(bodies, pairs, cell, models, kick, dt, tally, forces, threads=1)
         pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads)
         return
     loop = pair_forces_chunked if vectorises(models) else pair_forces_serial
-    loop(tuple(bodies), tuple(pairs), cell, models, kick, dt, tally, tuple(forces))
+    loop(bodies, pairs, cell, models, kick, dt, tally, forces)
 
 
 pair_forces.__doc__ = _PAIR_FORCES_DOC + """

@@ -93,6 +93,9 @@ def _compact(st):
     return pi32, jc
 
 
+_NO_KICK = tuple(cm.NO_KICK)  # plain tuples: the fast form of the kernels' bundles (cm.pair_forces)
+
+
 def _new_history(npairs, law):
     """Zero contact history: (P,) for one slot per pair (the layout of older checkpoints), else
     (P, slots)."""
@@ -254,14 +257,15 @@ class Simulation:
             self._list32 = _compact(st)
             self._list32_of = st.nl_i
         pi32, jc = self._list32
-        pairs = cm.Pairs(pi32, jc, st.nl_ft.reshape(-1) if law.needs_history else self._empty, self._pc)
+        # the bundles as plain tuples in field order (cm.Pairs, cm.Forces): numba types those fastest
+        pairs = (pi32, jc, st.nl_ft.reshape(-1) if law.needs_history else self._empty, self._pc)
         cm.pair_forces(cm.bodies_of(st, law.needs_spin), pairs, cm.cell_of(h, L), law.models, kick, dt_history,
-                       tally, cm.Forces(self.f, self.torque, self.out, self.acc), threads=self.threads)
+                       tally, (self.f, self.torque, self.out, self.acc), threads=self.threads)
 
     def compute_forces(self):
         """Contact forces at the current positions (advances the tangential history: call it only
         as part of a step; use :meth:`measure` for read-only quantities)."""
-        self._pair_loop(cm.NO_KICK, self.dt)
+        self._pair_loop(_NO_KICK, self.dt)
 
     def _deformation(self, L, dt):
         """h_{n+1} = (I + dt L) h_n and F = h_{n+1} h_ref^{-1} by entries."""
@@ -296,11 +300,11 @@ class Simulation:
         if self.fuse and self.control is None:
             L = st.L
             hn, Fd = self._deformation(L, dt)
-            self._pair_loop(cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally),
-                            dth, tally)
+            self._pair_loop((True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally), dth,
+                            tally)  # a cm.Kick, as a plain tuple
             t2 = t3 = t4 = _time.perf_counter()
         else:
-            self._pair_loop(cm.NO_KICK, dth, tally)
+            self._pair_loop(_NO_KICK, dth, tally)
             t2 = _time.perf_counter()
             A = st.h[0, 0] * st.h[1, 1] - st.h[0, 1] * st.h[1, 0]
             if self.control is not None:
@@ -309,9 +313,8 @@ class Simulation:
             L = st.L
             hn, Fd = self._deformation(L, dt)
             t3 = _time.perf_counter()
-            acc[:] = cm.kick_all(tuple(cm.bodies_of(st, self.law.needs_spin)),
-                                 (self.f, self.torque, self.out, self.acc),
-                                 cm.Kick(True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally))
+            acc[:] = cm.kick_all(cm.bodies_of(st, self.law.needs_spin), (self.f, self.torque, self.out, self.acc),
+                                 (True, dtk, dt, self.damping, L[0, 0], L[0, 1], L[1, 0], L[1, 1], *Fd, tally))
             t4 = _time.perf_counter()
         d2, ke, wd = acc[0], acc[1], acc[2]
         if self.law.needs_spin:
@@ -435,7 +438,7 @@ class Simulation:
         st = self.state
         keep = None if st.nl_ft is None else st.nl_ft.copy()
         try:
-            self._pair_loop(cm.NO_KICK, 0.0)  # no history increment
+            self._pair_loop(_NO_KICK, 0.0)  # no history increment
         finally:
             if keep is not None and st.nl_ft is not None and keep.shape == st.nl_ft.shape:
                 st.nl_ft[:] = keep
