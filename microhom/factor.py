@@ -30,6 +30,7 @@ from ctypes.util import find_library
 from dataclasses import dataclass
 
 import numpy as np
+from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
@@ -37,7 +38,7 @@ from microhom.results import Result
 
 __all__ = ["BACKENDS", "Inertia", "Factor", "factor", "inertia", "available_backends", "have_pardiso",
            "have_cholmod", "NotPositiveDefinite", "FactorisationError", "MemoryGuardError",
-           "memory_check", "available_memory", "predicted_factor_bytes"]
+           "memory_check", "predicted_factor_bytes"]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "splu")
 
@@ -129,20 +130,6 @@ class Inertia(Result):
 
 
 # ---- memory guard ----------------------------------------------------------------------------
-def available_memory() -> float:
-    """Bytes the process may still allocate: ``MemAvailable`` of ``/proc/meminfo`` (Linux), else
-    ``os.sysconf`` physical pages; ``inf`` when neither is known."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024.0
-    except OSError:   # pragma: no cover - not Linux
-        pass
-    try:   # pragma: no cover - not Linux
-        return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):   # pragma: no cover
-        return float("inf")
 
 
 #: fitted factor size of the 2D contact Hessians (nested dissection / AMD on the particle graph):

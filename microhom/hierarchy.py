@@ -47,6 +47,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, affine_tensor, assemble, stress0
+from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
 from .results import Result
@@ -54,7 +55,7 @@ from .tensors import isotropic_moduli, prestress_correction
 
 __all__ = ["DEFAULT_TOL", "Estimate", "HierarchyResult", "relaxation_hierarchy", "block_preconditioner",
            "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments", "plan_memory",
-           "MemoryPlan", "HierarchyMemoryError", "available_memory", "CALIBRATED_KT_OVER_KN"]
+           "MemoryPlan", "HierarchyMemoryError", "CALIBRATED_KT_OVER_KN"]
 
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
 _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy direction, dropped
@@ -636,21 +637,6 @@ class MemoryPlan(Result):
     available: int | None
 
 
-def available_memory() -> int | None:
-    """The system's available memory [bytes] (Linux ``MemAvailable``; ``sysconf`` elsewhere), or
-    None when it cannot be read."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        import os
-        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full: bool = True,

@@ -96,6 +96,7 @@ import time
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+from microhom.limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from numba import njit
 
 from microhom.network import ContactNetwork
@@ -690,17 +691,6 @@ _CONFIG_NOTE = ("configuration view for dem.io.read: positions wrapped into the 
 BYTES_PER_PARTICLE = 247
 
 
-def available_memory() -> int:
-    """Available memory [bytes] (``MemAvailable`` of /proc/meminfo; total physical memory
-    elsewhere)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def check_memory(n, fraction=0.8):
