@@ -140,3 +140,12 @@ def test_general_triclinic_3d(tmp_path):
     np.testing.assert_allclose(res.positions, cfg.positions, atol=1e-13)
     a, b = res.network(tolerance=0.0), cfg.network(tolerance=0.0)
     np.testing.assert_array_equal(a.pairs, b.pairs)
+
+
+@pytest.mark.parametrize("name", ["x.npz", "x.csv", "x.vtu", "D3d"])
+def test_2d_only_formats_refuse_3d(tmp_path, name):
+    cfg = io.read(DATA / "sph3d_ortho.data")
+    with pytest.raises(ValueError, match="3D configuration can be written as lammps-data or "
+                                         "lammps-dump only"):
+        io.write(tmp_path / name, cfg)
+    assert not (tmp_path / name).exists()
