@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dem.analysis.stiffness import stiffness
-from dem.engine.lammps import pack_lammps, write_inputs
+from dem.engine.lammps import pack_lammps, read_run, write_inputs
 from dem.engine.packing import PackingProtocol
 
 pytestmark = pytest.mark.skipif(shutil.which("lmp") is None, reason="LAMMPS binary 'lmp' not on PATH")
@@ -49,6 +49,14 @@ def test_contacts_match_lammps(run):
     assert 2 * len(net.pairs) == round(run.lammps["Z"] * N)        # compute contact/atom, summed
     deg = np.bincount(net.pairs.ravel(), minlength=N)
     np.testing.assert_array_equal(deg, run.config.fields["c_cn"].astype(int))
+
+
+def test_read_run_from_the_folder_alone(run):
+    """read_run without the writer's parameters: the header comment says dimension=3."""
+    back = read_run(run.folder)
+    assert back.params["dimension"] == 3 and back.config.dim == 3
+    np.testing.assert_array_equal(back.network.pairs, run.network.pairs)
+    np.testing.assert_array_equal(back.network.ft, run.network.ft)
 
 
 def test_forces_match_lammps(run):

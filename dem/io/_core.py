@@ -79,7 +79,8 @@ def _check_extent(pos, rad, cell, origin):
         far = np.flatnonzero(np.abs(s).max(axis=1) > MAX_CELLS_AWAY)
         if far.size:
             k = int(far[0])
-            raise ValueError(f"particle {k} at ({float(pos[k, 0]):.6g}, {float(pos[k, 1]):.6g}) is "
+            at = ", ".join(f"{float(v):.6g}" for v in pos[k])
+            raise ValueError(f"particle {k} at ({at}) is "
                              f"more than {MAX_CELLS_AWAY:.0e} cell lengths from the cell: wrapping "
                              f"it back would lose all its digits")
     else:

@@ -105,7 +105,7 @@ def _check_inside(positions, cell, origin, dims, path, line_of_row, names=("x", 
         if bad.size:
             k = int(bad[0])
             raise FormatError(path, line_of_row(k), names[d],
-                              f"particle {k} at {names[d]} = {positions[k, d]!r} lies outside "
+                              f"particle {k} at {names[d]} = {float(positions[k, d])!r} lies outside "
                               f"the non-periodic box")
 
 
