@@ -92,6 +92,12 @@ def test_exact_stiffness_runs(run):
     assert r.n_unstable == 0 and "unstable" not in " ".join(r.flags)
     assert 0 < r.K <= r.K_affine and 0 < r.G <= r.G_affine     # relaxation only softens
     assert np.linalg.eigvalsh(0.5 * (r.C_mandel + r.C_mandel.T)).min() > 0
+    # the servo's affine stiffness dp/d(linear strain) = kn sum_c |l_c|^2 / (d V) (the input
+    # estimates sum |l|^2 by Nc <l^2>) is d times the affine bulk modulus of the exact solver
+    net = run.network
+    keep = ~r.rattler_mask[net.pairs].any(axis=1)
+    servo_K = PROTO.kn * np.sum(net.lengths[keep] ** 2) / (3 * np.linalg.det(net.cell))
+    assert 3 * r.K_affine == pytest.approx(servo_K, rel=1e-12)
     pre = stiffness(run.network, prestress=True)
     assert np.isfinite(pre.K) and np.isfinite(pre.G)
     assert abs(pre.K - r.K) < 0.05 * r.K          # pre-stress terms are O(p/kn) corrections
@@ -117,3 +123,16 @@ def test_2d_deck_has_no_3d_lines(tmp_path):
     assert "z variable v_dlz v_vlz" in t3 and "lz" not in t2
     assert two["dimension"] == 2 and three["dimension"] == 3
     assert len(t2.splitlines()) + 12 > len(t3.splitlines())   # same deck, a few lines more
+
+
+def test_time_step_bound_on_contacts():
+    """The 3D time step counts at most 2 / (1 - cos theta) touching smallest spheres: 14 for
+    identical spheres (kissing number 12, never exceeded), more for a larger sphere; the bound
+    holds on the densest arrangement, FCC, where each sphere has 12 touching neighbours."""
+    from dem.engine.lammps import _possible_contacts_3d
+    from microhom.lattices import fcc
+    assert _possible_contacts_3d(np.ones(5)).tolist() == [14.0] * 5
+    big = _possible_contacts_3d(np.array([0.5, 0.5, 1.0]))
+    assert big[2] > big[0] == 14
+    net = fcc(2, diameter=1.0, kn=1.0, kt=1.0)
+    assert np.bincount(net.pairs.ravel()).max() == 12 <= 14

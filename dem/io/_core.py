@@ -168,7 +168,7 @@ class Configuration:
 
     @property
     def dim(self) -> int:
-        """Dimension d: 2 (disks) or 3 (spheres), the columns of ``positions``."""
+        """The dimension, 2 (disks) or 3 (spheres): the number of columns of ``positions``."""
         return self.positions.shape[1]
 
     @property
