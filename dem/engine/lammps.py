@@ -18,6 +18,9 @@ in ``docs/scale_out.md``.
 Units: any consistent set (the input uses ``units lj``, which does no unit conversion: the numbers
 are the caller's). 2D, per unit thickness: LAMMPS's ``dimension 2`` forces and its 2D pressure
 (virial over the cell *area*) are then forces per length, as in :mod:`dem.analysis.measure`.
+``write_inputs(..., dimension=3)`` (``pack_lammps`` passes it on) writes the same input for
+spheres (``docs/spheres.md``): forces [N], pressure [Pa] over the cell volume, the tangential
+force of a contact a vector.
 
 Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
 
