@@ -18,6 +18,9 @@ in ``docs/scale_out.md``.
 Units: any consistent set (the input uses ``units lj``, which does no unit conversion: the numbers
 are the caller's). 2D, per unit thickness: LAMMPS's ``dimension 2`` forces and its 2D pressure
 (virial over the cell *area*) are then forces per length, as in :mod:`dem.analysis.measure`.
+``write_inputs(..., dimension=3)`` (``pack_lammps`` passes it on) writes the same input for
+spheres (``docs/spheres.md``): forces [N], pressure [Pa] over the cell volume, the tangential
+force of a contact a vector.
 
 Conventions (checked by ``tests/test_lammps.py`` against LAMMPS's own computes):
 
@@ -70,8 +73,34 @@ def _num(x) -> str:
     return repr(float(x))
 
 
+def _gas_3d(p):
+    """The 3D starting gas of protocol ``p``: ``p.n`` spheres at uniform, independent (seeded by
+    ``p.seed``) positions in a cubic periodic cell at solid (volume) fraction ``phi0``; radii
+    ``radius`` or uniform in ``radius (1 +- dispersity)``. Returns (positions (N, 3) [m],
+    radii (N,) [m], cell side L [m])."""
+    if not p.gas_overlaps:
+        raise ValueError("gas_overlaps must be True for a 3D LAMMPS packing (the 3D gas is "
+                         "uniform and independent; its overlaps are pushed apart by the "
+                         "compaction), got False")
+    rng = np.random.default_rng(p.seed)
+    r = np.full(p.n, float(p.radius))
+    if p.dispersity > 0:
+        r = p.radius * (1.0 + p.dispersity * rng.uniform(-1.0, 1.0, p.n))
+    L = float((4.0 / 3.0 * np.pi * np.sum(r ** 3) / p.phi0) ** (1.0 / 3.0))
+    return rng.uniform(0.0, L, (p.n, 3)), r, L
+
+
+def _possible_contacts_3d(r):
+    """(N,) upper bound on the smallest spheres touching each sphere: the sphere of directions
+    over the cap each one covers, ``2 / (1 - cos theta)``, ``sin theta = r_min / (r + r_min)``
+    (14 for identical spheres, whose kissing number is 12)."""
+    rmin = r.min()
+    s = rmin / (r + rmin)
+    return np.floor(2.0 / (1.0 - np.sqrt(1.0 - s * s)) + 1e-9)
+
+
 def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compaction=0.01,
-                 jam_z=3.0, skin=None, dt=None) -> dict:
+                 jam_z=3.0, skin=None, dt=None, dimension=2) -> dict:
     """Write ``gas.data`` and ``in.packing`` into ``folder`` for the packing ``protocol`` (a
     :class:`dem.engine.packing.PackingProtocol`, validated there); return the parameters used.
 
@@ -113,6 +142,18 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
         Neighbour skin [m] (default 0.2 mean radius).
     dt : float or None
         Time step [s] overriding the protocol's ``dt_over_dtcrit``.
+    dimension : int
+        2 (disks, the default) or 3 (spheres). The 3D input is the same deck with the
+        dimension's lines (``dimension 3``, ``set density``, ``fix nve/sphere``, no
+        ``enforce2d``, a servo on x, y and z, the volume fraction, LAMMPS's 3D pressure). The
+        protocol's fields then read: ``radius`` the mean sphere radius [m], ``phi0`` the volume
+        fraction of the gas (uniform, independent centres: ``gas_overlaps`` must be True),
+        ``rho`` the mass density [kg/m^3] (None: a sphere of the mean radius has unit mass), and
+        the target pressure [Pa] is ``p_over_kn * kn / (2 radius)`` (``p_over_kn`` is then
+        ``p D / kn``, D the mean diameter: the typical overlap over D, as p/kn is in 2D).
+        ``jam_z`` in [0, 12). The time step is ``dt_over_dtcrit`` times
+        ``min_i sqrt(m_i / K_i)``, ``K_i`` = the spheres that can touch sphere i times
+        ``law.dt_stiffness()``.
 
     Returns the dict of the values written (``kn``, ``kt``, ``mu``, ``p_target``, ``dt``, ...,
     and ``protocol``, its ``as_dict()``).
@@ -120,6 +161,9 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     if not isinstance(protocol, PackingProtocol):
         raise TypeError(f"write_inputs takes a dem.engine.packing.PackingProtocol, got "
                         f"{type(protocol).__name__}")
+    if dimension not in (2, 3):
+        raise ValueError(f"dimension must be 2 (disks) or 3 (spheres), got {dimension!r}")
+    zmax = 6 if dimension == 2 else 12
     if protocol.growth_dispersity > 0:
         raise ValueError(f"growth_dispersity must be 0 for the LAMMPS writer (no LAMMPS "
                          f"counterpart of the grow/restore phases), got {protocol.growth_dispersity}")
@@ -127,7 +171,7 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
             ("max_steps", max_steps, "an integer >= 1", int(max_steps) == max_steps >= 1),
             ("drag", drag, ">= 0", drag >= 0), ("drag_compaction", drag_compaction, ">= 0",
                                                   drag_compaction >= 0),
-            ("jam_z", jam_z, "in [0, 6)", 0 <= jam_z < 6),
+            ("jam_z", jam_z, f"in [0, {zmax})", 0 <= jam_z < zmax),
             ("skin", skin, "None or > 0 [m]", skin is None or skin > 0),
             ("dt", dt, "None or > 0 [s]", dt is None or dt > 0)):
         if not ok or (val is not None and not math.isfinite(val)):
@@ -135,28 +179,43 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     p = protocol
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    st = random_gas(p, spins=True)
     law = LinearFriction(kn=p.kn, kt=p.kt, mu=p.mu_prep)
-    if dt is None:
-        dt = p.dt_over_dtcrit * critical_dt(st, law)
-    m1 = float(st.rho * math.pi * p.radius ** 2)
+    if dimension == 2:
+        st = random_gas(p, spins=True)
+        x, r, h, rho = st.x, st.radius, st.h, float(st.rho)
+        if dt is None:
+            dt = p.dt_over_dtcrit * critical_dt(st, law)
+        m1 = float(rho * math.pi * p.radius ** 2)
+        solid = float(np.pi * np.sum(r ** 2))
+        p_target = p.p_target
+    else:
+        x, r, L = _gas_3d(p)
+        h = np.diag([L, L, L])
+        rho = 1.0 / (4.0 / 3.0 * np.pi * p.radius ** 3) if p.rho is None else float(p.rho)
+        mass = rho * 4.0 / 3.0 * np.pi * r ** 3
+        if dt is None:
+            dt = p.dt_over_dtcrit * float(np.min(np.sqrt(
+                mass / (_possible_contacts_3d(r) * law.dt_stiffness()))))
+        m1 = float(rho * 4.0 / 3.0 * math.pi * p.radius ** 3)
+        solid = float(4.0 / 3.0 * np.pi * np.sum(r ** 3))
+        p_target = p.p_over_kn * p.kn / (2.0 * p.radius)
     gn = 0.0
     if p.restitution is not None:
         gn = 2.0 * damping_ratio(p.restitution) * math.sqrt(p.kn / (0.5 * m1))
     skin = 0.2 * p.radius if skin is None else float(skin)
-    r = st.radius
     # mean squared branch length of a contact, (r_i + r_j)^2 for independent radii: the affine
-    # isotropic stiffness K = sum_c kn |l_c|^2 / (2A) of dem.engine.cell.PressureServo is then
-    # kn Nc <l^2> / (2A) (overlaps neglected: a relative error ~ p/kn)
+    # isotropic stiffness K = sum_c kn |l_c|^2 / (d V) of dem.engine.cell.PressureServo is then
+    # kn Nc <l^2> / (d V) (overlaps neglected: a relative error ~ p/kn)
     l2 = float(2.0 * np.mean(r ** 2) + 2.0 * np.mean(r) ** 2)
 
-    cfg = io.Configuration(positions=st.x, radii=st.radius, cell=st.h, ids=np.arange(1, st.n + 1),
-                           fields={"density": np.full(st.n, st.rho)})
+    n = len(r)
+    cfg = io.Configuration(positions=x, radii=r, cell=h, ids=np.arange(1, n + 1),
+                           fields={"density": np.full(n, rho)})
+    gas = ("dem.engine.packing.random_gas" if dimension == 2 else "dem.engine.lammps._gas_3d")
     io.write_lammps_data(folder / "gas.data", cfg, velocities=False,
-                         title=f"random gas: dem.engine.packing.random_gas(n={p.n}, seed={p.seed}, "
-                               f"phi0={p.phi0})")
-    prm = dict(n=p.n, p_target=p.p_target, kn=p.kn, kt=p.kt, mu=p.mu, mu_prep=p.mu_prep,
-               radius=p.radius, dispersity=p.dispersity, rho=float(st.rho), seed=p.seed,
+                         title=f"random gas: {gas}(n={p.n}, seed={p.seed}, phi0={p.phi0})")
+    prm = dict(n=p.n, dimension=int(dimension), p_target=p_target, kn=p.kn, kt=p.kt, mu=p.mu,
+               mu_prep=p.mu_prep, radius=p.radius, dispersity=p.dispersity, rho=rho, seed=p.seed,
                phi0=p.phi0, dt=float(dt), drag=float(drag), drag_compaction=float(drag_compaction),
                gamma_drag=drag * math.sqrt(p.kn * m1),
                gamma_compaction=drag_compaction * math.sqrt(p.kn * m1),
@@ -164,38 +223,71 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
                jam_unbalanced=p.jam_unbalanced, jam_p=p.jam_p, jam_z=float(jam_z),
                tol_p=p.tol_p, tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke,
                max_steps=int(max_steps), check_every=p.check_every,
-               disk_area=float(np.pi * np.sum(st.radius ** 2)), protocol=p.as_dict())
+               disk_area=solid, m1=m1, protocol=p.as_dict())
     (folder / INPUT_NAME).write_text(_input_text(prm))
     return prm
 
 
 def _drag_fix(drag, p) -> str:
-    """Global viscous drag ``drag sqrt(kn m)`` (m: mass of a disk of the mean radius)."""
-    gamma = drag * math.sqrt(p["kn"] * p["rho"] * math.pi * p["radius"] ** 2)
+    """Global viscous drag ``drag sqrt(kn m)`` (m: mass of a particle of the mean radius)."""
+    gamma = drag * math.sqrt(p["kn"] * p["m1"])
     return f"fix             drag all viscous {_num(gamma)}"
+
+
+def _dim_lines(d, p) -> dict:
+    """The lines of the input that depend on the dimension d (2 disks, 3 spheres)."""
+    N = _num
+    axes = "xy" if d == 2 else "xyz"
+    if d == 2:
+        return dict(
+            units="2D, per unit thickness", KV="2 A", density=f"density/disc {N(p['rho'])}",
+            nve="fix             nve all nve/sphere disc\nfix             e2d all enforce2d",
+            omega="omegaz", f2="fx*fx+fy*fy", v2="vx*vx+vy*vy",
+            # rotational energy of a disk: I w^2 / 2 = m r^2 w^2 / 4
+            rot="0.25*mass*c_prop[1]*c_prop[1]*c_prop[2]*c_prop[2]", volume="lx*ly",
+            axes=axes, vel="vx vy fx fy", omega0="0.0 0.0 0.0",
+            pres="pxx=$(c_pv[1]:%.17g) pyy=$(c_pv[2]:%.17g) pxy=$(c_pv[4]:%.17g)",
+            thermo="c_pv[1] c_pv[2] c_pv[4]", box="lx=$(lx:%.17g) ly=$(ly:%.17g) xy=$(xy:%.17g)")
+    return dict(
+        units="3D", KV="3 V", density=f"density {N(p['rho'])}", nve="fix             nve all nve/sphere",
+        omega="omegax omegay omegaz", f2="fx*fx+fy*fy+fz*fz", v2="vx*vx+vy*vy+vz*vz",
+        # rotational energy of a sphere: I |w|^2 / 2 = m r^2 |w|^2 / 5
+        rot="0.2*mass*c_prop[1]*c_prop[1]*(c_prop[2]*c_prop[2]+c_prop[3]*c_prop[3]+c_prop[4]*c_prop[4])",
+        volume="lx*ly*lz", axes=axes, vel="vx vy vz fx fy fz", omega0="0.0 0.0 0.0",
+        pres="pxx=$(c_pv[1]:%.17g) pyy=$(c_pv[2]:%.17g) pzz=$(c_pv[3]:%.17g) pxy=$(c_pv[4]:%.17g) "
+             "pxz=$(c_pv[5]:%.17g) pyz=$(c_pv[6]:%.17g)",
+        thermo="c_pv[1] c_pv[2] c_pv[3] c_pv[4] c_pv[5] c_pv[6]",
+        box="lx=$(lx:%.17g) ly=$(ly:%.17g) lz=$(lz:%.17g) xy=$(xy:%.17g) xz=$(xz:%.17g) "
+            "yz=$(yz:%.17g)")
 
 
 def _input_text(p) -> str:
     N = _num
+    d = int(p.get("dimension", 2))
+    D = _dim_lines(d, p)
     fric_switch = p["mu"] != p["mu_prep"]
     report = ("steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) Zc=$(v_Zc:%.5f) "
               "pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)")
-    relen = "variable        lx0 equal $(lx)\nvariable        ly0 equal $(ly)"
+    relen = "\n".join(f"variable        l{a}0 equal $(l{a})" for a in D["axes"])
+    dl = "\n".join(f"variable        dl{a} equal l{a}*exp(v_edot*{N(p['dt'])})-v_l{a}0"
+                   for a in D["axes"])
+    vl = "\n".join(f"variable        vl{a} equal v_edot*l{a}" for a in D["axes"])
+    deform = " ".join(f"{a} variable v_dl{a} v_vl{a}" for a in D["axes"])
     lines = f"""\
 # LAMMPS input written by dem.engine.lammps.write_inputs: the dem.engine.packing protocol (docs/scale_out.md).
 #   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
-# Units: the caller's consistent set ('units lj' does no conversion); 2D, per unit thickness.
-# N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}
+# Units: the caller's consistent set ('units lj' does no conversion); {D['units']}.
+# N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}{'' if d == 2 else ' dimension=3'}
 # protocol {json.dumps(p['protocol'])}
 
 units           lj
-dimension       2
+dimension       {d}
 atom_style      sphere
 boundary        p p p
 comm_modify     vel yes
 newton          on
 read_data       gas.data
-set             group all density/disc {N(p['rho'])}
+set             group all {D['density']}
 
 # ---- contact law: linear kn (force per overlap, = dem's kn), tangential spring kt with history,
 #      Coulomb mu (mu_prep first); contact dashpot gamma_n (0 unless restitution was given) ----
@@ -203,8 +295,7 @@ pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {
 pair_coeff      * *
 neighbor        {N(p['skin'])} bin
 neigh_modify    delay 0 every 1 check yes
-fix             nve all nve/sphere disc
-fix             e2d all enforce2d
+{D['nve']}
 timestep        {N(p['dt'])}
 
 # ---- measurements: pressure without kinetic term (virial only: contact forces), contacts,
@@ -216,15 +307,15 @@ variable        hasc atom c_cn>0
 compute         nwith all reduce sum v_hasc
 compute         pl all pair/local force
 compute         fsum all reduce sum c_pl
-compute         prop all property/atom radius omegaz
-variable        fres atom sqrt(fx*fx+fy*fy)
+compute         prop all property/atom radius {D['omega']}
+variable        fres atom sqrt({D['f2']})
 compute         fres all reduce ave v_fres
-variable        kea atom (c_cn>0)*(0.5*mass*(vx*vx+vy*vy)+0.25*mass*c_prop[1]*c_prop[1]*c_prop[2]*c_prop[2])
+variable        kea atom (c_cn>0)*(0.5*mass*({D['v2']})+{D['rot']})
 compute         kec all reduce sum v_kea
 variable        nc equal c_zsum/2
 variable        Z equal c_zsum/atoms
 variable        Zc equal c_zsum/(c_nwith+1.0e-300)
-variable        phi equal {N(p['disk_area'])}/(lx*ly)
+variable        phi equal {N(p['disk_area'])}/({D['volume']})
 variable        fmean equal c_fsum/(v_nc+1.0e-300)
 variable        unb equal c_fres/(v_fmean+1.0e-300)
 variable        eel equal v_nc*v_fmean*v_fmean/(2.0*{N(p['kn'])})
@@ -237,21 +328,19 @@ thermo_modify   norm no flush yes
 thermo          {max(10000, 10 * p['check_every'])}
 
 # ---- pressure servo (dem.engine.cell.PressureServo): isotropic true strain rate
-#      edot = -alpha (p_t - p) / (K dt), K = kn Nc <l^2> / (2 A) the affine stiffness, capped at
+#      edot = -alpha (p_t - p) / (K dt), K = kn Nc <l^2> / ({D['KV']}) the affine stiffness, capped at
 #      +-max_strain_per_step/dt (the cap is the rate while there are no contacts). fix deform
 #      'variable' sets the box length change since the start of the run: lx(t+dt) = lx exp(edot dt)
 #      (lx0, ly0 = the lengths at the start of each run, re-read before every run); fix ave/time
 #      every step makes LAMMPS tally the virial on every step (fix deform does not ask for it) ----
-variable        Kaff equal {N(p['kn'] * p['l2'] / 2.0)}*v_nc/(lx*ly)
+variable        Kaff equal {N(p['kn'] * p['l2'] / d)}*v_nc/({D['volume']})
 variable        eraw equal -{N(p['alpha'])}*({N(p['p_target'])}-c_pv)/((v_Kaff+{N(1e-12 * p['kn'])})*{N(p['dt'])})
 variable        edot equal (v_eraw<{N(-p['rate'])})*{N(-p['rate'])}+(v_eraw>{N(p['rate'])})*{N(p['rate'])}+(v_eraw>={N(-p['rate'])})*(v_eraw<={N(p['rate'])})*v_eraw
-variable        dlx equal lx*exp(v_edot*{N(p['dt'])})-v_lx0
-variable        dly equal ly*exp(v_edot*{N(p['dt'])})-v_ly0
-variable        vlx equal v_edot*lx
-variable        vly equal v_edot*ly
+{dl}
+{vl}
 {relen}
 fix             ptally all ave/time 1 1 1 c_pv
-fix             servo all deform 1 x variable v_dlx v_vlx y variable v_dly v_vly remap x
+fix             servo all deform 1 {deform} remap x
 
 # ---- 1. compaction (dem: phase 'compact'): servo from the gas (overlaps pushed apart, the cell
 #      may grow first) with a light drag, until the packing has jammed ----
@@ -298,16 +387,16 @@ velocity        all set 0.0 0.0 0.0
 set             group all omega 0.0 0.0 0.0
 compute         pf all pair/local dist force p1 p2 p3
 compute         pp all property/local patom1 patom2
-dump            d1 all custom 1 final.dump id type radius x y z vx vy fx fy c_cn
+dump            d1 all custom 1 final.dump id type radius x y z {D['vel']} c_cn
 dump_modify     d1 format float %.17g sort id first yes
 dump            d2 all local 1 contacts.dump c_pp[1] c_pp[2] c_pf[1] c_pf[2] c_pf[3] c_pf[4] c_pf[5]
 dump_modify     d2 format float %.17g first yes
-thermo_style    custom step atoms v_phi v_Z c_pv c_pv[1] c_pv[2] c_pv[4] v_unb
+thermo_style    custom step atoms v_phi v_Z c_pv {D['thermo']} v_unb
 thermo          1
 run             0
 undump          d1
 undump          d2
-print           "PACK_RESULT N=$(atoms) steps=$(step) converged=${{convf}} phi=$(v_phi:%.17g) Z=$(v_Z:%.17g) pressure=$(c_pv:%.17g) pxx=$(c_pv[1]:%.17g) pyy=$(c_pv[2]:%.17g) pxy=$(c_pv[4]:%.17g) unbalanced=$(v_unb:%.6e) lx=$(lx:%.17g) ly=$(ly:%.17g) xy=$(xy:%.17g)"
+print           "PACK_RESULT N=$(atoms) steps=$(step) converged=${{convf}} phi=$(v_phi:%.17g) Z=$(v_Z:%.17g) pressure=$(c_pv:%.17g) {D['pres']} unbalanced=$(v_unb:%.6e) {D['box']}"
 write_data      final.data nocoeff
 """
     return lines

@@ -101,6 +101,9 @@ def write(path, config, format=None, **kwargs):
             config = Configuration.from_network(config)
         else:
             raise TypeError(f"expected a Configuration or ContactNetwork, got {type(config)!r}")
+    if config.dim != 2 and not fmt.startswith("lammps"):
+        raise ValueError(f"a {config.dim}D configuration can be written as lammps-data or "
+                         f"lammps-dump only; the {fmt} format holds 2D disks")
     if kwargs.get("append"):      # appending to a dump: in place (an existing file is extended)
         return FORMATS[fmt][1](path, config, **kwargs)
     return _write_atomic(path, lambda tmp: FORMATS[fmt][1](tmp, config, **kwargs))

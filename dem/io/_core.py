@@ -79,7 +79,8 @@ def _check_extent(pos, rad, cell, origin):
         far = np.flatnonzero(np.abs(s).max(axis=1) > MAX_CELLS_AWAY)
         if far.size:
             k = int(far[0])
-            raise ValueError(f"particle {k} at ({float(pos[k, 0]):.6g}, {float(pos[k, 1]):.6g}) is "
+            at = ", ".join(f"{float(v):.6g}" for v in pos[k])
+            raise ValueError(f"particle {k} at ({at}) is "
                              f"more than {MAX_CELLS_AWAY:.0e} cell lengths from the cell: wrapping "
                              f"it back would lose all its digits")
     else:
@@ -91,18 +92,21 @@ def _check_extent(pos, rad, cell, origin):
 
 @dataclass(eq=False)
 class Configuration:
-    """A 2D disk packing as read from (or written to) a file.
+    """A disk (2D) or sphere (3D) packing as read from (or written to) a file.
+
+    The dimension ``d`` is the number of columns of ``positions`` (:attr:`dim`): 2 for disks, 3
+    for spheres; every other array follows it.
 
     Parameters
     ----------
-    positions : (N, 2) float, disk centres [m]. Kept exactly as in the file (not wrapped).
-    radii : (N,) float, disk radii [m], > 0.
-    cell : (2, 2) float or None, periodic shape matrix h whose *columns* are the periodic cell
+    positions : (N, d) float, particle centres [m]. Kept exactly as in the file (not wrapped).
+    radii : (N,) float, radii [m], > 0.
+    cell : (d, d) float or None, periodic shape matrix h whose *columns* are the periodic cell
         vectors (same convention as :class:`microhom.network.ContactNetwork`); None = not periodic.
-    origin : (2,) float, lower-left corner of the cell/box [m].
+    origin : (d,) float, lower-left corner of the cell/box [m] (default zeros).
     ids : (N,) int64, particle ids (LAMMPS ids; 1..N when the format has none).
     types : (N,) int64, particle types (1 when the format has none).
-    velocities, forces : (N, 2) float or None.
+    velocities, forces : (N, d) float or None.
     fields : dict name -> (N,) array of further per-particle columns (e.g. ``omegaz``, ``ix``).
     meta : dict of file-level metadata (timestep, box for non-periodic files, OVAL extras, ...).
     source : path of the file read, or None.
@@ -113,7 +117,7 @@ class Configuration:
     positions: np.ndarray
     radii: np.ndarray
     cell: np.ndarray | None = None
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    origin: np.ndarray | None = None
     ids: np.ndarray | None = None
     types: np.ndarray | None = None
     velocities: np.ndarray | None = None
@@ -125,9 +129,10 @@ class Configuration:
 
     def __post_init__(self):
         pos = np.array(self.positions, dtype=np.float64)
-        if pos.ndim != 2 or pos.shape[1] != 2:
-            raise ValueError(f"positions must have shape (N, 2), got {pos.shape}")
-        n = pos.shape[0]
+        if pos.ndim != 2 or pos.shape[1] not in (2, 3):
+            raise ValueError(f"positions must have shape (N, 2) (disks) or (N, 3) (spheres), "
+                             f"got {pos.shape}")
+        n, d = pos.shape
         if not np.all(np.isfinite(pos)):
             raise ValueError("positions contains non-finite values")
         rad = _per_particle("radii", self.radii, n, np.float64)
@@ -135,10 +140,11 @@ class Configuration:
             raise ValueError("radii must be finite and > 0")
         self.positions, self.radii = pos, rad
         if self.cell is not None:
-            self.cell = _float_array("cell", self.cell, (2, 2))
+            self.cell = _float_array("cell", self.cell, (d, d))
             if not abs(np.linalg.det(self.cell)) > 0:
                 raise ValueError("cell must be non-singular")
-        self.origin = _float_array("origin", self.origin, (2,))
+        self.origin = _float_array("origin", np.zeros(d) if self.origin is None else self.origin,
+                                   (d,))
         _check_extent(pos, rad, self.cell, self.origin)
         self.ids = (np.arange(1, n + 1, dtype=np.int64) if self.ids is None
                     else _per_particle("ids", self.ids, n, np.int64, scalar=False))
@@ -147,7 +153,7 @@ class Configuration:
         for name in ("velocities", "forces"):
             v = getattr(self, name)
             if v is not None:
-                setattr(self, name, _float_array(name, v, (n, 2)))
+                setattr(self, name, _float_array(name, v, (n, d)))
         self.fields = {str(k): _per_particle(f"field {k!r}", v, n, None, scalar=False)
                        for k, v in dict(self.fields).items()}
         self.meta = dict(self.meta)
@@ -161,18 +167,23 @@ class Configuration:
         return self.positions.shape[0]
 
     @property
+    def dim(self) -> int:
+        """The dimension, 2 (disks) or 3 (spheres): the number of columns of ``positions``."""
+        return self.positions.shape[1]
+
+    @property
     def periodic(self) -> bool:
         """True when the configuration has a periodic cell."""
         return self.cell is not None
 
     def fractional(self) -> np.ndarray:
-        """(N, 2) fractional coordinates ``s = h^-1 (x - origin)`` (needs a cell)."""
+        """(N, d) fractional coordinates ``s = h^-1 (x - origin)`` (needs a cell)."""
         if self.cell is None:
             raise ValueError("fractional coordinates need a periodic cell")
         return np.linalg.solve(self.cell, (self.positions - self.origin).T).T
 
     def wrapped(self) -> "Configuration":
-        """A copy with every position mapped into the periodic cell (``s`` in [0, 1)^2)."""
+        """A copy with every position mapped into the periodic cell (``s`` in [0, 1)^d)."""
         if self.cell is None:
             return self.copy()
         s = self.fractional()
@@ -183,18 +194,20 @@ class Configuration:
         return out
 
     def is_restricted_triclinic(self, rtol=1e-12) -> bool:
-        """True if the cell is in LAMMPS's restricted form: a = (lx, 0), b = (xy, ly), lx, ly > 0.
+        """True if the cell is in LAMMPS's restricted form: a = (lx, 0), b = (xy, ly), lx, ly > 0
+        (3D: a = (lx, 0, 0), b = (xy, ly, 0), c = (xz, yz, lz), lx, ly, lz > 0: h upper triangular
+        with a positive diagonal).
         """
         if self.cell is None:
             return True
         h = self.cell
         scale = np.abs(h).max()
-        return bool(abs(h[1, 0]) <= rtol * scale and h[0, 0] > 0 and h[1, 1] > 0)
+        return bool(np.all(np.abs(np.tril(h, -1)) <= rtol * scale) and np.all(np.diag(h) > 0))
 
     def to_restricted(self) -> "Configuration":
         """A copy rotated about ``origin`` so the cell is in LAMMPS's restricted triclinic form.
 
-        Positions, velocities and forces are rotated with it (``meta["rotation"]`` holds the 2x2
+        Positions, velocities and forces are rotated with it (``meta["rotation"]`` holds the d x d
         rotation R applied: ``x_new = origin + R (x - origin)``). The contact network is unchanged
         up to that rotation. Left-handed cells (det h < 0) cannot be rotated to this form.
         """
@@ -204,18 +217,26 @@ class Configuration:
         h = self.cell
         if np.linalg.det(h) <= 0:
             raise ValueError("cell is left-handed (det h < 0): no rotation gives LAMMPS's form")
+        if self.dim == 3:
+            q, r = np.linalg.qr(h)          # h = Q R; R upper triangular: LAMMPS's form
+            sgn = np.where(np.diag(r) < 0, -1.0, 1.0)
+            q, r = q * sgn, sgn[:, None] * r   # positive diagonal; det Q = det h / det R > 0
+            rot, new_h = q.T, np.triu(r)
+        else:
+            rot = new_h = None
         a = h[:, 0]
-        c, s = a / np.hypot(*a)
-        rot = np.array([[c, s], [-s, c]])  # rotates a onto +x
-        new_h = rot @ h
-        new_h[1, 0] = 0.0
+        if rot is None:
+            c, s = a / np.hypot(*a)
+            rot = np.array([[c, s], [-s, c]])  # rotates a onto +x
+            new_h = rot @ h
+            new_h[1, 0] = 0.0
         out.cell = new_h
         out.positions = self.origin + (self.positions - self.origin) @ rot.T
         if self.velocities is not None:
             out.velocities = self.velocities @ rot.T
         if self.forces is not None:
             out.forces = self.forces @ rot.T
-        prev = np.asarray(self.meta.get("rotation", np.eye(2)))
+        prev = np.asarray(self.meta.get("rotation", np.eye(self.dim)))
         out.meta["rotation"] = (rot @ prev).tolist()
         return out
 

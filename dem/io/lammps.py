@@ -1,14 +1,22 @@
-"""LAMMPS data files and text dumps (2D, ``atom_style sphere``).
+"""LAMMPS data files and text dumps (2D disks and 3D spheres, ``atom_style sphere``).
 
 Box conventions (LAMMPS ``Howto_triclinic``): a restricted triclinic box has edge vectors
-``a = (lx, 0)``, ``b = (xy, ly)`` with ``lx = xhi - xlo``, ``ly = yhi - ylo``, origin
-``(xlo, ylo)``; so the shape matrix is ``h = [[lx, xy], [0, ly]]`` (columns = cell vectors).
+``a = (lx, 0, 0)``, ``b = (xy, ly, 0)``, ``c = (xz, yz, lz)`` with ``lx = xhi - xlo``,
+``ly = yhi - ylo``, ``lz = zhi - zlo``, origin ``(xlo, ylo, zlo)``; so the shape matrix is
+``h = [[lx, xy, xz], [0, ly, yz], [0, 0, lz]]`` (columns = cell vectors), and its upper-left
+2 x 2 block ``[[lx, xy], [0, ly]]`` in 2D.
 Dump files give the *bounding box* of the tilted cell, ``xlo_bound = xlo + min(0, xy, xz, xy+xz)``,
 ``xhi_bound = xhi + max(0, xy, xz, xy+xz)``, ``ylo_bound = ylo + min(0, yz)``,
 ``yhi_bound = yhi + max(0, yz)``; the readers/writers here invert/apply exactly that. LAMMPS's
 *general* triclinic form (any orientation; data header ``avec/bvec/cvec/abc origin``, dump
 ``BOX BOUNDS abc origin``, LAMMPS >= 17Apr2024) is read, and written for cells that are not in the
 restricted form (or use :meth:`~dem.io.Configuration.to_restricted` first for older LAMMPS versions).
+
+Dimension (neither file format states it): ``dimension=None`` (default) reads a file as 3D when
+its z direction is periodic and its z coordinates are not all equal, else as 2D (LAMMPS's
+``dimension 2`` keeps z fixed: ``fix enforce2d``); ``dimension=2`` or ``3`` says it. A data file
+does not say its boundaries: its z is periodic exactly when ``periodic=True``. A dump says them on
+its ``BOX BOUNDS`` line. So a 3D packing with a non-periodic z needs ``dimension=3``.
 """
 from __future__ import annotations
 
@@ -54,7 +62,16 @@ def box_from_dump_bounds(xlo_b, xhi_b, ylo_b, yhi_b, xy=0.0, xz=0.0, yz=0.0):
 
 def _restricted(cell, rtol=1e-12):
     scale = np.abs(cell).max()
-    return abs(cell[1, 0]) <= rtol * scale and cell[0, 0] > 0 and cell[1, 1] > 0
+    return bool(np.all(np.abs(np.tril(cell, -1)) <= rtol * scale) and np.all(np.diag(cell) > 0))
+
+
+def _as3(h, origin):
+    """(3, 3) cell and (3,) origin of a 2D or 3D box (a 2D box gets c = (0, 0, 1), z0 = -0.5)."""
+    if h.shape == (3, 3):
+        return h, origin
+    h3 = np.eye(3)
+    h3[:2, :2] = h
+    return h3, np.array([origin[0], origin[1], -0.5])
 
 
 def _box_of(config: Configuration):
@@ -68,7 +85,19 @@ def _box_of(config: Configuration):
     return np.diag(hi - lo), lo, False
 
 
-def _check_inside(positions, cell, origin, dims, path, line_of_row, names=("x", "y")):
+def _dimension(dimension, z, z_periodic, path):
+    """The dimension of a file: ``dimension`` if given (2 or 3), else 3 when z is periodic and
+    the z coordinates ``z`` (None: no z column) are not all equal, else 2."""
+    if dimension is not None:
+        if dimension not in (2, 3):
+            raise ValueError(f"dimension must be None (from the file), 2 or 3, got {dimension!r}")
+        if dimension == 3 and z is None:
+            raise FormatError(path, None, "z", "dimension=3 needs z coordinates")
+        return int(dimension)
+    return 3 if (z_periodic and z is not None and z.size and np.ptp(z) > 0) else 2
+
+
+def _check_inside(positions, cell, origin, dims, path, line_of_row, names=("x", "y", "z")):
     """FormatError for the first particle outside the box along a non-periodic dimension."""
     s = np.linalg.solve(cell, (positions - origin).T).T
     for d in dims:
@@ -76,7 +105,7 @@ def _check_inside(positions, cell, origin, dims, path, line_of_row, names=("x", 
         if bad.size:
             k = int(bad[0])
             raise FormatError(path, line_of_row(k), names[d],
-                              f"particle {k} at {names[d]} = {positions[k, d]!r} lies outside "
+                              f"particle {k} at {names[d]} = {float(positions[k, d])!r} lies outside "
                               f"the non-periodic box")
 
 
@@ -95,8 +124,8 @@ def _section_name(text):
     return None
 
 
-def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
-    """Read a 2D LAMMPS data file with ``atom_style sphere``.
+def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Configuration:
+    """Read a 2D or 3D LAMMPS data file with ``atom_style sphere``.
 
     Atoms lines: ``id type diameter density x y z [ix iy iz]``; radii = diameter / 2. Optional
     ``Velocities`` section (``id vx vy vz wx wy wz``) fills ``velocities`` and ``fields['omegaz']``;
@@ -109,7 +138,12 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
     ``boundary`` command): ``periodic=True`` (default) takes x and y as periodic (``cell`` set);
     ``periodic=False`` gives ``cell=None``, keeps the box in ``meta['box']`` and checks that every
     particle lies inside it. ``unwrap=True`` adds the image flags to the positions
-    (x + ix a + iy b); by default positions are kept as written. Raises :class:`~dem.io.FormatError`.
+    (x + ix a + iy b [+ iz c]); by default positions are kept as written. Raises
+    :class:`~dem.io.FormatError`.
+
+    3D (``dimension=3``, or ``None`` and a periodic file whose z coordinates vary: see the module
+    docstring): positions (N, 3), cell (3, 3) from the ``zlo zhi`` line and the tilts ``xz yz``
+    (``cvec`` in the general form), velocities (N, 3) and ``fields['omegax'|'omegay'|'omegaz']``.
     """
     path = os.fspath(path)
     data = open_bytes(path)
@@ -159,8 +193,8 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
         missing = {"avec", "bvec", "origin"} - set(gen)
         if missing:
             raise FormatError(path, None, sorted(missing)[0], "incomplete general triclinic box")
-        cell = np.array([gen["avec"][:2], gen["bvec"][:2]]).T
-        origin = np.array(gen["origin"][:2])
+        cell = np.array([gen["avec"], gen["bvec"], gen.get("cvec", [0.0, 0.0, 1.0])]).T
+        origin = np.array(gen["origin"])
         meta["triclinic"] = "general"
     else:
         for d in "xy":
@@ -170,8 +204,12 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
         if not (xhi > xlo and yhi > ylo):
             raise FormatError(path, None, "xlo xhi" if xhi <= xlo else "ylo yhi",
                               "box bounds must have lo < hi")
-        cell = np.array([[xhi - xlo, tilt[0]], [0.0, yhi - ylo]])
-        origin = np.array([xlo, ylo])
+        zlo, zhi = lo_hi.get("z", (-0.5, 0.5))
+        if not zhi > zlo:
+            raise FormatError(path, None, "zlo zhi", "box bounds must have lo < hi")
+        cell = np.array([[xhi - xlo, tilt[0], tilt[1]], [0.0, yhi - ylo, tilt[2]],
+                         [0.0, 0.0, zhi - zlo]])
+        origin = np.array([xlo, ylo, zlo])
         meta["tilt"] = list(tilt)
     meta["zlo_zhi"] = list(lo_hi.get("z", (-0.5, 0.5)))
 
@@ -214,13 +252,17 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
 
     ids = arr[:, 0].astype(np.int64)
     _check_unique(ids, path, line_of_row)
-    pos = arr[:, 4:6].copy()
+    dim = _dimension(dimension, arr[:, 6], periodic, path)
+    meta["dimension"] = dim
+    if dim == 2:
+        cell, origin = cell[:2, :2].copy(), origin[:2].copy()
+    pos = arr[:, 4:4 + dim].copy()
     fields = {"density": arr[:, 3].copy()}
     if ncol == 10:
-        fields["ix"] = arr[:, 7].astype(np.int64)
-        fields["iy"] = arr[:, 8].astype(np.int64)
-        if unwrap:
-            pos += fields["ix"][:, None] * cell[:, 0] + fields["iy"][:, None] * cell[:, 1]
+        for m, c in enumerate(_IMAGE_COLS[:dim]):
+            fields[c] = arr[:, 7 + m].astype(np.int64)
+            if unwrap:
+                pos += fields[c][:, None] * cell[:, m]
     velocities = None
     if "Velocities" in sections:
         v0, v1, _ = sections["Velocities"]
@@ -235,13 +277,15 @@ def read_lammps_data(path, *, periodic=True, unwrap=False) -> Configuration:
         if badv.size:
             raise FormatError(path, row_line(vblock, v0 + 1, int(badv[0]), "#"), "id",
                               "velocity for an atom id not in the Atoms section")
-        velocities = np.empty((natoms, 2))
-        velocities[idx] = varr[:, 1:3]
-        omegaz = np.empty(natoms)
-        omegaz[idx] = varr[:, 6]
-        fields["omegaz"] = omegaz
+        velocities = np.empty((natoms, dim))
+        velocities[idx] = varr[:, 1:1 + dim]
+        for m, c in enumerate(("omegax", "omegay", "omegaz")):
+            if dim == 3 or c == "omegaz":
+                w = np.empty(natoms)
+                w[idx] = varr[:, 4 + m]
+                fields[c] = w
     if not periodic:
-        _check_inside(pos, cell, origin, (0, 1), path, line_of_row)
+        _check_inside(pos, cell, origin, tuple(range(dim)), path, line_of_row)
         meta["box"] = cell.tolist()
     meta["sections"] = sorted(sections)
     return build(path, positions=pos, radii=0.5 * arr[:, 2], cell=cell if periodic else None,
@@ -267,7 +311,12 @@ def _fmt_table(arr, fmts):
 
 def write_lammps_data(path, config, *, density=1.0, title=None, general_triclinic="auto",
                       velocities=True):
-    """Write ``config`` as a 2D LAMMPS data file (``atom_style sphere``) for ``read_data``.
+    """Write ``config`` as a LAMMPS data file (``atom_style sphere``) for ``read_data``.
+
+    3D configurations (``config.dim == 3``) are written with their z coordinates, the box's
+    ``zlo zhi`` and tilts ``xz yz``, and ``wx wy wz`` from ``fields['omegax'|'omegay'|'omegaz']``;
+    use them with ``dimension 3``, ``set ... density`` and ``fix nve/sphere``. The rest of this
+    docstring is about 2D files.
 
     Columns ``id type diameter density x y z`` with z = 0 and ``zlo zhi = -0.5 0.5``; a tilt line
     ``xy 0 0 xy xz yz`` when the cell is sheared; positions are written exactly as stored
@@ -284,44 +333,49 @@ def write_lammps_data(path, config, *, density=1.0, title=None, general_triclini
     then ``set group all density/disc ...`` and ``fix nve/sphere disc`` for true disks.
     """
     h, origin, periodic = _box_of(config)
-    n = config.n_particles
-    out = [(title or "LAMMPS data file (2d, atom_style sphere) written by dem.io") + "\n", "\n",
-           f"{n} atoms\n", f"{int(config.types.max()) if n else 1} atom types\n", "\n"]
+    n, dim = config.n_particles, config.dim
+    h, origin = _as3(h, origin)
+    out = [(title or f"LAMMPS data file ({dim}d, atom_style sphere) written by dem.io") + "\n",
+           "\n", f"{n} atoms\n", f"{int(config.types.max()) if n else 1} atom types\n", "\n"]
     if _restricted(h):
         out += [f"{_f(origin[0])} {_f(origin[0] + h[0, 0])} xlo xhi\n",
                 f"{_f(origin[1])} {_f(origin[1] + h[1, 1])} ylo yhi\n",
-                "-0.5 0.5 zlo zhi\n"]
-        if h[0, 1] != 0.0:
-            if abs(h[0, 1]) > 0.5 * h[0, 0]:
-                warnings.warn("tilt xy exceeds half the box length: LAMMPS versions before "
+                (f"{_f(origin[2])} {_f(origin[2] + h[2, 2])} zlo zhi\n" if dim == 3
+                 else "-0.5 0.5 zlo zhi\n")]
+        if h[0, 1] != 0.0 or h[0, 2] != 0.0 or h[1, 2] != 0.0:
+            if (abs(h[0, 1]) > 0.5 * h[0, 0] or abs(h[0, 2]) > 0.5 * h[0, 0]
+                    or abs(h[1, 2]) > 0.5 * h[1, 1]):
+                warnings.warn("a tilt exceeds half the box length: LAMMPS versions before "
                               "2022 need 'box tilt large'", stacklevel=2)
-            out.append(f"{_f(h[0, 1])} 0.0 0.0 xy xz yz\n")
+            out.append(f"{_f(h[0, 1])} {_f(h[0, 2])} {_f(h[1, 2])} xy xz yz\n")
     else:
         if general_triclinic != "auto":
             raise ValueError("cell is not in LAMMPS's restricted triclinic form (a along +x): "
                              "write config.to_restricted() or allow general_triclinic='auto'")
         if np.linalg.det(h) <= 0:
             raise ValueError("cell is left-handed (det h < 0): LAMMPS needs a right-handed box")
-        out += [f"{_f(h[0, 0])} {_f(h[1, 0])} 0.0 avec\n",
-                f"{_f(h[0, 1])} {_f(h[1, 1])} 0.0 bvec\n",
-                "0.0 0.0 1.0 cvec\n", f"{_f(origin[0])} {_f(origin[1])} -0.5 abc origin\n"]
+        out += [f"{_f(h[0, 0])} {_f(h[1, 0])} {_f(h[2, 0])} avec\n",
+                f"{_f(h[0, 1])} {_f(h[1, 1])} {_f(h[2, 1])} bvec\n",
+                f"{_f(h[0, 2])} {_f(h[1, 2])} {_f(h[2, 2])} cvec\n",
+                f"{_f(origin[0])} {_f(origin[1])} {_f(origin[2])} abc origin\n"]
     out += ["\n", "Atoms # sphere\n", "\n"]
     dens = config.fields.get("density", np.full(n, float(density)))
+    z = config.positions[:, 2] if dim == 3 else np.zeros(n)
     cols = [config.ids, config.types, 2.0 * config.radii, dens, config.positions[:, 0],
-            config.positions[:, 1], np.zeros(n)]
+            config.positions[:, 1], z]
     fmts = ["%d", "%d", "%.17g", "%.17g", "%.17g", "%.17g", "%.17g"]
     if "ix" in config.fields and "iy" in config.fields:
-        cols += [config.fields["ix"], config.fields["iy"], np.zeros(n)]
+        cols += [config.fields["ix"], config.fields["iy"], config.fields.get("iz", np.zeros(n))]
         fmts += ["%d", "%d", "%d"]
     with open(path, "w") as f:
         f.writelines(out)
         f.write(_fmt_table(np.column_stack(cols), fmts))
         if velocities and config.velocities is not None:
             f.write("\nVelocities\n\n")
-            wz = config.fields.get("omegaz", np.zeros(n))
             z = np.zeros(n)
-            f.write(_fmt_table(np.column_stack([config.ids, config.velocities, z, z, z, wz]),
-                               ["%d"] + ["%.17g"] * 6))
+            w = [config.fields.get(c, z) for c in ("omegax", "omegay", "omegaz")]
+            v = config.velocities if dim == 3 else np.column_stack([config.velocities, z])
+            f.write(_fmt_table(np.column_stack([config.ids, v, *w]), ["%d"] + ["%.17g"] * 6))
     if not periodic:
         warnings.warn("configuration has no periodic cell: use 'boundary f f p' in LAMMPS",
                       stacklevel=2)
@@ -329,8 +383,8 @@ def write_lammps_data(path, config, *, density=1.0, title=None, general_triclini
 
 # ---- dumps ------------------------------------------------------------------------------------
 
-_POSITION_SETS = (("x", "y", False, False), ("xu", "yu", False, True), ("xs", "ys", True, False),
-                  ("xsu", "ysu", True, True))
+_POSITION_SETS = (("x", "y", "z", False, False), ("xu", "yu", "zu", False, True),
+                  ("xs", "ys", "zs", True, False), ("xsu", "ysu", "zsu", True, True))
 _Z_COLS = {"z", "zu", "zs", "zsu"}
 
 
@@ -343,7 +397,7 @@ def _frame_offsets(data: bytes):
     return offs
 
 
-def _parse_dump_frame(data, start, end, path, radius, frame_index):
+def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=None):
     lineno = data.count(b"\n", 0, start) + 1
     pos = start
     meta = {"frame": frame_index}
@@ -420,17 +474,30 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
         raise FormatError(path, first - 1, "ATOMS",
                           "no 'radius' or 'diameter' column (give a constant radius: radius= in "
                           "Python, --radius on the command line)")
-    for xn, yn, scaled, unwrapped in _POSITION_SETS:
+    for xn, yn, zn, scaled, unwrapped in _POSITION_SETS:
         if xn in col and yn in col:
             xy = arr[:, [col[xn], col[yn]]]
             break
     else:
         raise FormatError(path, first - 1, "ATOMS", "no x y (or xu yu, xs ys, xsu ysu) columns")
-    if scaled:
-        xy = origin + xy @ cell.T
+    zc = arr[:, col[zn]] if zn in col else None
+    dim = _dimension(dimension, zc, pbc[2], path)
+    meta["dimension"] = dim
+    if dim == 3:
+        xy = np.column_stack([xy, zc])
+        if scaled:
+            xy = origin + xy @ cell.T
+    else:
+        if scaled:      # x, y of a 2D box: the z column (s_z) of h does not enter
+            xy = origin[:2] + xy @ cell[:2, :2].T
+        cell, origin = cell[:2, :2].copy(), origin[:2].copy()
     meta["coordinates"] = xn[:-1] if len(xn) > 1 else "x"
+    names = (xn, yn, zn)[:dim]
     used = {"id", "type", "radius", "diameter", xn, yn, "vx", "vy", "fx", "fy"}
-    fields = {c: arr[:, k].copy() for c, k in col.items() if c not in used and c not in _Z_COLS}
+    if dim == 3:
+        used |= {zn, "vz", "fz"}
+    fields = {c: arr[:, k].copy() for c, k in col.items()
+              if c not in used and (dim == 3 or c not in _Z_COLS)}
     for c in ("ix", "iy", "iz"):
         if c in fields:
             fields[c] = fields[c].astype(np.int64)
@@ -441,17 +508,18 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index):
     ids = arr[:, col["id"]].astype(np.int64) if "id" in col else None
     if ids is not None:
         _check_unique(ids, path, line_of_row)
-    nonper = [d for d in (0, 1) if not pbc[d]]
+    nonper = [d for d in range(dim) if not pbc[d]]
     if nonper and not unwrapped:
-        _check_inside(xy, cell, origin, nonper, path, line_of_row, names=(xn, yn))
-    periodic = all(pbc[:2])
+        _check_inside(xy, cell, origin, nonper, path, line_of_row, names=names)
+    periodic = all(pbc[:dim])
     if not periodic:
         meta["box"] = cell.tolist()
-        if any(pbc[:2]):
+        if any(pbc[:dim]):
             warnings.warn(f"{path}: box periodic in one direction only ({meta['boundary']}); the "
                           "configuration is returned without a periodic cell", stacklevel=3)
-    vel = arr[:, [col["vx"], col["vy"]]] if "vx" in col and "vy" in col else None
-    frc = arr[:, [col["fx"], col["fy"]]] if "fx" in col and "fy" in col else None
+    vn, fn = ("vx", "vy", "vz")[:dim], ("fx", "fy", "fz")[:dim]
+    vel = arr[:, [col[c] for c in vn]] if all(c in col for c in vn) else None
+    frc = arr[:, [col[c] for c in fn]] if all(c in col for c in fn) else None
     return build(path, positions=xy, radii=rad, cell=cell if periodic else None, origin=origin,
                          ids=ids, types=arr[:, col["type"]].astype(np.int64) if "type" in col
                          else None, velocities=vel, forces=frc, fields=fields, meta=meta,
@@ -479,24 +547,27 @@ def _dump_box(box, path, meta):
     meta["boundary"] = " ".join(flags)
     pbc = [f == "pp" for f in flags]
     if general:
-        cell = np.array([vals[0][:2], vals[1][:2]]).T
-        origin = np.array([vals[0][3], vals[1][3]])
+        cell = np.array([v[:3] for v in vals]).T
+        origin = np.array([v[3] for v in vals])
         meta["triclinic"] = "general"
     else:
         xy, xz, yz = (vals[0][2], vals[1][2], vals[2][2]) if tilted else (0.0, 0.0, 0.0)
         xlo, xhi, ylo, yhi = box_from_dump_bounds(vals[0][0], vals[0][1], vals[1][0], vals[1][1],
                                                   xy, xz, yz)
+        zlo, zhi = vals[2][0], vals[2][1]
         if not (xhi > xlo and yhi > ylo):
             raise FormatError(path, rows[0][1], "BOX BOUNDS", "box bounds must have lo < hi")
-        cell = np.array([[xhi - xlo, xy], [0.0, yhi - ylo]])
-        origin = np.array([xlo, ylo])
+        if not zhi > zlo:
+            raise FormatError(path, rows[2][1], "BOX BOUNDS", "z bounds must have lo < hi")
+        cell = np.array([[xhi - xlo, xy, xz], [0.0, yhi - ylo, yz], [0.0, 0.0, zhi - zlo]])
+        origin = np.array([xlo, ylo, zlo])
         meta["tilt"] = [xy, xz, yz]
-    if not abs(np.linalg.det(cell)) > 0:
+    if not abs(np.linalg.det(cell[:2, :2])) > 0:
         raise FormatError(path, rows[0][1], "BOX BOUNDS", "degenerate box")
     return cell, origin, pbc
 
 
-def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
+def read_lammps_dump(path, frame=None, *, radius=None, dimension=None) -> Configuration:
     """Read one frame of a LAMMPS text dump (``dump custom``/``atom``; ``.gz`` allowed).
 
     Needs ``ITEM: ATOMS`` columns for positions (``x y``, else ``xu yu``, ``xs ys`` or
@@ -514,6 +585,11 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     the first frame is read, with a warning naming the frame count when the file has several (a
     trajectory's first frame is usually its initial gas). ``meta['frame']`` (0-based) and
     ``meta['n_frames']`` say which frame was read.
+
+    3D: ``dimension=3``, or ``None`` and a z boundary ``pp`` with z coordinates that are not all
+    equal (module docstring): positions (N, 3) from ``x y z`` (``xu yu zu``, ``xs ys zs``,
+    ``xsu ysu zsu``), cell (3, 3) with the tilts ``xz yz`` and the z bounds, ``vx vy vz``,
+    ``fx fy fz``; periodic when all three directions are ``pp``.
     """
     path = os.fspath(path)
     data = open_bytes(path)
@@ -533,7 +609,7 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
         raise err from None
     k = offs.index(start)
     end = offs[k + 1] if k + 1 < len(offs) else len(data)
-    cfg = _parse_dump_frame(data, start, end, path, radius, k)
+    cfg = _parse_dump_frame(data, start, end, path, radius, k, dimension)
     cfg.meta["n_frames"] = len(offs)
     if unsaid and len(offs) > 1:
         warnings.warn(f"{path} holds {len(offs)} frames: read the first (timestep "
@@ -542,63 +618,69 @@ def read_lammps_dump(path, frame=None, *, radius=None) -> Configuration:
     return cfg
 
 
-def iter_lammps_dump(path, *, radius=None):
-    """Yield every frame of a LAMMPS text dump as a :class:`~dem.io.Configuration`."""
+def iter_lammps_dump(path, *, radius=None, dimension=None):
+    """Yield every frame of a LAMMPS text dump as a :class:`~dem.io.Configuration` (``radius``,
+    ``dimension``: as :func:`read_lammps_dump`)."""
     path = os.fspath(path)
     data = open_bytes(path)
     offs = _frame_offsets(data)
     for k, start in enumerate(offs):
         end = offs[k + 1] if k + 1 < len(offs) else len(data)
-        yield _parse_dump_frame(data, start, end, path, radius, k)
+        yield _parse_dump_frame(data, start, end, path, radius, k, dimension)
 
 
 def write_lammps_dump(path, config, *, timestep=None, fields=True, append=False,
                       general_triclinic="auto"):
     """Write ``config`` as one frame of a LAMMPS text dump (opens in OVITO).
 
-    Columns ``id type radius x y z`` (z = 0), then ``vx vy vz`` and ``fx fy fz`` when set, then
-    every per-particle ``config.fields`` entry (``fields=True``), or the names listed in
+    Columns ``id type radius x y z`` (z = 0 in 2D), then ``vx vy vz`` and ``fx fy fz`` when set,
+    then every per-particle ``config.fields`` entry (``fields=True``), or the names listed in
     ``fields``. Box: ``BOX BOUNDS pp pp pp`` or, for a sheared cell, ``xy xz yz pp pp pp`` with the
-    bounding box + tilt; a cell not in the restricted form is written as ``abc origin pp pp pp``
+    bounding box + tilts; a cell not in the restricted form is written as ``abc origin pp pp pp``
     (LAMMPS general triclinic) unless ``general_triclinic="never"``. Non-periodic: ``ff ff pp``
-    with ``meta['box']`` or the disks' extent. ``append=True`` adds a frame to an existing file.
+    (3D: ``ff ff ff``) with ``meta['box']`` or the particles' extent. ``append=True`` adds a frame
+    to an existing file.
     """
     h, origin, periodic = _box_of(config)
-    n = config.n_particles
+    n, dim = config.n_particles, config.dim
+    h, origin = _as3(h, origin)
     if timestep is None:
         timestep = int(config.meta.get("timestep", 0))
-    flags = "pp pp pp" if periodic else "ff ff pp"
+    flags = "pp pp pp" if periodic else ("ff ff pp" if dim == 2 else "ff ff ff")
     head = [f"ITEM: TIMESTEP\n{timestep}\n", f"ITEM: NUMBER OF ATOMS\n{n}\n"]
+    zlo, zhi = (origin[2], origin[2] + h[2, 2]) if dim == 3 else (-0.5, 0.5)
     if _restricted(h):
-        xlo, ylo = origin
+        xlo, ylo = origin[:2]
         xhi, yhi = xlo + h[0, 0], ylo + h[1, 1]
-        xy = h[0, 1]
-        if xy != 0.0:
-            b = dump_bounds(xlo, xhi, ylo, yhi, xy)
+        xy, xz, yz = h[0, 1], h[0, 2], h[1, 2]
+        if xy != 0.0 or xz != 0.0 or yz != 0.0:
+            b = dump_bounds(xlo, xhi, ylo, yhi, xy, xz, yz)
             head.append(f"ITEM: BOX BOUNDS xy xz yz {flags}\n{_f(b[0])} {_f(b[1])} {_f(xy)}\n"
-                        f"{_f(b[2])} {_f(b[3])} 0.0\n-0.5 0.5 0.0\n")
+                        f"{_f(b[2])} {_f(b[3])} {_f(xz)}\n{_f(zlo)} {_f(zhi)} {_f(yz)}\n")
         else:
             head.append(f"ITEM: BOX BOUNDS {flags}\n{_f(xlo)} {_f(xhi)}\n"
-                        f"{_f(ylo)} {_f(yhi)}\n-0.5 0.5\n")
+                        f"{_f(ylo)} {_f(yhi)}\n{_f(zlo)} {_f(zhi)}\n")
     else:
         if general_triclinic != "auto":
             raise ValueError("cell is not in LAMMPS's restricted triclinic form: write "
                              "config.to_restricted() or allow general_triclinic='auto'")
-        head.append(f"ITEM: BOX BOUNDS abc origin {flags}\n"
-                    f"{_f(h[0, 0])} {_f(h[1, 0])} 0.0 {_f(origin[0])}\n"
-                    f"{_f(h[0, 1])} {_f(h[1, 1])} 0.0 {_f(origin[1])}\n0.0 0.0 1.0 -0.5\n")
+        head.append(f"ITEM: BOX BOUNDS abc origin {flags}\n" + "".join(
+            f"{_f(h[0, k])} {_f(h[1, k])} {_f(h[2, k])} {_f(origin[k])}\n" for k in range(3)))
     names = ["id", "type", "radius", "x", "y", "z"]
     z = np.zeros(n)
-    cols = [config.ids, config.types, config.radii, config.positions[:, 0],
-            config.positions[:, 1], z]
+
+    def xyz(v):
+        return [v[:, 0], v[:, 1], v[:, 2] if dim == 3 else z]
+
+    cols = [config.ids, config.types, config.radii, *xyz(config.positions)]
     fmts = ["%d", "%d"] + ["%.17g"] * 4
     if config.velocities is not None:
         names += ["vx", "vy", "vz"]
-        cols += [config.velocities[:, 0], config.velocities[:, 1], z]
+        cols += xyz(config.velocities)
         fmts += ["%.17g"] * 3
     if config.forces is not None:
         names += ["fx", "fy", "fz"]
-        cols += [config.forces[:, 0], config.forces[:, 1], z]
+        cols += xyz(config.forces)
         fmts += ["%.17g"] * 3
     extra = list(config.fields) if fields is True else list(fields or [])
     for name in extra:

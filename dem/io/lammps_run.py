@@ -5,7 +5,8 @@ A run folder written by :func:`dem.engine.lammps.write_inputs` and run by LAMMPS
 ``log.lammps``. :func:`read_run` turns it into a :class:`LammpsRun` with the contact network and
 LAMMPS's own per-contact forces. This is a reader: it needs no simulator (``dem analyse`` reads run
 folders through it), and it follows the reading rule of :mod:`dem.io` (regular files of a size that
-fits in memory). Units are the run's; 2D per unit thickness.
+fits in memory). Units are the run's; 2D per unit thickness, or 3D (a run written with
+``dimension=3``: the final dump is read as 3D by :mod:`dem.io`'s rule, z periodic and varying).
 """
 from __future__ import annotations
 
@@ -62,15 +63,17 @@ class LammpsRun(Result):
         LAMMPS's contact counts).
     network : microhom.network.ContactNetwork
         The contact network with ``kn``, ``kt`` [N/m] of the run, ``fn = kn * overlap`` and ``ft``
-        from LAMMPS's tangential forces (both (C,), forces per unit thickness).
+        from LAMMPS's tangential forces: in 2D both (C,), forces per unit thickness; in 3D ``fn``
+        (C,) and ``ft`` (C, 3), the tangential force vector on the contact's second sphere [N].
     lammps : dict
         LAMMPS's own figures from the ``PACK_RESULT`` line: ``pressure``, ``pxx``, ``pyy``, ``pxy``
-        (``compute pressure NULL virial``, 2D stress [N/m]), ``Z``, ``phi``, ``converged``, ...
+        (``compute pressure NULL virial``, 2D stress [N/m]; 3D: also ``pzz``, ``pxz``, ``pyz``,
+        stress [Pa]), ``Z``, ``phi``, ``converged``, ...
     phases : list of dict
         The ``PACK_PHASE`` lines (steps, pressure, criteria per phase).
     contacts : dict
         Per-contact LAMMPS data aligned with the network's contacts: ``force`` (C,) (normal force
-        magnitude of ``compute pair/local``), ``fs`` (C, 2) (tangential force on the lower-index
+        magnitude of ``compute pair/local``), ``fs`` (C, d) (tangential force on the lower-index
         particle) and ``dist`` (C,) (centre distance).
     params : dict
         The parameters written (:func:`write_inputs`' return value: kn, kt, mu, ...).
@@ -132,12 +135,15 @@ def read_run(folder, params=None) -> LammpsRun:
         head = (folder / INPUT_NAME).read_text().splitlines()[3]
         params = _parse_kv(head.lstrip("# "))
     kn, kt, mu = float(params["kn"]), float(params["kt"]), float(params["mu"])
-    cfg = _read(folder / "final.dump").sorted_by_id()
+    dimension = params.get("dimension")
+    cfg = _read(folder / "final.dump",
+                dimension=None if dimension is None else int(dimension)).sorted_by_id()
+    d = cfg.dim
     net = from_overlaps(cfg.positions, cfg.radii, cfg.cell, kn=kn, kt=kt, tolerance=0.0, origin=cfg.origin)
     cols, arr = read_dump_local(folder / "contacts.dump")
     ia = np.searchsorted(cfg.ids, arr[:, 0].astype(np.int64))
     ib = np.searchsorted(cfg.ids, arr[:, 1].astype(np.int64))
-    dist, force, fs = arr[:, 2], arr[:, 3], arr[:, 4:6]
+    dist, force, fs = arr[:, 2], arr[:, 3], arr[:, 4:4 + d]
     touching = dist < cfg.radii[ia] + cfg.radii[ib]
     ia, ib, dist, force, fs = ia[touching], ib[touching], dist[touching], force[touching], fs[touching]
     # key each LAMMPS contact on the (lower, higher) particle index, as the network's pairs
@@ -146,7 +152,8 @@ def read_run(folder, params=None) -> LammpsRun:
     key_l = lo * n + hi
     key_n = net.pairs[:, 0] * n + net.pairs[:, 1]
     if len(np.unique(key_l)) != len(key_l) or len(np.unique(key_n)) != len(key_n):
-        raise ValueError("two contacts between the same pair of disks (cell smaller than two diameters?)")
+        raise ValueError("two contacts between the same pair of particles (cell smaller than two "
+                         "diameters?)")
     order_l = np.argsort(key_l)
     pos = np.searchsorted(key_l[order_l], key_n)
     pos = np.clip(pos, 0, max(len(key_l) - 1, 0))
@@ -157,14 +164,20 @@ def read_run(folder, params=None) -> LammpsRun:
     k = order_l[pos]
     # LAMMPS pair (a, b): force on a = (x_a - x_b)/d * force + fs. Network contact (i < j):
     # n = (x_j - x_i)/|.|, force on j = fn n + ft t, t = (-n_y, n_x).
+    # 3D: ft = the tangential force vector on j = -fs when a = i, fs when a = j.
     first_is_i = ia[k] == net.pairs[:, 0]
     nrm = net.normals
-    t = np.stack([-nrm[:, 1], nrm[:, 0]], axis=1)
     fs_k = fs[k]
-    ft = np.where(first_is_i, -1.0, 1.0) * np.einsum("ci,ci->c", fs_k, t)
+    if d == 2:
+        t = np.stack([-nrm[:, 1], nrm[:, 0]], axis=1)
+        ft = np.where(first_is_i, -1.0, 1.0) * np.einsum("ci,ci->c", fs_k, t)
+        ft_size = np.abs(ft)
+    else:
+        ft = np.where(first_is_i[:, None], -1.0, 1.0) * fs_k
+        ft_size = np.linalg.norm(ft, axis=1)
     delta = cfg.radii[net.pairs[:, 0]] + cfg.radii[net.pairs[:, 1]] - net.lengths
     fn = kn * delta
-    sliding = np.abs(ft) >= mu * fn * (1 - 1e-9) if kt > 0 else np.ones(len(fn), bool)
+    sliding = ft_size >= mu * fn * (1 - 1e-9) if kt > 0 else np.ones(len(fn), bool)
     net = replace(net, fn=fn, ft=ft, sliding=sliding)
     fs_low = np.where(first_is_i[:, None], fs_k, -fs_k)  # tangential force on particle i
     result, phases, loops = _parse_log(folder / "log.lammps")
