@@ -285,3 +285,17 @@ def test_exact_solver_on_spheres_matches_closed_forms_and_the_dense_relaxation()
         np.testing.assert_allclose(got.C_mandel, C, rtol=0, atol=1e-9 * np.abs(C).max())
         K, G = tensors.isotropic_moduli(C)
         assert got.K == pytest.approx(K, rel=1e-9) and got.G == pytest.approx(G, rel=1e-9)
+
+
+def test_dem_analyse_on_a_lammps_3d_dump(capsys):
+    """dem analyse on a 3D file written by LAMMPS: the exact (6, 6) tensor in Pa, and the 2D-only
+    sections refused with the reason (never a 2D formula on a 3D network)."""
+    from pathlib import Path
+
+    from dem.analysis.analyse import ONLY_2D, SectionError, analyse_file, format_table
+    res = analyse_file(Path(__file__).parent / "data" / "sph3d_tri.dump", hierarchy=False)
+    assert np.shape(res.stiffness.C_mandel) == (6, 6) and res.stiffness.K > 0 and res.stiffness.G > 0
+    for section in (res.structural, res.theory, res.closure, res.stress):
+        assert isinstance(section, SectionError) and section.message == ONLY_2D
+    text = format_table(res)
+    assert "moduli (3D, force/area)" in text and "K [Pa]" in text

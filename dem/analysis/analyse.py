@@ -608,6 +608,12 @@ def _elastic_normal_forces(net):
     return net.kn * delta
 
 
+#: the sections written for disks, on a 3D network (spheres: docs/spheres.md)
+ONLY_2D = ("2D only: the seed paper's theory, its structural sums, the closure and this stress "
+           "section are written for disks; this is a 3D network (its exact stiffness is below; "
+           "docs/spheres.md)")
+
+
 def _section(fn, *args, **kwargs):
     """``(fn(...), warnings raised)``, or ``(SectionError(reason), ())`` when it fails."""
     try:
@@ -695,17 +701,22 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     if not jammed:
         coord = replace(coord, z=float("nan"))   # the mean over no particle
     not_jammed = SectionError(NOT_JAMMED)
-    if jammed:
+    disks = net.dim == 2
+    if not disks:
+        structural = SectionError(ONLY_2D)
+    elif jammed:
         structural, w["structural"] = _section(network_statistics, net, min_contacts,
                                                rho_neighbours=rho_neighbours)
     else:
         structural = not_jammed
-    if net.fn is not None and net.n_contacts:
+    if not disks:
+        stress_ = SectionError(ONLY_2D)
+    elif net.fn is not None and net.n_contacts:
         stress_, w["stress"] = _section(_stress, net)
     else:
         stress_ = SectionError("no contact forces in the file" if net.fn is None else "no contacts")
-    theory = not_jammed
-    if jammed:
+    theory = not_jammed if disks else SectionError(ONLY_2D)
+    if jammed and disks:
         theory, w["theory"] = _section(_theory, net, alpha, min_contacts, rho_neighbours)
     if jammed and _ok(structural):
         cl, w["closure"] = _section(_closure, net)
@@ -865,8 +876,13 @@ def format_table(res: AnalysisResult) -> str:
                  f"(p/kn = {_g(st.p_over_kn, '.4g')})")
     th, ex, cmp = res.theory, res.stiffness, res.comparison
     L.append("")
-    L.append("moduli (2D, force/length)")
-    L.append(f"  {'estimate':44}{'K [N/m]':>14}{'G [N/m]':>14}{'K/exact':>10}{'G/exact':>10}")
+    spheres = _ok(res.stiffness) and np.shape(res.stiffness.C_mandel) == (6, 6)
+    if spheres:
+        L.append("moduli (3D, force/area)")
+        L.append(f"  {'estimate':44}{'K [Pa]':>14}{'G [Pa]':>14}{'K/exact':>10}{'G/exact':>10}")
+    else:
+        L.append("moduli (2D, force/length)")
+        L.append(f"  {'estimate':44}{'K [N/m]':>14}{'G [N/m]':>14}{'K/exact':>10}{'G/exact':>10}")
 
     def ratios(lab):
         return (f"{_g(getattr(cmp, f'K_{lab}_over_exact'), '.4f'):>10}"
@@ -910,7 +926,8 @@ def format_table(res: AnalysisResult) -> str:
         L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex.K_affine):>14}{_g(ex.G_affine):>14}")
         L.append(f"  {'exact' + (' with prestress' if ex.prestress else '') + ' (dem.analysis.stiffness)':44}"
                  f"{_g(ex.K):>14}{_g(ex.G):>14}")
-        L.append("  exact C (Mandel [xx, yy, sqrt2 xy]):")
+        L.append("  exact C (Mandel [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy]):" if spheres
+                 else "  exact C (Mandel [xx, yy, sqrt2 xy]):")
         for row in np.asarray(ex.C_mandel).tolist():
             L.append("    " + "".join(f"{v:>14.6g}" for v in row))
         L.append(f"  rattlers removed {ex.n_rattlers}, floppy modes {ex.n_floppy}, dof {ex.n_dof}, "
