@@ -146,7 +146,7 @@ def _neg(f):
 
 
 def gershgorin_upper(H, Minv_sqrt):
-    """Upper bound of the largest |eigenvalue| of ``(H, M)``: the largest absolute row sum of
+    """Upper bound of the largest absolute eigenvalue of ``(H, M)``: the largest absolute row sum of
     ``M^-1/2 H M^-1/2`` (Gershgorin), plus a round-off margin [-]."""
     A = (Minv_sqrt @ H @ Minv_sqrt).tocsr()
     r = float(np.asarray(abs(A).sum(axis=1)).max()) if A.shape[0] else 0.0

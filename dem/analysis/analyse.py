@@ -288,7 +288,7 @@ class AnalysisResult(Result):
 
     Every section is the library's own typed result, or a :class:`SectionError` saying why it
     could not be computed. ``as_dict()`` is the command line's JSON (NaN -> null), one dict per
-    section in the order of :data:`SECTIONS` (:meth:`sections` gives the views; the key names
+    section in the order of ``SECTIONS`` (:meth:`sections` gives the views; the key names
     are the JSON's, e.g. ``hierarchy.K_upper`` is ``res.hierarchy.K.upper``).
 
     Attributes
@@ -382,7 +382,7 @@ class AnalysisResult(Result):
         return Comparison(**out)
 
     def sections(self) -> dict:
-        """The JSON sections, in report order (:data:`SECTIONS`), as plain dicts of the typed
+        """The JSON sections, in report order (``SECTIONS``), as plain dicts of the typed
         results' values (numpy scalars and NaN kept; ``as_dict()`` makes them JSON-ready)."""
         w = self.warnings
 

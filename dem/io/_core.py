@@ -168,7 +168,7 @@ class Configuration:
 
     @property
     def dim(self) -> int:
-        """The dimension, 2 (disks) or 3 (spheres): the number of columns of ``positions``."""
+        """Number of columns of ``positions``, 2 for disks and 3 for spheres."""
         return self.positions.shape[1]
 
     @property

@@ -2,27 +2,27 @@
 
 npz schema (``format_version`` 1), one array per key:
 
-=====================  ==========  =========================================================
-key                    shape       meaning
-=====================  ==========  =========================================================
-``format``             ()          the string ``"microhom-configuration"``
-``format_version``     ()          int, 1
-``positions``          (N, 2)      float64 centres
-``radii``              (N,)        float64 radii
-``cell``               (2, 2)      float64 shape matrix, columns = cell vectors (absent: open)
-``origin``             (2,)        float64 lower-left corner of the cell
-``ids``, ``types``     (N,)        int64
-``velocities``         (N, 2)      optional
-``forces``             (N, 2)      optional
-``field:<name>``       (N,)        optional further per-particle fields
-``meta_json``          ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
-``network:pairs``      (C, 2)      optional contact network: int64 particle indices i < j
-``network:branch``     (C, 2)      float64 branch vectors x_j - x_i (periodic image resolved)
-``network:kn``, ``:kt``  (C,)      float64 contact stiffnesses [N/m]
-``network:sliding``    (C,)        bool, contacts at the Coulomb limit
-``network:fn``, ``:ft``  (C,)      optional normal (compression positive) and tangential forces
-``network:rows``       (N,)        int64, the row of each network particle in ``positions``
-=====================  ==========  =========================================================
+==========================  ==========  =========================================================
+key                         shape       meaning
+==========================  ==========  =========================================================
+``format``                  ()          the string ``"microhom-configuration"``
+``format_version``          ()          int, 1
+``positions``               (N, 2)      float64 centres
+``radii``                   (N,)        float64 radii
+``cell``                    (2, 2)      float64 shape matrix, columns = cell vectors (absent: open)
+``origin``                  (2,)        float64 lower-left corner of the cell
+``ids``, ``types``          (N,)        int64
+``velocities``              (N, 2)      optional
+``forces``                  (N, 2)      optional
+``field:<name>``            (N,)        optional further per-particle fields
+``meta_json``               ()          JSON text of ``Configuration.meta`` (JSON-able entries only)
+``network:pairs``           (C, 2)      optional contact network: int64 particle indices i < j
+``network:branch``          (C, 2)      float64 branch vectors x_j - x_i (periodic image resolved)
+``network:kn``, ``:kt``     (C,)        float64 contact stiffnesses [N/m]
+``network:sliding``         (C,)        bool, contacts at the Coulomb limit
+``network:fn``, ``:ft``     (C,)        optional normal (compression positive) and tangential forces
+``network:rows``            (N,)        int64, the row of each network particle in ``positions``
+==========================  ==========  =========================================================
 
 The ``network:`` keys are written together (:func:`write_npz` with ``network=``) and read by
 :func:`read_npz_network`: a file that carries them hands its contacts, stiffnesses and forces to
