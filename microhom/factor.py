@@ -152,7 +152,7 @@ def predicted_factor_bytes(n: int, backend: str = "pardiso") -> float:
 
 def memory_check(need: float, what: str, limit: float | None = None):
     """Raise :class:`MemoryGuardError` naming the figure when ``need`` [bytes] exceeds ``limit``
-    (default: :func:`available_memory`; the environment variable ``MICROHOM_MEMORY_LIMIT`` [GB]
+    (default: :func:`microhom.limits.available_memory`; the environment variable ``MICROHOM_MEMORY_LIMIT`` [GB]
     lowers it). Returns ``need``."""
     avail = available_memory()
     env = os.environ.get("MICROHOM_MEMORY_LIMIT")

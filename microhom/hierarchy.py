@@ -227,7 +227,7 @@ class HierarchyResult(Result):
 
     @property
     def valid(self) -> bool:
-        """True only when the claim is backed and nothing voids it: the rigorous interval met
+        """Whether the claim is backed and nothing voids it. True only when the rigorous interval met
         ``tol`` (``certified``) or the calibrated extrapolation did (``converged`` and
         ``calibrated``), and the network is jammed, not floppy, stable, with non-negative moduli.
         Every other result states why in ``reasons``."""

@@ -177,7 +177,7 @@ class ContactNetwork:
     # ---- sizes -------------------------------------------------------------------------------
     @property
     def dim(self) -> int:
-        """Dimension d: 2 for disks, 3 for spheres."""
+        """The dimension d, 2 for disks and 3 for spheres."""
         return self.positions.shape[1]
 
     @property
@@ -231,8 +231,8 @@ class ContactNetwork:
     # ---- cell -------------------------------------------------------------------------------
     @property
     def volume(self) -> float:
-        """Measure of the periodic cell: area in 2D [m^2], volume in 3D [m^3]; for a non-periodic
-        network, of the particles' bounding box."""
+        """The measure of the periodic cell, its area in 2D [m^2] and volume in 3D [m^3] (for a
+        non-periodic network, of the particles' bounding box)."""
         if self.cell is not None:
             return float(abs(np.linalg.det(self.cell)))
         lo = (self.positions - self.radii[:, None]).min(axis=0)
@@ -249,7 +249,7 @@ class ContactNetwork:
 
     @property
     def solid_fraction(self) -> float:
-        """Solid fraction phi: sum(pi r^2) / area in 2D, sum(4/3 pi r^3) / volume in 3D."""
+        """The solid fraction phi, sum(pi r^2) / area in 2D and sum(4/3 pi r^3) / volume in 3D."""
         if self.dim == 3:
             return float(4.0 / 3.0 * np.pi * np.sum(self.radii ** 3) / self.volume)
         return float(np.pi * np.sum(self.radii ** 2) / self.volume)

@@ -76,15 +76,15 @@ class LammpsRun(Result):
         magnitude of ``compute pair/local``), ``fs`` (C, d) (tangential force on the lower-index
         particle) and ``dist`` (C,) (centre distance).
     params : dict
-        The parameters written (:func:`write_inputs`' return value: kn, kt, mu, ...).
+        The parameters written (:func:`dem.engine.lammps.write_inputs`' return value: kn, kt, mu, ...).
     run : dict
-        :func:`run_lammps`'s dict (``wall_s`` [s], ``np``, ``command``, ``log``, ``returncode``);
+        :func:`dem.engine.lammps.run_lammps`'s dict (``wall_s`` [s], ``np``, ``command``, ``log``, ``returncode``);
         empty when read by :func:`read_run` alone.
     folder : str
         The run's folder.
     timing : dict
         ``loops``: one dict per LAMMPS ``Loop time`` line (``loop_s`` [s], ``procs``, ``steps``,
-        ``atoms``); :func:`pack_lammps` adds ``read_s`` and ``lammps_wall_s`` [s].
+        ``atoms``); :func:`dem.engine.lammps.pack_lammps` adds ``read_s`` and ``lammps_wall_s`` [s].
     """
     config: object
     network: object
@@ -127,7 +127,7 @@ def _parse_log(path):
 def read_run(folder, params=None) -> LammpsRun:
     """Read a finished run in ``folder`` (``final.dump``, ``contacts.dump``, ``log.lammps``).
 
-    ``params``: the dict :func:`write_inputs` returned (kn, kt, mu); if None they are read back
+    ``params``: the dict :func:`dem.engine.lammps.write_inputs` returned (kn, kt, mu); if None they are read back
     from the header comment of ``in.packing``.
     """
     folder = Path(folder)
