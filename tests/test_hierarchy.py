@@ -450,11 +450,23 @@ def test_soft_mode_deflation_removes_the_plateau():
 
 
 # ---- issue 22: every stiffness ratio, validity that matches the certificate, memory -----------
-def _exact(net, **kw):
+def _exact(net, warns=(), **kw):
+    """dem.analysis.stiffness on ``net``; ``warns`` lists the start (before the colon) of each
+    RuntimeWarning it must emit, in order ("ill-conditioned" for a contact stiffness ratio above
+    1e6, "not jammed", "unstable"): each is asserted, and any other fails the test."""
     import warnings
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # dem.analysis.stiffness warns about the conditioning at 1e8+
-        return stiffness(net, **kw)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        r = stiffness(net, **kw)
+    said = [str(w.message).split(":")[0] for w in rec if issubclass(w.category, RuntimeWarning)]
+    assert said == list(warns), [str(w.message) for w in rec]
+    return r
+
+
+def _ill(ratio):
+    """The warning the exact solver gives at kt/kn = ``ratio`` (kn = 1): "ill-conditioned" above
+    its RATIO_WARN = 1e6 of max/min contact stiffness."""
+    return ("ill-conditioned",) if max(ratio, 1 / ratio) > 1e6 else ()
 
 
 def _honest(h, ex, slack=1e-9):
@@ -472,7 +484,7 @@ def test_every_stiffness_ratio_against_the_exact_solver(packing, ratio):
     <= tol) up to 1e6; beyond, where double precision limits the residual (eps kt/kn), the
     interval is what it is and the result says so unless it met tol."""
     net = packing.with_stiffness(kn=1.0, kt=ratio)
-    ex = _exact(net)
+    ex = _exact(net, _ill(ratio))
     h = relaxation_hierarchy(net, tol=1e-3, max_order=400)
     _honest(h, ex, slack=1e-6 if ratio >= 1e8 else 1e-9)   # the exact solver loses ~log10(ratio) digits
     assert h.calibrated == (ratio == 1.0)
@@ -489,7 +501,7 @@ def test_large_stiffness_ratio_at_default_order_is_not_claimed(packing, ratio):
     extrapolation (the stiff cluster of the pencil converged, the rolling cluster not) and report
     G up to 75 % high as converged and valid. Now: the rigorous interval or nothing."""
     net = packing.with_stiffness(kn=1.0, kt=ratio)
-    ex = _exact(net)
+    ex = _exact(net, _ill(ratio))
     h = relaxation_hierarchy(net, tol=1e-3)
     _honest(h, ex, slack=1e-6)
     assert not h.calibrated
@@ -504,7 +516,7 @@ def test_gas_is_not_jammed():
     rng = np.random.default_rng(0)
     net = from_overlaps(rng.uniform(0, 30.0, (300, 2)), 0.5, np.eye(2) * 30.0, kn=1.0, kt=1.0)
     assert net.n_contacts > 100
-    ex = _exact(net)
+    ex = _exact(net, ("not jammed",))
     assert any(f.startswith("not jammed") for f in ex.flags)
     h = relaxation_hierarchy(net)
     assert not h.jammed and not h.valid
@@ -539,7 +551,7 @@ def test_frictionless_low_pressure_validity_matches_the_certificate(frictionless
     "floppy") and, with pre-stress, its negative eigenvalue ("unstable") are never valid. Before
     issue 22 both returned valid=True with no reason."""
     for prestress, flag in ((False, "floppy"), (True, "unstable")):
-        ex = _exact(frictionless, prestress=prestress)
+        ex = _exact(frictionless, () if flag == "floppy" else ("unstable",), prestress=prestress)   # floppy: flagged, not warned
         assert any(f.startswith(flag) for f in ex.flags), ex.flags
         h = relaxation_hierarchy(frictionless, prestress=prestress, tol=1e-3)
         assert not h.calibrated and not h.valid

@@ -238,7 +238,8 @@ def test_affine_function_and_errors():
 
 def test_all_rattlers_is_finite():
     net = lattices.triangular(6, 6).select_contacts(np.zeros(108, dtype=bool))
-    r = stiffness(net)
+    with pytest.warns(RuntimeWarning, match=r"not jammed: every particle \(36\) is a rattler"):
+        r = stiffness(net)
     assert r.n_rattlers == 36 and r.n_dof == 0 and np.all(r.C_mandel == 0)
 
 
@@ -541,7 +542,9 @@ def test_pardiso_stiffness_ratio_keeps_the_floppy_count():
     net = _diluted(10, 10, z=3.6, kt=1.0, seed=2)
     ref = stiffness(net, solver="splu")
     for ratio in (1.0, 1e4, 1e8):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)    # "ill-conditioned" above 1e6
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
             r = stiffness(net.with_stiffness(kt=net.kt * ratio), solver="pardiso")
+        said = [str(w.message).split(":")[0] for w in rec if issubclass(w.category, RuntimeWarning)]
+        assert said == (["ill-conditioned"] if ratio > 1e6 else []), said   # RATIO_WARN = 1e6
         assert r.count_method == "inertia" and r.n_floppy == ref.n_floppy == 3 and r.residual < 1e-12

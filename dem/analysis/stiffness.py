@@ -661,15 +661,50 @@ def predicted_memory(n_particles, n_dof=None, solver="auto"):
     return predicted_factor_bytes(n_dof, solver) + _BYTES_PER_PARTICLE * int(n_particles)
 
 
+def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory):
+    """The argument checks of :func:`stiffness`: a ``TypeError`` or ``ValueError`` naming the
+    parameter and its allowed values or range."""
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
+                        f"from_overlaps or PackingResult.to_network()), got {type(network).__name__}")
+    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
+        raise ValueError(f"rtol must be a relative residual in (0, 1), got {rtol!r}")
+    if not (isinstance(max_refine, (int, np.integer)) and max_refine >= 1):
+        raise ValueError(f"max_refine must be an integer >= 1, got {max_refine!r}")
+    if count not in COUNTS:
+        raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
+    if ordering not in ORDERINGS:
+        raise ValueError(f"unknown ordering {ordering!r}; allowed: {', '.join(ORDERINGS)}")
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    if max_memory is not None and not (np.isfinite(max_memory) and max_memory > 0):
+        raise ValueError(f"max_memory must be a finite number of bytes > 0, got {max_memory!r}")
+
+
+def _fluctuation_fields(asm, Q, N, dim):
+    """The fluctuations of the relaxed solution ``Q`` (reduced unknowns x load cases) on all
+    ``N`` particles (rattlers and dropped unknowns zero): displacements ``u`` of shape
+    (n_cases, N, dim) and spins ``omega`` of shape (n_cases, N) in 2D, (n_cases, N, 3) in 3D,
+    per unit Mandel strain (units of the network's lengths, and radians)."""
+    rot, nm = rotational_dofs(dim), Q.shape[1]
+    full = np.zeros(((dim + rot) * N + 1, nm))
+    full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
+    u_f = np.stack([full[0:dim * N, b].reshape(N, dim) for b in range(nm)])
+    w_f = np.stack([full[dim * N:(dim + rot) * N, b] if rot == 1 else
+                    full[dim * N:(dim + rot) * N, b].reshape(N, rot) for b in range(nm)])
+    return u_f, w_f
+
+
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
               max_refine=50, count="auto", ordering="auto", spin_arm="contact",
               max_memory=None) -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
-    The named steps, each usable on its own: ``_normalise`` (input check, exact scaling),
-    :func:`microhom.kinematics.assemble` (Hessian and load, rattlers removed),
-    :func:`reduce_system` (stiffness-free unknowns dropped), :func:`factorise`,
-    :func:`count_modes`, :func:`relax` (solve with refinement), :func:`relaxed_tensor`.
+    The named steps, each usable on its own: ``_check_arguments`` (argument checks),
+    ``_normalise`` (input check, exact scaling), :func:`microhom.kinematics.assemble` (Hessian
+    and load, rattlers removed), :func:`reduce_system` (stiffness-free unknowns dropped),
+    :func:`factorise`, :func:`count_modes`, :func:`relax` (solve with refinement),
+    :func:`relaxed_tensor`, ``_fluctuation_fields`` (the fields on all particles).
 
     Parameters
     ----------
@@ -699,21 +734,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
-    if not isinstance(network, ContactNetwork):
-        raise TypeError(f"network must be a microhom.network.ContactNetwork (e.g. from "
-                        f"from_overlaps or PackingResult.to_network()), got {type(network).__name__}")
-    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
-        raise ValueError(f"rtol must be a relative residual in (0, 1), got {rtol!r}")
-    if not (isinstance(max_refine, (int, np.integer)) and max_refine >= 1):
-        raise ValueError(f"max_refine must be an integer >= 1, got {max_refine!r}")
-    if count not in COUNTS:
-        raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
-    if ordering not in ORDERINGS:
-        raise ValueError(f"unknown ordering {ordering!r}; allowed: {', '.join(ORDERINGS)}")
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
-    if max_memory is not None and not (np.isfinite(max_memory) and max_memory > 0):
-        raise ValueError(f"max_memory must be a finite number of bytes > 0, got {max_memory!r}")
+    _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory)
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
@@ -774,13 +795,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                f"{s:.3g}; rescale the stiffnesses (the moduli are proportional to kn)")
         flags.append(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    N, dim = net.n_particles, net.dim
-    rot, nm = rotational_dofs(dim), Q.shape[1]
-    full = np.zeros(((dim + rot) * N + 1, nm))
-    full[np.flatnonzero(asm.dof_map >= 0)] = Q[asm.dof_map[asm.dof_map >= 0]]
-    u_f = np.stack([full[0:dim * N, b].reshape(N, dim) for b in range(nm)])
-    w_f = np.stack([full[dim * N:(dim + rot) * N, b] if rot == 1 else
-                    full[dim * N:(dim + rot) * N, b].reshape(N, rot) for b in range(nm)])
+    N = net.n_particles
+    u_f, w_f = _fluctuation_fields(asm, Q, N, net.dim)
     return StiffnessResult(
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
         n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),

@@ -544,6 +544,9 @@ def _forces(u, f, vh, acc, g, dt, cells, walls, ifc, fault):
     acc[5] += d_dash
 
 
+# The three passes per segment (trial tractions; strength check and one shared plastic slip; edge forces)
+# share the segment's sums and break state, so the kernel keeps them together.
+# long: a numba loop over the fault's segments, whose three passes share each segment's sums
 @njit(cache=True)
 def _fault_segments(u, f, vh, dt, ifc, fault):
     """The planar fault: Mohr-Coulomb on the true plane, per segment of the zigzag of lattice edges.

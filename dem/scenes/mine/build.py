@@ -23,6 +23,7 @@ from .params import G_ACC, MineParams
 __all__ = ["Scene", "build_scene", "virgin_stress"]
 
 _BIG = 1e300
+_TOL = 1e-9         # [m] slack of the seam, opening and layer tests on cell centres
 LEFT, RIGHT, BOTTOM, TOP = 0, 1, 2, 3
 
 
@@ -99,33 +100,40 @@ def _traction_forces(s, nrm, L):
     return np.stack([s[:, 0] * nrm[:, 0] + s[:, 2] * nrm[:, 1], s[:, 2] * nrm[:, 0] + s[:, 1] * nrm[:, 1]], 1) * L
 
 
-def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
-    """The scene of ``p`` ready to run (validated first)."""
-    p.validate()
-    g = resolve(p)
-    theta0 = p.theta0
-    r_in = p.r_in
-    axis_x = 0.5 * (g.open_x0 + g.open_x1) if p.model == "full" else 0.0
-    lat = make_lattice(g.W, g.H, r_in, theta0, anchor=(axis_x, g.seam_mid))
-    geo = lat.geo
-    N = lat.n_cells
-    C = lat.centres
-    tol = 1e-9
-    is_coal = (C[:, 1] >= g.seam_lo - tol) & (C[:, 1] <= g.seam_hi + tol)
-    in_open = is_coal & (C[:, 0] >= g.open_x0 - tol) & (C[:, 0] <= g.open_x1 + tol)
-    mats = [(p.rock_E, p.rock_nu), (p.coal_E, p.coal_nu)]
-    mat = is_coal.astype(np.int64)
-    Kmat = np.stack([element_stiffness(E, nu, r_in, theta0, kind=p.element) for E, nu in mats])
-    kn = p.kn if p.kn > 0 else spring_stiffness_rule(mats, r_in, p.penalty_factor)
-    kt = p.kt_over_kn * kn
-    L = geo["L"]
-    mnode = np.full(N, p.rho * geo["A"] / 6.0)
+@dataclass(frozen=True)
+class _Interfaces:
+    """The interfaces of the full lattice (m of them, :func:`_interfaces`): cells and edges
+    ``ci``, ``ca``, ``cj``, ``cb`` (m,) int; frame normals ``nf`` (m, 2) (the fault's normal on
+    planar-fault edges); tensile strength ``ft`` [Pa], cohesion ``coh`` [Pa], friction angles
+    ``phi``, ``phir`` (peak, residual) [deg]; ``is_disl`` (m,) bool; virgin normal and shear
+    tractions ``sn0``, ``tau0`` [Pa]; fault segment ``fseg`` (m,) int (-1 off the fault) and
+    weight ``flam`` (m,), both None without a planar fault."""
+    ci: np.ndarray
+    ca: np.ndarray
+    cj: np.ndarray
+    cb: np.ndarray
+    nf: np.ndarray
+    ft: np.ndarray
+    coh: np.ndarray
+    phi: np.ndarray
+    phir: np.ndarray
+    is_disl: np.ndarray
+    sn0: np.ndarray
+    tau0: np.ndarray
+    fseg: np.ndarray | None
+    flam: np.ndarray | None
 
-    # interfaces: strengths, dislocations, the unbreakable loading layer
+
+def _interfaces(p: MineParams, g: Geometry, lat, is_coal) -> _Interfaces:
+    """The interfaces of the full lattice ``lat`` (m of them): strengths by material, the
+    dislocations (no tension, ``disl_c``, ``disl_phi_deg``), the unbreakable loading layer above
+    ``g.y_elastic``, the virgin tractions on each edge, and the planar fault's frame and segments
+    (``fault_law="plane"``, :func:`~dem.hexagons.fault.plane_fault`)."""
+    C = lat.centres
     ci, ca, cj, cb = lat.ifc.T
-    n = geo["n"][ca]
-    t = geo["t"][ca]
-    mid = C[ci] + geo["x"][ca]
+    n = lat.geo["n"][ca]
+    t = lat.geo["t"][ca]
+    mid = C[ci] + lat.geo["x"][ca]
     any_coal = is_coal[ci] | is_coal[cj]
     ft = np.where(any_coal, p.coal_ft, p.rock_ft).astype(float)
     coh = np.where(any_coal, p.coal_c, p.rock_c).astype(float)
@@ -137,7 +145,7 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     coh[is_disl] = p.disl_c
     phi[is_disl] = p.coal_phi_deg if p.disl_phi_deg < 0 else p.disl_phi_deg
     phir = phi if p.friction_residual_deg < 0 else np.full_like(phi, p.friction_residual_deg)
-    layer = (C[ci, 1] >= g.y_elastic - tol) & (C[cj, 1] >= g.y_elastic - tol) & ~any_coal
+    layer = (C[ci, 1] >= g.y_elastic - _TOL) & (C[cj, 1] >= g.y_elastic - _TOL) & ~any_coal
     ft[layer] = _BIG
     coh[layer] = _BIG
     if p.elastic:
@@ -161,8 +169,19 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
             nf[k, 0], nf[k, 1] = pf["nx"], pf["ny"]
             sn0[k], tau0[k], flam[k], fseg[k] = pf["sn0"], pf["tau0"], pf["flam"], pf["fseg"]
             nseg = int(fseg.max()) + 1
+    return _Interfaces(ci=ci, ca=ca, cj=cj, cb=cb, nf=nf, ft=ft, coh=coh, phi=phi, phir=phir,
+                       is_disl=is_disl, sn0=sn0, tau0=tau0, fseg=fseg, flam=flam)
 
-    # element prestress, dead loads, gas, supports
+
+def _loads(p: MineParams, g: Geometry, lat, mnode, is_disl, is_coal, ci, cj):
+    """The loads and supports of the full lattice ``lat`` (N cells, 12 dofs each): element
+    prestress ``f0`` (N, 12) [N/m] of the virgin stress, dead loads ``fext`` (N, 12) [N/m] (the
+    virgin tractions on the free edges, gravity, the eigenstrain gas), the free edges ``fc``,
+    ``fe``, ``side`` (:func:`~dem.hexagons.lattice.classify_free_edges`), the gassy cells (N,)
+    bool, the gas forces ``f_gas`` (N, 12) [N/m] and the inverse nodal masses ``minv`` (N, 12)
+    [m/kg] (nodal masses per m of thickness), zero on the supported dofs."""
+    geo, C, N = lat.geo, lat.centres, lat.n_cells
+    L = geo["L"]
     nn = geo["n"]
     sc = virgin_stress(p, g, C[:, 1])
     f0 = np.zeros((N, 12))
@@ -188,6 +207,48 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     for s_id, comp in fixed:
         m_ = side == s_id
         minv[fc[m_], 2 * fe[m_] + comp] = 0.0
+    return f0, fext, fc, fe, side, gassy, f_gas, minv
+
+
+def _effective_moduli(p: MineParams, mats, kn, kt) -> dict:
+    """Per material (``"rock"``, ``"coal"``; ``mats`` their ``(E [Pa], nu)``) the input ``E``, ``nu``
+    and the periodic lattice's effective ``E_eff`` [Pa], ``nu_eff`` and ``E_eff_over_E`` with the
+    interface stiffnesses ``kn``, ``kt`` [Pa/m] (:func:`~dem.hexagons.element.periodic_moduli`)."""
+    r_in, theta0 = p.r_in, p.theta0
+    E_eff = {}
+    for name, (E, nu) in zip(("rock", "coal"), mats):
+        Ee, nue = isotropic_from_C(periodic_moduli(element_stiffness(E, nu, r_in, theta0, kind=p.element),
+                                                   r_in, kn, kt, theta0))
+        E_eff[name] = {"E": E, "nu": nu, "E_eff": Ee, "nu_eff": nue, "E_eff_over_E": Ee / E}
+    return E_eff
+
+
+def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
+    """The scene of ``p`` ready to run (validated first)."""
+    p.validate()
+    g = resolve(p)
+    theta0 = p.theta0
+    r_in = p.r_in
+    axis_x = 0.5 * (g.open_x0 + g.open_x1) if p.model == "full" else 0.0
+    lat = make_lattice(g.W, g.H, r_in, theta0, anchor=(axis_x, g.seam_mid))
+    geo = lat.geo
+    N = lat.n_cells
+    C = lat.centres
+    is_coal = (C[:, 1] >= g.seam_lo - _TOL) & (C[:, 1] <= g.seam_hi + _TOL)
+    in_open = is_coal & (C[:, 0] >= g.open_x0 - _TOL) & (C[:, 0] <= g.open_x1 + _TOL)
+    mats = [(p.rock_E, p.rock_nu), (p.coal_E, p.coal_nu)]
+    mat = is_coal.astype(np.int64)
+    Kmat = np.stack([element_stiffness(E, nu, r_in, theta0, kind=p.element) for E, nu in mats])
+    kn = p.kn if p.kn > 0 else spring_stiffness_rule(mats, r_in, p.penalty_factor)
+    kt = p.kt_over_kn * kn
+    L = geo["L"]
+    mnode = np.full(N, p.rho * geo["A"] / 6.0)
+
+    fi = _interfaces(p, g, lat, is_coal)
+    ci, ca, cj, cb = fi.ci, fi.ca, fi.cj, fi.cb
+    ft, coh, phi, phir, is_disl = fi.ft, fi.coh, fi.phi, fi.phir, fi.is_disl
+    sn0, tau0, nf, fseg, flam = fi.sn0, fi.tau0, fi.nf, fi.fseg, fi.flam
+    f0, fext, fc, fe, side, gassy, f_gas, minv = _loads(p, g, lat, mnode, is_disl, is_coal, ci, cj)
 
     zeros = np.zeros(len(ci))
     full = Model(centres=C, mat=mat, is_coal=is_coal, Kmat=Kmat, f0=f0, fext=fext, mnode=mnode, minv=minv,
@@ -229,11 +290,7 @@ def build_scene(p: MineParams, virgin_check: bool = True) -> Scene:
     model.t = 0.0
     model.U0 = stored_energy_abs(model)
     model.f = forces_frozen(model, model.u)
-    E_eff = {}
-    for name, (E, nu) in zip(("rock", "coal"), mats):
-        Ee, nue = isotropic_from_C(periodic_moduli(element_stiffness(E, nu, r_in, theta0, kind=p.element),
-                                                   r_in, kn, kt, theta0))
-        E_eff[name] = {"E": E, "nu": nu, "E_eff": Ee, "nu_eff": nue, "E_eff_over_E": Ee / E}
+    E_eff = _effective_moduli(p, mats, kn, kt)
     sc_ = Scene(params=p, geometry=g, model=model, full_centres=C, opening_cells=np.nonzero(in_open)[0],
                 keep=keep, kn=kn, kt=kt, labels=block_labels(g, model.centres, model.is_coal), gassy=gassy[keep],
                 E_eff=E_eff, virgin_residual=residual, virgin_utilisation=util,
