@@ -476,10 +476,10 @@ def test_lammps_law_damping_set_or_refused():
     bit), and a non-zero damping is warned about, naming the law."""
     from dem.engine.contact_laws import LammpsHookeHistory, LinearFriction
     from dem.engine.integrate import Simulation
-    from dem.engine.packing import random_gas
+    from dem.engine.packing import PackingProtocol, random_gas
 
     law = LammpsHookeHistory(kn=1e3, kt=1e3, gamma_n=5.0, mu=0.5)
-    st = random_gas(40, phi0=0.7, seed=1)
+    st = random_gas(PackingProtocol(n=40, phi0=0.7, seed=1))
     a = Simulation(st.copy(), law, startup="lammps")
     b = Simulation(st.copy(), law, startup="lammps", damping=0.0)
     assert a.damping == 0.0

@@ -4,7 +4,6 @@ the fault campaign's bad inputs (every error names its parameter, file or partic
 bare numpy/pandas/scipy text)."""
 import json
 import math
-import resource
 import subprocess
 import sys
 import warnings
@@ -135,10 +134,16 @@ def test_predict_row_memory_estimate():
     from microhom.__main__ import BYTES_PER_ROW
 
     def peak(args):
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-        r = run_predict(*args, "--json")
-        assert r.returncode in (0, 3), r.stderr
-        return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024, before
+        # a fresh parent per measurement: RUSAGE_CHILDREN is the largest child of the process so
+        # far, so in a long test session it must not be this process's
+        code = ("import resource, subprocess, sys; "
+                "r = subprocess.run([sys.executable, '-m', 'microhom', 'predict', *sys.argv[1:], '--json'], "
+                "capture_output=True); "
+                "print(r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+        out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                             timeout=120).stdout.split()
+        assert int(out[0]) in (0, 3), out
+        return int(out[1]) * 1024, None
     base, _ = peak([])
     big, _ = peak(["--kn", *map(str, range(1, 101)), "--nc", *map(str, range(1, 101)),
                    "--r", *[str(0.01 * i) for i in range(10)], "--nbar", "5"])
