@@ -105,8 +105,9 @@ class Estimate(Result):
 class HierarchyResult(Result):
     """Result of :func:`relaxation_hierarchy` (moduli in the unit of kn, N/m for 2D disks).
 
-    ``k`` is the number of CG steps taken (``order``); tensors are 3x3 Mandel matrices
-    (``microhom.tensors``).
+    ``k`` is the number of CG steps taken (``order``); tensors are (m, m) Mandel matrices
+    (``microhom.tensors``): m = 3 for disks (2D, moduli in N/m), m = 6 for spheres (3D, moduli in
+    Pa, [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy]); the shapes below are the 2D ones.
 
     Attributes
     ----------
@@ -169,8 +170,9 @@ class HierarchyResult(Result):
         The rigorous interval met ``tol`` for K and G (``(upper - lower) <= tol |upper|``).
     calibrated : bool
         The extrapolation's stated error was measured honest in this regime: kt/kn in
-        ``CALIBRATED_KT_OVER_KN`` and soft modes searched (docs/results/hierarchy.md). Where it is
-        False the estimates are the rigorous interval only.
+        ``CALIBRATED_KT_OVER_KN`` and soft modes searched (docs/results/hierarchy.md), on a 2D
+        network (it was measured on disks; always False for spheres). Where it is False the
+        estimates are the rigorous interval only.
     kt_over_kn : float
         Median of kt_eff/kn over the load-bearing contacts (sliding ones count 0) [-]; NaN without.
     jammed : bool
@@ -1060,7 +1062,8 @@ def _calibration(run, preconditioner, soft):
     """Is the extrapolation's stated error calibrated for this network (docs/results/hierarchy.md)?"""
     lo, hi = CALIBRATED_KT_OVER_KN
     r = run.kt_over_kn
-    run.calibrated = bool(soft > 0 and np.isfinite(r) and lo <= r <= hi)
+    # measured on disk packings only: on spheres (3D) only the rigorous interval counts
+    run.calibrated = bool(soft > 0 and np.isfinite(r) and lo <= r <= hi and run.network.dim == 2)
 
 
 def _cg_step(run, max_order, full, preconditioner):
@@ -1170,7 +1173,8 @@ def _verdict(run, ests, C_upper):
             reasons.append(f"extrapolated: the estimate rests on the extrapolation, calibrated at kt/kn = "
                            f"{run.kt_over_kn:.3g} in {list(CALIBRATED_KT_OVER_KN)} (docs/results/hierarchy.md)")
         elif not run.calibrated:
-            why = (f"kt/kn = {run.kt_over_kn:.3g} outside {list(CALIBRATED_KT_OVER_KN)}"
+            why = ("3D: it was calibrated on disk packings only" if run.network.dim != 2 else
+                   f"kt/kn = {run.kt_over_kn:.3g} outside {list(CALIBRATED_KT_OVER_KN)}"
                    if not (np.isfinite(run.kt_over_kn) and CALIBRATED_KT_OVER_KN[0] <= run.kt_over_kn
                            <= CALIBRATED_KT_OVER_KN[1]) else "no soft-mode search")
             reasons.append(f"extrapolation not calibrated here ({why}): only the rigorous interval counts")
