@@ -224,3 +224,107 @@ def test_larger_packing_certified_by_inertia():
     h = relaxation_hierarchy(net, tol=1e-3, soft_modes=0)
     assert h.n_dof > 3000 and h.K.lower is not None, h.summary()
     _check_against_exact(h, ex)
+
+
+# ---- mean field and statistics in 3D ------------------------------------------------------------
+def test_voigt_moduli_formula_by_sympy():
+    """For any contact direction n on the unit sphere, the isotropic projection of the per-contact
+    affine stiffness l^2 [kn nnnn + kt (sym(d nn) - nnnn)] is K = kn l^2/9, G = (2 kn + 3 kt) l^2/30
+    (the formulas of sphere_statistics): the (6, 6) Mandel matrix is built from the energy
+    1/2 [kn (n.E n)^2 + kt (|E n|^2 - (n.E n)^2)] l^2 and projected by 1.C.1/9, (tr C - 1.C.1/3)/10."""
+    import sympy as sy
+    th, ph, kn, kt, l = sy.symbols("theta phi k_n k_t l", positive=True)
+    n = sy.Matrix([sy.sin(th) * sy.cos(ph), sy.sin(th) * sy.sin(ph), sy.cos(th)])
+    e = sy.symbols("e0:6")
+    r2 = 1 / sy.sqrt(2)
+    E = sy.Matrix([[e[0], r2 * e[5], r2 * e[4]], [r2 * e[5], e[1], r2 * e[3]], [r2 * e[4], r2 * e[3], e[2]]])
+    En = E * n
+    nEn = (n.T * En)[0]
+    W = sy.Rational(1, 2) * l ** 2 * (kn * nEn ** 2 + kt * ((En.T * En)[0] - nEn ** 2))
+    C = sy.Matrix(6, 6, lambda a, b: sy.diff(W, e[a], e[b]))
+    one = sy.Matrix([1, 1, 1, 0, 0, 0])
+    q = (one.T * C * one)[0]
+    K = sy.simplify(q / 9)
+    G = sy.simplify((C.trace() - q / 3) / 10)
+    assert sy.simplify(K - kn * l ** 2 / 9) == 0
+    assert sy.simplify(G - (2 * kn + 3 * kt) * l ** 2 / 30) == 0
+
+
+def test_fabric_tensor_matches_the_assembly_and_closed_forms():
+    """fabric_affine_tensor (fourth-order fabric sums) against kinematics.affine_tensor (per-contact
+    matrices) on both lattices and a disordered frictional packing with sliding contacts, and
+    against the closed forms of docs/spheres.md; its K, G against the Voigt formulas."""
+    from microhom.kinematics import affine_tensor
+    from microhom.structural_sums import fabric_affine_tensor, sphere_statistics
+    D, kn, kt = 0.8, 3.0, 0.4
+    sc = lattices.simple_cubic(3, diameter=D, kn=kn, kt=kt)
+    np.testing.assert_allclose(fabric_affine_tensor(sc), cubic(kn / D, 0.0, kt / D), atol=1e-12 * kn / D)
+    f = lattices.fcc(2, diameter=D, kn=kn, kt=kt)
+    c11, c12 = SQ2 * (kn + kt) / D, (kn - kt) / (SQ2 * D)
+    np.testing.assert_allclose(fabric_affine_tensor(f), cubic(c11, c12, c11), atol=1e-12 * kn / D)
+    st = sphere_statistics(f)
+    assert st.K_affine == pytest.approx(2 * SQ2 * kn / (3 * D), rel=1e-12)     # (c11 + 2 c12)/3
+    assert st.G_affine == pytest.approx(SQ2 * (2 * kn + 3 * kt) / (5 * D), rel=1e-12)
+    net = packing(7, n=3, kt=0.6, keep=0.6, sliding=0.2, kn_spread=0.5)
+    for sel in (None, np.random.default_rng(0).random(net.n_contacts) < 0.5):
+        sub = net if sel is None else net.select_contacts(sel)
+        C = fabric_affine_tensor(net, sel)
+        ref = affine_tensor(sub)
+        np.testing.assert_allclose(C, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    st = sphere_statistics(net)
+    K, G = isotropic_moduli(st.C_affine)
+    assert st.K_affine == pytest.approx(K, rel=1e-12) and st.G_affine == pytest.approx(G, rel=1e-12)
+    h = relaxation_hierarchy(net, max_order=1)          # order 0 = the affine tensor of the backbone
+    assert h.K_orders[0] == pytest.approx(st.K_affine, rel=1e-12)
+    assert h.G_orders[0] == pytest.approx(st.G_affine, rel=1e-12)
+    assert h.K_affine_all == pytest.approx(st.K_affine_all, rel=1e-12)
+
+
+def test_sphere_statistics_coordination_and_fraction():
+    """Z, r with and without rattlers against an explicit loop; phi of FCC = pi/(3 sqrt 2)."""
+    from microhom.structural_sums import network_statistics, rattlers, sphere_statistics, SphereStatistics
+    f = lattices.fcc(2, diameter=1.0, kn=1.0, kt=0.5)
+    st = sphere_statistics(f)
+    assert st.nc == 12 and st.nc_all == 12 and st.r == 0 and st.n_rattlers == 0
+    assert st.phi == pytest.approx(np.pi / (3 * SQ2), rel=1e-12)
+    for kt, keep in ((0.0, 0.55), (0.5, 0.35)):
+        net = packing(8, n=3, kt=kt, keep=keep)
+        st = network_statistics(net)
+        assert isinstance(st, SphereStatistics)
+        rat = rattlers(net)[0]
+        # the rattler rule by hand: peel spheres with fewer than 3 (friction) / 4 contacts
+        alive = np.ones(net.n_particles, bool)
+        while True:
+            cnt = {p: 0 for p in range(net.n_particles)}
+            for i, j in net.pairs:
+                if alive[i] and alive[j]:
+                    cnt[i] += 1
+                    cnt[j] += 1
+            weak = [p for p in cnt if alive[p] and cnt[p] < (3 if kt > 0 else 4)]
+            if not weak:
+                break
+            alive[weak] = False
+        np.testing.assert_array_equal(~alive, rat)
+        z = np.array([cnt[p] for p in range(net.n_particles) if alive[p]], float)
+        z_all = np.array([np.sum(net.pairs == p) for p in range(net.n_particles)], float)
+        assert st.n_rattlers == (~alive).sum() > 0
+        assert st.nc == pytest.approx(z.mean(), rel=1e-14)
+        assert st.r == pytest.approx(np.mean((z - z.mean()) ** 2) / z.mean() ** 2, rel=1e-12)
+        assert st.nc_all == pytest.approx(z_all.mean(), rel=1e-14)
+        assert st.r_all == pytest.approx(np.mean((z_all - z_all.mean()) ** 2) / z_all.mean() ** 2, rel=1e-12)
+        assert st.phi == pytest.approx(np.sum(4 / 3 * np.pi * net.radii ** 3) / np.linalg.det(net.cell))
+
+
+def test_2d_only_statistics_are_named_not_computed_in_3d():
+    """rho and N-bar have no 3D meaning: not fields of SphereStatistics, listed with the reason;
+    asking for them on a sphere network is an error naming the parameters."""
+    from microhom.structural_sums import NOT_IN_3D, network_statistics, sphere_statistics
+    st = network_statistics(lattices.fcc(2))
+    assert not hasattr(st, "rho") and not hasattr(st, "nbar_phi") and not hasattr(st, "vbar")
+    assert st.not_defined == NOT_IN_3D
+    assert any(s.startswith("rho") for s in st.not_defined)
+    assert any("N-bar" in s for s in st.not_defined)
+    with pytest.raises(ValueError, match="nbar and rho_neighbours"):
+        network_statistics(lattices.fcc(2), nbar=12)
+    with pytest.raises(ValueError, match="sphere network"):
+        sphere_statistics(lattices.triangular(4, 4))
