@@ -34,6 +34,12 @@ value (geometric tail of the decreasing sequence) carries a stated, non-rigorous
 "What valid means". The predicted memory is checked before anything large is allocated
 (:func:`plan_memory`).
 
+Spheres (3D) run the same code with the dimension taken from the network (docs/spheres.md,
+"The relaxation hierarchy on spheres"): 6 unknowns per sphere, particle blocks of 6 x 6, the
+multilevel near-null space of rigid sphere motions, (6, 6) Mandel tensors [Pa]; the
+extrapolation's stated error is calibrated on disks only, so a 3D result is valid only when its
+rigorous interval meets ``tol``.
+
 This module imports numpy and scipy only (and never ``dem``).
 """
 from __future__ import annotations
