@@ -255,8 +255,9 @@ class HierarchyResult(Result):
 
 # ---- building blocks -------------------------------------------------------------------------
 def isotropic_weights():
-    """Quadratic forms of the isotropic projection: ``K = sum_a wK_a e_a^T C e_a`` and the same for
-    G, with Mandel strain vectors ``e_a``. Returns (eK (1, 3), wK (1,), eG (2, 3), wG (2,)).
+    """Quadratic forms of the 2D isotropic projection: ``K = sum_a wK_a e_a^T C e_a`` and the same
+    for G, with Mandel strain vectors ``e_a``. Returns (eK (1, 3), wK (1,), eG (2, 3), wG (2,)).
+    (In 3D, ``K = 1.C.1/9`` and ``G = tr(P_dev C)/10`` are positive forms too: docs/spheres.md.)
 
     K = (C11 + C22 + 2 C12)/4 = e^T C e with e = (1, 1, 0)/2;
     G = ((C11 + C22 - 2 C12)/4 + C1212)/2 = 1/2 e1^T C e1 + 1/4 e3^T C e3, e1 = (1, -1, 0)/2,
@@ -815,7 +816,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     preconditioner : {"amg", "block"}
         Preconditioner of the conjugate gradients. "amg" (default): smoothed-aggregation
         multilevel (``microhom.multilevel``), converges in a few steps even near isostaticity.
-        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block), for which
+        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block, 6 x 6 for a
+        sphere), for which
         order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
         section 9). The bounds are rigorous with either; the lower bound and the first-order
         estimate always use ``M``.
