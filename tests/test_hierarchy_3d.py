@@ -328,3 +328,13 @@ def test_2d_only_statistics_are_named_not_computed_in_3d():
         network_statistics(lattices.fcc(2), nbar=12)
     with pytest.raises(ValueError, match="sphere network"):
         sphere_statistics(lattices.triangular(4, 4))
+
+
+def test_bench_spheres_runs_small(capsys):
+    """The benchmark of docs/spheres.md on 256 spheres: its rows carry the exact solve beside the
+    hierarchy's interval, and the exact moduli lie inside."""
+    from studies import bench_spheres
+    (row,) = bench_spheres.main(["--n", "200", "--exact", "yes", "--max-order", "20", "--tol", "1e-3"])
+    assert row["N"] == 256 and "hierarchy" in capsys.readouterr().out
+    for m in "KG":
+        assert row[f"{m}_lower"] - 1e-9 <= row[f"{m}_exact"] <= row[f"{m}_upper"] + 1e-9
