@@ -34,6 +34,12 @@ value (geometric tail of the decreasing sequence) carries a stated, non-rigorous
 "What valid means". The predicted memory is checked before anything large is allocated
 (:func:`plan_memory`).
 
+Spheres (3D) run the same code with the dimension taken from the network (docs/spheres.md,
+"The relaxation hierarchy on spheres"): 6 unknowns per sphere, particle blocks of 6 x 6, the
+multilevel near-null space of rigid sphere motions, (6, 6) Mandel tensors [Pa]; the
+extrapolation's stated error is calibrated on disks only, so a 3D result is valid only when its
+rigorous interval meets ``tol``.
+
 This module imports numpy and scipy only (and never ``dem``).
 """
 from __future__ import annotations
@@ -46,7 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .kinematics import Assembly, affine_tensor, assemble, stress0
+from .kinematics import Assembly, affine_tensor, assemble, rotational_dofs, stress0
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
@@ -106,8 +112,9 @@ class Estimate(Result):
 class HierarchyResult(Result):
     """Result of :func:`relaxation_hierarchy` (moduli in the unit of kn, N/m for 2D disks).
 
-    ``k`` is the number of CG steps taken (``order``); tensors are 3x3 Mandel matrices
-    (``microhom.tensors``).
+    ``k`` is the number of CG steps taken (``order``); tensors are (m, m) Mandel matrices
+    (``microhom.tensors``): m = 3 for disks (2D, moduli in N/m), m = 6 for spheres (3D, moduli in
+    Pa, [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy]); the shapes below are the 2D ones.
 
     Attributes
     ----------
@@ -170,8 +177,9 @@ class HierarchyResult(Result):
         The rigorous interval met ``tol`` for K and G (``(upper - lower) <= tol |upper|``).
     calibrated : bool
         The extrapolation's stated error was measured honest in this regime: kt/kn in
-        ``CALIBRATED_KT_OVER_KN`` and soft modes searched (docs/results/hierarchy.md). Where it is
-        False the estimates are the rigorous interval only.
+        ``CALIBRATED_KT_OVER_KN`` and soft modes searched (docs/results/hierarchy.md), on a 2D
+        network (it was measured on disks; always False for spheres). Where it is False the
+        estimates are the rigorous interval only.
     kt_over_kn : float
         Median of kt_eff/kn over the load-bearing contacts (sliding ones count 0) [-]; NaN without.
     jammed : bool
@@ -248,8 +256,9 @@ class HierarchyResult(Result):
 
 # ---- building blocks -------------------------------------------------------------------------
 def isotropic_weights():
-    """Quadratic forms of the isotropic projection: ``K = sum_a wK_a e_a^T C e_a`` and the same for
-    G, with Mandel strain vectors ``e_a``. Returns (eK (1, 3), wK (1,), eG (2, 3), wG (2,)).
+    """Quadratic forms of the 2D isotropic projection: ``K = sum_a wK_a e_a^T C e_a`` and the same
+    for G, with Mandel strain vectors ``e_a``. Returns (eK (1, 3), wK (1,), eG (2, 3), wG (2,)).
+    (In 3D, ``K = 1.C.1/9`` and ``G = tr(P_dev C)/10`` are positive forms too: docs/spheres.md.)
 
     K = (C11 + C22 + 2 C12)/4 = e^T C e with e = (1, 1, 0)/2;
     G = ((C11 + C22 - 2 C12)/4 + C1212)/2 = 1/2 e1^T C e1 + 1/4 e3^T C e3, e1 = (1, -1, 0)/2,
@@ -261,7 +270,8 @@ def isotropic_weights():
 
 
 def block_preconditioner(asm: Assembly):
-    """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3) and its inverse.
+    """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3 for disks and
+    6 x 6 for spheres) and its inverse.
 
     Returns (M, Minv, Minv_sqrt, n_bad): CSR matrices (ndof, ndof) ``M``, ``M^-1``, ``M^-1/2``
     and the number of singular or indefinite blocks (their inverse is taken on the positive part
@@ -271,18 +281,19 @@ def block_preconditioner(asm: Assembly):
     owner = dof_layout(asm)[0]
     keep = owner[H.row] == owner[H.col]
     M = sp.csr_matrix((H.data[keep], (H.row[keep], H.col[keep])), shape=H.shape)
-    # group unknowns by particle, pad to 3 x 3 with identity, invert in one batch
+    # group unknowns by particle, pad to b x b with identity, invert in one batch
+    nbk = asm.net.dim + rotational_dofs(asm.net.dim)           # 3 (disk) or 6 (sphere)
     order = np.argsort(owner, kind="stable")
     parts, start, counts = np.unique(owner[order], return_index=True, return_counts=True)
     nb = parts.size
     slot = np.empty(asm.ndof, dtype=np.int64)
     slot[order] = np.arange(asm.ndof) - np.repeat(start, counts)
-    blk = np.zeros((nb, 3, 3))
+    blk = np.zeros((nb, nbk, nbk))
     bi = np.searchsorted(parts, owner)
     Mc = M.tocoo()
     blk[bi[Mc.row], slot[Mc.row], slot[Mc.col]] = Mc.data
-    pad = np.arange(3)[None, :] >= counts[:, None]          # unused slots: identity, decoupled
-    idx = np.arange(3)
+    pad = np.arange(nbk)[None, :] >= counts[:, None]        # unused slots: identity, decoupled
+    idx = np.arange(nbk)
     blk[:, idx, idx] = np.where(pad, 1.0, blk[:, idx, idx])
     w, V = np.linalg.eigh(blk)
     scale = np.maximum(np.abs(w).max(axis=1, keepdims=True), 1e-300)
@@ -291,10 +302,10 @@ def block_preconditioner(asm: Assembly):
     winv = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
     inv = np.einsum("nij,nj,nkj->nik", V, winv, V)
     isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V)
-    members = np.full((nb, 3), -1, dtype=np.int64)             # unknown at (block, slot)
+    members = np.full((nb, nbk), -1, dtype=np.int64)           # unknown at (block, slot)
     members[bi[order], slot[order]] = order
-    r = np.broadcast_to(members[:, :, None], (nb, 3, 3)).ravel()
-    c = np.broadcast_to(members[:, None, :], (nb, 3, 3)).ravel()
+    r = np.broadcast_to(members[:, :, None], (nb, nbk, nbk)).ravel()
+    c = np.broadcast_to(members[:, None, :], (nb, nbk, nbk)).ravel()
     ok = (r >= 0) & (c >= 0)
     Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
     Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
@@ -371,7 +382,7 @@ def lowest_modes(asm: Assembly, M=None, P=None, *, Minv=None, k: int = 6, maxite
         P = amg_preconditioner(asm)[0]
     n = asm.ndof
     k = int(min(k, max(n // 5 - 1, 1)))
-    Y = near_null_space(asm)[:, :2] if asm.pinned < 0 else None     # the two global translations
+    Y = near_null_space(asm)[:, :asm.net.dim] if asm.pinned < 0 else None   # the global translations
     rq, Vs = [], []
     for prec in (P, Minv):
         X = np.random.default_rng(seed).standard_normal((n, k))
@@ -525,14 +536,21 @@ class _BlockPCG:
 
 
 def _affine_kept(asm: Assembly, area: float) -> np.ndarray:
-    """(3, 3) affine tensor ``Df^T (K + K_g) Df / A`` of the load-bearing contacts, from the
-    assembly's own matrices (the same as ``kinematics.affine_tensor(asm.net, prestress)``)."""
+    """(m, m) affine tensor ``Df^T (K + K_g) Df / A`` of the load-bearing contacts (m = 3 Mandel
+    components in 2D, 6 in 3D), from the assembly's own matrices (the same as
+    ``kinematics.affine_tensor(asm.net, prestress)``)."""
     if asm.net.n_contacts == 0:
-        return np.zeros((3, 3))
+        m = _n_mandel(asm.net.dim)
+        return np.zeros((m, m))
     C = asm.Df.T @ (asm.Ks @ asm.Df)
     if asm.Kgs is not None:
         C = C + asm.Df.T @ (asm.Kgs @ asm.Df)
     return C / area
+
+
+def _n_mandel(dim):
+    """Mandel strain components: 3 in 2D, 6 in 3D."""
+    return 3 if dim == 2 else 6
 
 
 def _tensor(C_aff_kept, Rk, area, corr):
@@ -641,16 +659,23 @@ class MemoryPlan(Result):
 
 def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full: bool = True,
                 preconditioner: str = "amg", soft_modes: int = 3, dense: bool = True,
-                available: int | None = None) -> MemoryPlan:
+                available: int | None = None, dim: int = 2) -> MemoryPlan:
     """Predicted peak memory of :func:`relaxation_hierarchy` before anything is assembled (see
-    :class:`MemoryPlan` for the figures); ``ndof <= 3 n_particles``."""
+    :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
+    disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
+    figures of 2D are kept, with ``b^2 N + 2 b^2 N_c`` non-zeros and ``m = 6`` load columns
+    (checked against the measured peak by tests/test_hierarchy_3d.py)."""
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     N, Nc = int(n_particles), int(n_contacts)
-    ndof = 3 * N
-    nnz = 9 * N + 18 * Nc
+    b = 3 if dim == 2 else 6
+    m = 3 if dim == 2 else 6
+    ndof = b * N
+    nnz = b * b * N + 2 * b * b * Nc
     asm = 128 * nnz
-    prec = 700 * ndof + (600 * nnz if preconditioner == "amg" else 0)
-    cols = 3 * int(max_order) + int(soft_modes) * 2
-    basis = 16 * ndof * (_CHUNK * -(-cols // _CHUNK) if full else 36)
+    prec = 700 * ndof * (b // 3) + (600 * nnz if preconditioner == "amg" else 0)
+    cols = m * int(max_order) + int(soft_modes) * 2
+    basis = 16 * ndof * (_CHUNK * -(-cols // _CHUNK) if full else 12 * m)
     soft = 1000 * ndof * int(soft_modes) * 2
     dns = 24 * ndof * ndof if dense else 0
     return MemoryPlan(assembly=asm, preconditioner=prec, basis=basis, soft_modes=soft, dense=dns,
@@ -777,7 +802,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     preconditioner : {"amg", "block"}
         Preconditioner of the conjugate gradients. "amg" (default): smoothed-aggregation
         multilevel (``microhom.multilevel``), converges in a few steps even near isostaticity.
-        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block), for which
+        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block, 6 x 6 for a
+        sphere), for which
         order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
         section 9). The bounds are rigorous with either; the lower bound and the first-order
         estimate always use ``M``.
@@ -825,10 +851,6 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
     if network.cell is None:
         raise ValueError("network must be periodic (cell is None): the hierarchy estimates the "
                          "stiffness of a periodic cell")
-    if network.dim != 2:
-        raise NotImplementedError("the relaxation hierarchy takes 2D networks (disks) so far: its "
-                                  "multilevel near-null space is the disks' one; for spheres use "
-                                  "dem.analysis.stiffness.stiffness (docs/spheres.md)")
     if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
         raise ValueError(f"tol must be a relative width in (0, 1), got {tol!r}")
     if int(max_order) != max_order or not (1 <= max_order <= 10000):
@@ -859,14 +881,14 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
     the recurrence is tried before refusing). The dense bound is checked after the assembly."""
     net = run.network
     N, Nc = net.n_particles, net.n_contacts
-    ndof = 3 * N
+    ndof = (net.dim + rotational_dofs(net.dim)) * N
     limit = int(max_memory) if max_memory is not None else available_memory()
     full = ndof <= 50_000 if reorthogonalize == "auto" else bool(reorthogonalize)
     soft = (3 if ndof <= SOFT_MODES_AUTO_MAX else 0) if soft_modes == "auto" else int(soft_modes)
 
     def plan(f):
         return plan_memory(N, Nc, max_order=max_order, full=f, preconditioner=preconditioner,
-                           soft_modes=soft, dense=False, available=limit)
+                           soft_modes=soft, dense=False, available=limit, dim=net.dim)
     p = plan(full)
     if limit is not None and p.total > limit and full and reorthogonalize == "auto" \
             and plan(False).total <= limit:
@@ -889,12 +911,13 @@ def _setup(run, min_contacts):
     """Assembly, affine and first-order tensors, particle blocks."""
     net, prestress = run.network, run.prestress
     asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False)
-    run.asm, run.area = asm, net.area
-    run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((3, 3))
+    run.asm, run.area = asm, net.volume          # area of a 2D cell [m^2], volume of a 3D one [m^3]
+    nm = _n_mandel(net.dim)
+    run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((nm, nm))
     run.C_aff = _affine_kept(asm, run.area)
     run.C_aff_all = (affine_tensor(net, prestress) if asm.net.n_contacts < net.n_contacts
                      else run.C_aff) + run.corr
-    run.C0 = _tensor(run.C_aff, np.zeros((3, 3)), run.area, run.corr)
+    run.C0 = _tensor(run.C_aff, np.zeros((nm, nm)), run.area, run.corr)
     run.empty = net.n_contacts == 0 or asm.ndof == 0 or asm.net.n_contacts == 0
     if net.n_contacts == 0:
         run.reasons.append("not jammed: no contacts, the network carries no load")
@@ -907,7 +930,7 @@ def _setup(run, min_contacts):
                                "or pre-stress larger than the contact stiffness)")
         Rfo = run.asm.F.T @ (run.Minv @ run.asm.F)
     else:
-        Rfo = np.zeros((3, 3))
+        Rfo = np.zeros((nm, nm))
     run.C_fo = _tensor(run.C_aff, 0.5 * (Rfo + Rfo.T), run.area, run.corr)
     kept = asm.net
     run.far_ratio = kept.n_contacts > 0 and _min_ratio(kept) < 0.1    # some |log10(kt/kn)| > 1
@@ -1033,13 +1056,14 @@ def _calibration(run, preconditioner, soft):
     """Is the extrapolation's stated error calibrated for this network (docs/results/hierarchy.md)?"""
     lo, hi = CALIBRATED_KT_OVER_KN
     r = run.kt_over_kn
-    run.calibrated = bool(soft > 0 and np.isfinite(r) and lo <= r <= hi)
+    # measured on disk packings only: on spheres (3D) only the rigorous interval counts
+    run.calibrated = bool(soft > 0 and np.isfinite(r) and lo <= r <= hi and run.network.dim == 2)
 
 
 def _cg_step(run, max_order, full, preconditioner):
     """Block PCG, one order per step, until the stopping rule is met (``_met``) or max_order."""
     asm = run.asm
-    B = -asm.F if asm.ndof else np.zeros((0, 3))
+    B = -asm.F if asm.ndof else np.zeros((0, _n_mandel(asm.net.dim)))
     run.Cs, run.lowers = [run.C0], [None]
     scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
     run.trivial = asm.ndof == 0 or float(np.abs(B).max(initial=0.0)) <= 1e-13 * scale_F
@@ -1143,7 +1167,8 @@ def _verdict(run, ests, C_upper):
             reasons.append(f"extrapolated: the estimate rests on the extrapolation, calibrated at kt/kn = "
                            f"{run.kt_over_kn:.3g} in {list(CALIBRATED_KT_OVER_KN)} (docs/results/hierarchy.md)")
         elif not run.calibrated:
-            why = (f"kt/kn = {run.kt_over_kn:.3g} outside {list(CALIBRATED_KT_OVER_KN)}"
+            why = ("3D: it was calibrated on disk packings only" if run.network.dim != 2 else
+                   f"kt/kn = {run.kt_over_kn:.3g} outside {list(CALIBRATED_KT_OVER_KN)}"
                    if not (np.isfinite(run.kt_over_kn) and CALIBRATED_KT_OVER_KN[0] <= run.kt_over_kn
                            <= CALIBRATED_KT_OVER_KN[1]) else "no soft-mode search")
             reasons.append(f"extrapolation not calibrated here ({why}): only the rigorous interval counts")

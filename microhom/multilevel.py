@@ -15,7 +15,10 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
   local QR);
 * energy-minimising prolongation smoothing (deterministic: no random spectral-radius estimate);
 * symmetric block Gauss-Seidel smoothing (two sweeps each way) on the particles' 3 x 3 (or 2 x 2)
-  blocks, so that one V-cycle is a symmetric operator.
+  blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator.
+
+Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
+(three translations, three rigid rotations with their spins, three spins alone).
 
 The near-null space does not contain the motions that slip at no contact (rolling without
 sliding, about ``3n - N_c`` of them), which cost only kn: at kt >> kn they form a cluster of the
@@ -36,7 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .kinematics import Assembly
+from .kinematics import Assembly, rotational_dofs
 from .results import Result
 
 __all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout"]
@@ -46,32 +49,54 @@ _SHIFT = 1e-10        # H + shift * mean(diag H) * I: removes the two global tra
 
 def dof_layout(asm: Assembly):
     """(particle, component), two (ndof,) int arrays: the particle of every reduced unknown and its
-    component (0, 1 = translation x, y; 2 = spin)."""
+    component (0 .. d-1 = translations x, y[, z]; d .. = spins: 2 for a disk's spin, 3, 4, 5 for
+    a sphere's rotation about x, y, z). The full numbering of ``microhom.kinematics.assemble`` is
+    all translations (d per particle), then all rotations (1 per disk, 3 per sphere)."""
     N = asm.net.n_particles
+    dim = asm.net.dim
+    rot = rotational_dofs(dim)
     full = np.flatnonzero(asm.dof_map >= 0)
     red = asm.dof_map[full]
     part = np.empty(asm.ndof, dtype=np.int64)
     comp = np.empty(asm.ndof, dtype=np.int64)
-    isx = full < 2 * N
-    part[red] = np.where(isx, full // 2, full - 2 * N)
-    comp[red] = np.where(isx, full % 2, 2)
+    isx = full < dim * N
+    part[red] = np.where(isx, full // dim, (full - dim * N) // rot)
+    comp[red] = np.where(isx, full % dim, dim + (full - dim * N) % rot)
     return part, comp
 
 
 def near_null_space(asm: Assembly) -> np.ndarray:
-    """(ndof, m) candidate low-energy motions, m = 4 with spins, 3 without: translation x,
-    translation y, rigid rotation ``(-y, x)`` with unit spin, unit spin alone [m for the rotation's
-    translation entries, 1 otherwise]. Positions are those of the network (inside the cell); zero
-    columns (no spins) are dropped."""
+    """(ndof, m) candidate low-energy motions of the particles (zero columns, e.g. without spins,
+    dropped); the translations come first (``[:, :d]``).
+
+    2D (disks), m = 4: translation x, translation y, rigid rotation ``(-y, x)`` with unit spin,
+    unit spin alone.
+    3D (spheres), m = 9: translations x, y, z; the three rigid rotations ``u = e_a x x`` with
+    unit spin ``omega = e_a`` (a = x, y, z); the three unit spins alone (a sphere rolling
+    between its neighbours) [m for the rotations' translation entries, 1 otherwise].
+    Positions are those of the network (inside the cell)."""
     part, comp = dof_layout(asm)
+    dim = asm.net.dim
     x = np.asarray(asm.net.positions, dtype=float)[part]
-    B = np.zeros((asm.ndof, 4))
-    B[comp == 0, 0] = 1.0
-    B[comp == 1, 1] = 1.0
-    B[comp == 0, 2] = -x[comp == 0, 1]
-    B[comp == 1, 2] = x[comp == 1, 0]
-    B[comp == 2, 2] = 1.0
-    B[comp == 2, 3] = 1.0
+    if dim == 2:
+        B = np.zeros((asm.ndof, 4))
+        B[comp == 0, 0] = 1.0
+        B[comp == 1, 1] = 1.0
+        B[comp == 0, 2] = -x[comp == 0, 1]
+        B[comp == 1, 2] = x[comp == 1, 0]
+        B[comp == 2, 2] = 1.0
+        B[comp == 2, 3] = 1.0
+        return B[:, np.abs(B).sum(axis=0) > 0]
+    B = np.zeros((asm.ndof, 9))
+    for a in range(3):
+        B[comp == a, a] = 1.0                              # translations
+        e = np.zeros(3)
+        e[a] = 1.0
+        u = np.cross(e, x)                                 # (ndof, 3): e_a x x at each unknown's particle
+        for b in range(3):
+            B[comp == b, 3 + a] = u[comp == b, b]          # rigid rotation: translation part ...
+        B[comp == 3 + a, 3 + a] = 1.0                      # ... and its spin
+        B[comp == 3 + a, 6 + a] = 1.0                      # spin alone
     return B[:, np.abs(B).sum(axis=0) > 0]
 
 
@@ -86,7 +111,7 @@ class AMGInfo(Result):
     operator_complexity : float
         Non-zeros of all level matrices over those of ``H`` [-].
     blocksize : int
-        Unknowns per particle block (3 with spins, 2 without, 1 when mixed).
+        Unknowns per particle block (3 with spins, 2 without in 2D; 6 and 3 in 3D; 1 when mixed).
     setup_time : float
         Wall time of the setup [s].
     """
@@ -121,7 +146,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
     t0 = time.perf_counter()
     n = asm.ndof
     part, comp = dof_layout(asm)
-    order = np.lexsort((comp, part))                     # particle-major: (x, y, spin) per particle
+    order = np.lexsort((comp, part))                     # particle-major: (x, y[, z], spins) per particle
     inv = np.empty_like(order)
     inv[order] = np.arange(n)
     counts = np.bincount(part)[np.unique(part)]

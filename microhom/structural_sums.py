@@ -34,6 +34,7 @@ from .network import ContactNetwork
 from .results import Result
 
 __all__ = ["particle_sums", "ParticleSums", "rattlers", "network_statistics", "NetworkStatistics",
+           "sphere_statistics", "SphereStatistics", "fabric_affine_tensor", "NOT_IN_3D",
            "isotropic_fit", "neighbour_vector", "rho_statistic", "rho_definitions", "RhoDefinitions",
            "RHO_NEIGHBOURS"]
 
@@ -316,6 +317,10 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
                        nbar=None) -> NetworkStatistics:
     """The statistics the theory takes as input, with and without rattlers (:class:`NetworkStatistics`).
 
+    On a sphere network (3D) it returns :func:`sphere_statistics` (:class:`SphereStatistics`):
+    the quantities that have a 3D meaning; ``rho_neighbours`` and ``nbar`` belong to the seed
+    paper's 2D rho and N-bar and must be left at their defaults there.
+
     Parameters
     ----------
     network : ContactNetwork
@@ -335,6 +340,12 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
     """
     if rho_neighbours not in RHO_NEIGHBOURS:
         raise ValueError(f"rho_neighbours must be one of {RHO_NEIGHBOURS}, got {rho_neighbours!r}")
+    if network.dim == 3:
+        if nbar is not None or rho_neighbours != "near":
+            raise ValueError("nbar and rho_neighbours define the seed paper's 2D rho and N-bar, which "
+                             "have no 3D meaning: leave them at their defaults for a sphere network "
+                             "(network_statistics then returns SphereStatistics)")
+        return sphere_statistics(network, min_contacts)
     rat, active = rattlers(network, min_contacts)
     all_sums = ParticleSums(network)
     sums = ParticleSums(network, active)
@@ -387,6 +398,156 @@ def network_statistics(network: ContactNetwork, min_contacts=None, rho_neighbour
                       ebar_theory=d2 * vals["nc"] * (knm - ktm) / 8,
                       odd_norm=float(np.mean(np.sqrt(np.sum(sums.A3[keep] ** 2, axis=(1, 2, 3))))) / scale)
     return NetworkStatistics(**vals)
+
+
+#: Statistics of the 2D theory that :func:`sphere_statistics` does not compute, and why.
+NOT_IN_3D = (
+    "rho, rho_all: the seed paper's rho of (41) correlates the first angular harmonic of a disk's "
+    "contact density with its neighbours' contact numbers on the circle; its 3D counterpart (a "
+    "vector harmonic on the sphere, with its own normalisation) is not derived",
+    "nbar_phi, rho_nbar: N-bar(phi) of section 6 counts near neighbours of a disk from the 2D "
+    "solid fraction (pi/4 .. pi/(2 sqrt 3)); no 3D relation is derived",
+    "vbar, ebar and their _theory values: the isotropic fit (37) and the spin elimination (15)-(16) "
+    "are the 2D ones (one out-of-plane spin per disk)",
+)
+
+
+def fabric_affine_tensor(network: ContactNetwork, active=None) -> np.ndarray:
+    """(6, 6) Mandel affine (Voigt) stiffness of a sphere network from its contact fabric [Pa]:
+
+    ``C_ijkl = (1/V) sum_c l^2 [kn n_i n_j n_k n_l + kt_eff (sym(d_ik n_j n_l) - n_i n_j n_k n_l)]``
+
+    summed over the contacts ``active`` (default all), with ``l`` the branch length, ``n`` the
+    normal and ``sym`` the minor symmetrisation over (i, j) and (k, l); ``V`` the cell volume.
+    It is the energy density ``1/2 sum_c [kn (n.E c)^2 + kt_eff (|E c|^2 - (n.E c)^2)] / V`` of
+    the affine motion without pre-stress (docs/spheres.md, "Mean field in 3D"), computed from the
+    fourth- and second-order fabric sums, not from the per-contact matrices of
+    ``microhom.kinematics``."""
+    if network.dim != 3:
+        raise ValueError(f"fabric_affine_tensor takes a sphere network (dim 3), got dim {network.dim}")
+    sel = np.ones(network.n_contacts, bool) if active is None else np.asarray(active, bool)
+    n = network.normals[sel]
+    l2 = network.lengths[sel] ** 2
+    kn = (np.asarray(network.kn, float) * np.ones(network.n_contacts))[sel] * l2
+    kt = network.effective_kt[sel] * l2
+    N4 = np.einsum("c,ci,cj,ck,cl->ijkl", kn - kt, n, n, n, n)
+    N2 = np.einsum("c,ci,cj->ij", kt, n, n)
+    eye = np.eye(3)
+    T = np.einsum("ik,jl->ijkl", eye, N2)                     # d_ik (kt n_j n_l)
+    T = 0.25 * (T + T.transpose(1, 0, 2, 3) + T.transpose(0, 1, 3, 2) + T.transpose(1, 0, 3, 2))
+    C4 = (N4 + T) / network.volume
+    pairs = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+    basis = []
+    for p, q in pairs:                                         # Mandel unit strains as tensors
+        E = np.zeros((3, 3))
+        E[p, q] = E[q, p] = 1.0 if p == q else 1.0 / np.sqrt(2.0)
+        basis.append(E)
+    C = np.array([[np.einsum("ij,ijkl,kl->", Ea, C4, Eb) for Eb in basis] for Ea in basis])
+    return 0.5 * (C + C.T)
+
+
+@dataclass(frozen=True)
+class SphereStatistics(Result):
+    """Statistics of a sphere network (3D) with and without rattlers (:func:`sphere_statistics`).
+
+    The 3D subset of :class:`NetworkStatistics`: what has a 3D meaning is measured, the rest is
+    listed in ``not_defined`` with the reason (``NOT_IN_3D``), never computed with a 2D formula.
+    Suffix ``_all``: every particle and contact; no suffix: rattlers removed (iteratively,
+    :func:`rattlers`: fewer than 3 contacts with friction, 4 without). Moduli in Pa (the unit of
+    kn [N/m] over a length), lengths in the unit of the positions [m], the rest dimensionless.
+
+    Attributes
+    ----------
+    n_particles, n_contacts, n_rattlers : int
+        Spheres N, contacts C, spheres removed as rattlers.
+    rattler_fraction : float
+        ``n_rattlers / N``.
+    nc_all, nc : float
+        Mean contacts per sphere, Z (all; non-rattlers, counting contacts between non-rattlers).
+    r_all, r : float
+        Contact-number fluctuation ``var(Nc)/mean(Nc)^2`` (all; non-rattlers).
+    phi : float
+        Solid (volume) fraction ``sum (4/3) pi r^3 / V``.
+    diameter : float
+        Mean sphere diameter [m].
+    sliding_fraction : float
+        Fraction of contacts at the Coulomb limit.
+    K_affine, G_affine : float
+        Affine (Voigt) bulk and shear moduli of the load-bearing contacts from the fabric,
+        ``K = sum kn l^2 / (9 V)``, ``G = sum (2 kn + 3 kt_eff) l^2 / (30 V)`` (docs/spheres.md,
+        "Mean field in 3D"; the isotropic projection of :func:`fabric_affine_tensor`) [Pa].
+    K_affine_all, G_affine_all : float
+        The same over every contact, rattlers' included [Pa].
+    C_affine : ndarray, shape (6, 6)
+        :func:`fabric_affine_tensor` of the load-bearing contacts [Pa].
+    not_defined : tuple of str
+        The 2D statistics with no 3D meaning here, each with the reason (``NOT_IN_3D``).
+    """
+
+    n_particles: int
+    n_contacts: int
+    n_rattlers: int
+    rattler_fraction: float
+    nc_all: float
+    r_all: float
+    nc: float
+    r: float
+    phi: float
+    diameter: float
+    sliding_fraction: float
+    K_affine: float
+    G_affine: float
+    K_affine_all: float
+    G_affine_all: float
+    C_affine: np.ndarray = field(repr=False)
+    not_defined: tuple = NOT_IN_3D
+
+
+def _voigt_moduli(network, active):
+    """(K, G) of the affine fabric formula over ``active`` contacts [Pa] (docs/spheres.md)."""
+    l2 = network.lengths[active] ** 2
+    kn = (np.asarray(network.kn, float) * np.ones(network.n_contacts))[active]
+    kt = network.effective_kt[active]
+    V = network.volume
+    return float(np.sum(kn * l2) / (9 * V)), float(np.sum((2 * kn + 3 * kt) * l2) / (30 * V))
+
+
+def sphere_statistics(network: ContactNetwork, min_contacts=None) -> SphereStatistics:
+    """Coordination statistics and the affine (Voigt) moduli of a sphere network (3D), with and
+    without rattlers (:class:`SphereStatistics`).
+
+    Parameters
+    ----------
+    network : ContactNetwork
+        A network of spheres: positions (N, 3) [m], radii [m], contacts, kn, kt [N/m]; periodic
+        (the moduli are per cell volume).
+    min_contacts : int, optional
+        Rattler threshold of :func:`rattlers` (None: 3 with tangent stiffness, 4 without).
+    """
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork, got {type(network).__name__}")
+    if network.dim != 3:
+        raise ValueError(f"sphere_statistics takes a sphere network (positions (N, 3)), got dim "
+                         f"{network.dim}: use network_statistics for disks")
+    if network.cell is None:
+        raise ValueError("network must be periodic (cell is None): the affine moduli are per cell volume")
+    rat, active = rattlers(network, min_contacts)
+    n = network.n_particles
+    c_all = np.bincount(network.pairs.ravel(), minlength=n).astype(float)
+    pa = network.pairs[active]
+    c = np.bincount(pa.ravel(), minlength=n)[~rat].astype(float)
+    fluct = lambda x: float(x.var() / x.mean() ** 2) if x.size and x.mean() > 0 else 0.0  # noqa: E731
+    Ka, Ga = _voigt_moduli(network, active)
+    Kall, Gall = _voigt_moduli(network, np.ones(network.n_contacts, bool))
+    return SphereStatistics(
+        n_particles=n, n_contacts=network.n_contacts, n_rattlers=int(rat.sum()),
+        rattler_fraction=float(rat.mean()) if n else 0.0,
+        nc_all=float(c_all.mean()) if n else 0.0, r_all=fluct(c_all),
+        nc=float(c.mean()) if c.size else 0.0, r=fluct(c),
+        phi=network.solid_fraction, diameter=float(2 * network.radii.mean()),
+        sliding_fraction=float(network.sliding.mean()) if network.n_contacts else 0.0,
+        K_affine=Ka, G_affine=Ga, K_affine_all=Kall, G_affine_all=Gall,
+        C_affine=fabric_affine_tensor(network, active))
 
 
 @dataclass(frozen=True)

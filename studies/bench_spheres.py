@@ -1,0 +1,92 @@
+"""Cost of the relaxation hierarchy on sphere networks (3D) against the exact solve.
+
+    python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01]
+                                    [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES]
+
+A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
+least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
+12 contacts per sphere kept at random), frictional (kt = ``--kt`` kn). For each size: the
+assembly, the hierarchy (multilevel CG to ``--tol``, no soft-mode search; the certified lower
+bound by the sparse inertia count up to ``microhom.spectral.CERTIFIED_MAX_DOF`` unknowns) and
+the exact sparse solve (``dem.analysis.stiffness``) in the same run, with K and G of both,
+wall times and the peak resident memory. The machine is shared: the load average is printed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import time
+import warnings
+
+import numpy as np
+
+from dem.analysis.stiffness import stiffness
+from microhom import lattices
+from microhom.hierarchy import relaxation_hierarchy
+from microhom.network import from_overlaps, from_pairs
+
+
+def fcc_network(n_min, keep=0.6, kt=0.5, seed=0, squeeze=0.92, jitter=0.03):
+    """The benchmark's network of at least ``n_min`` spheres (module docstring)."""
+    m = max(2, int(np.ceil((n_min / 4) ** (1 / 3))))
+    rng = np.random.default_rng(seed)
+    lat = lattices.fcc(m, diameter=1.0)
+    pos = lat.positions * squeeze + rng.normal(scale=jitter, size=lat.positions.shape)
+    radii = rng.uniform(0.47, 0.53, size=lat.n_particles)
+    full = from_overlaps(pos, radii, lat.cell * squeeze, kn=1.0, tolerance=0.0)
+    sel = rng.random(full.n_contacts) < keep
+    return from_pairs(full.positions, full.radii, full.cell, full.pairs[sel],
+                      shifts=full.image_shifts()[sel], kn=1.0, kt=kt, fn=full.overlaps[sel])
+
+
+def _rss_gb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+
+
+def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None):
+    t0 = time.perf_counter()
+    net = fcc_network(n, keep=keep, kt=kt)
+    t_build = time.perf_counter() - t0
+    print(f"N = {net.n_particles}, contacts {net.n_contacts} (Z = {2 * net.n_contacts / net.n_particles:.2f}), "
+          f"built in {t_build:.1f} s; load {os.getloadavg()[0]:.1f}", flush=True)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order)
+    t_h = time.perf_counter() - t0
+    print(f"  hierarchy: {t_h:.1f} s total (assembly {h.assembly_time:.1f}, CG {h.solve_time:.1f}, "
+          f"bound {h.bound_time:.1f}), ndof {h.n_dof}, order {h.order}; peak RSS {_rss_gb():.2f} GiB", flush=True)
+    print("  " + h.summary(), flush=True)
+    print(f"  preconditioner setup {h.preconditioner_time:.1f} s; upper bounds per order K "
+          f"{np.array2string(h.K_orders, precision=6)}, G {np.array2string(h.G_orders, precision=6)}", flush=True)
+    row = dict(N=net.n_particles, Nc=net.n_contacts, ndof=h.n_dof, order=h.order, t_hierarchy=t_h,
+               t_bound=h.bound_time, K_upper=h.K.upper, K_lower=h.K.lower, G_upper=h.G.upper,
+               G_lower=h.G.lower, t_exact=np.nan, K_exact=np.nan, G_exact=np.nan)
+    if exact == "yes" or (exact == "auto" and net.n_particles <= 20_000):
+        t0 = time.perf_counter()
+        ex = stiffness(net, max_memory=max_memory)
+        row.update(t_exact=time.perf_counter() - t0, K_exact=ex.K, G_exact=ex.G)
+        print(f"  exact ({ex.solver if hasattr(ex, 'solver') else 'auto'}): {row['t_exact']:.1f} s, "
+              f"K = {ex.K:.6g}, G = {ex.G:.6g}; peak RSS {_rss_gb():.2f} GiB", flush=True)
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, nargs="+", default=[10_000, 100_000])
+    ap.add_argument("--keep", type=float, default=0.6)
+    ap.add_argument("--kt", type=float, default=0.5)
+    ap.add_argument("--tol", type=float, default=0.01)
+    ap.add_argument("--exact", choices=("auto", "yes", "no"), default="auto")
+    ap.add_argument("--max-order", type=int, default=60)
+    ap.add_argument("--max-memory", type=float, default=None, help="bytes, for the exact solve")
+    a = ap.parse_args(argv)
+    rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory) for n in a.n]
+    for r in rows:
+        print(r)
+    return rows
+
+
+if __name__ == "__main__":
+    main()
