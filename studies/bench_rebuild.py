@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
+import re
 import subprocess
 import tempfile
 import time
@@ -46,12 +47,21 @@ def due_state(base, n):
 def module_at(rev):
     """``dem/engine/neighbors.py`` of git revision ``rev`` as a module of the ``dem`` package (numba's
     on-disk cache off: the file lives in a temporary directory)."""
-    src = subprocess.run(["git", "show", f"{rev}:dem/engine/neighbors.py"], check=True, capture_output=True,
-                         text=True, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__)))).stdout
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    src = None
+    for where in ("dem/engine/neighbors.py", "dem/neighbors.py"):   # after / before the layout move
+        got = subprocess.run(["git", "show", f"{rev}:{where}"], capture_output=True, text=True, cwd=root)
+        if got.returncode == 0:
+            src = got.stdout
+            break
+    if src is None:
+        raise SystemExit(f"--against {rev}: no dem/engine/neighbors.py (or dem/neighbors.py) at that revision")
+    # its relative imports point into the engine package, wherever the file sat at that revision
+    src = re.sub(r"^from \.(\w+) import", r"from dem.engine.\1 import", src, flags=re.M)
     path = os.path.join(tempfile.mkdtemp(), "neighbors_at_rev.py")
     with open(path, "w") as f:
         f.write(src.replace("cache=True", "cache=False"))
-    spec = importlib.util.spec_from_file_location("dem._neighbors_at_rev", path)
+    spec = importlib.util.spec_from_file_location("dem.engine._neighbors_at_rev", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
