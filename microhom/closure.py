@@ -119,6 +119,10 @@ ERROR = Q   # kept name: the error scale of the closure (relative, at the mean l
 #: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
 #: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
 PHI_INFLATED_MAX = 1.1
+#: identical frictional disks are in the corpus only at p/kn >= MONO_P_MIN (dispersity below
+#: MONO_DISPERSITY): elsewhere they are outside the data (flag 32; docs/results/closure.md)
+MONO_DISPERSITY = 0.05
+MONO_P_MIN = 1e-2
 
 _REASONS = (
     (1, "outside the data the closure was fitted on (feature-space distance or range)"),
@@ -127,6 +131,9 @@ _REASONS = (
     (4, "size_coordination not given for a polydisperse packing (dispersity > 0.05)"),
     (8, "p_over_kn not given"),
     (16, "phi above 1 (overlaps inflate it): outside the data; the moduli scale with phi"),
+    (32, "identical disks (dispersity < 0.05) with friction below p/kn = 1e-2: outside the data (the "
+         "corpus's frictional identical disks are at p/kn = 1e-2 only; such packings partly order, "
+         "which the closure does not see: on the main study's packings K came out 15-17 % too stiff)"),
 )
 
 
@@ -242,7 +249,7 @@ class ClosurePrediction(Result):
     flags : ndarray of int8
         Bit mask: 1 outside the data, 2 at or below the isostatic point, 4 size_coordination
         missing for a polydisperse packing, 8 p_over_kn missing, 16 phi above 1 (overlap-inflated,
-        as ``predict_from_network`` flags it).
+        as ``predict_from_network`` flags it), 32 identical frictional disks below p/kn = 1e-2.
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -388,7 +395,8 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     out = box | (hK > h_max["K"]) | (hG > h_max["G"])
     flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
              | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)
-             | np.where(phi > 1.0, 16, 0)).astype(np.int8)
+             | np.where(phi > 1.0, 16, 0)
+             | np.where((kr > 0) & (d < MONO_DISPERSITY) & (pk < MONO_P_MIN * (1 - 1e-9)), 32, 0)).astype(np.int8)
     flags = np.broadcast_to(flags, K.shape)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
                              error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,

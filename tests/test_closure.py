@@ -201,3 +201,18 @@ def test_minimise_protocol_is_a_force_balanced_energy_minimum(tmp_path):
     x = closure_inputs(net.with_stiffness(kt=0.0))
     assert x["kt_over_kn"] == 0.0 and x["nc"] > float(isostatic_point(0.0))
     assert x["dispersity"] == pytest.approx(np.sqrt(3) * 0.1 / 0.6, rel=1e-12)   # radii 0.5, 0.7
+
+
+def test_identical_frictional_disks_below_the_corpus_pressure_are_flagged():
+    """The main study's packings (identical disks, mu_prep 0.05, p/kn = 1e-4; measured Z 4.05,
+    r 0.066, phi 0.852, rattlers 5.5 %) are outside the corpus: its frictional identical disks are
+    at p/kn = 1e-2 only. There the closure gave K 15-17 % too stiff against a stated ~11 %, so it
+    must not be valid; the same statistics as a polydisperse packing, or at p/kn = 1e-2, are not
+    flagged for it."""
+    kw = dict(nc=4.047, r=0.066, phi=0.8524, kt_over_kn=1.0, rattler_fraction=0.055,
+              sliding_fraction=0.0)
+    mono = predict_closure(dispersity=0.0, p_over_kn=1e-4, **kw)
+    assert not bool(mono.valid) and int(mono.flags) & 32 and "identical disks" in str(mono.reason)
+    assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-2, **kw).flags) & 32
+    assert not int(predict_closure(dispersity=0.2, size_coordination=0.03, p_over_kn=1e-4, **kw).flags) & 32
+    assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-4, **{**kw, "kt_over_kn": 0.0}).flags) & 32
