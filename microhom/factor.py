@@ -696,7 +696,7 @@ def _count_inertia(f, count, eta, psd, max_memory):
     if f.n_perturbed:   # the inertia is that of a perturbed matrix: count with SuperLU
         warnings.warn(f"PARDISO perturbed {f.n_perturbed} pivot(s): modes counted with SuperLU",
                       RuntimeWarning, stacklevel=5)
-        slu = _SuperLU(f.A, shift=eta, scale=f.scale, _guard=False)
+        slu = _SuperLU(f.A, max_memory=max_memory, shift=eta, scale=f.scale)
         m = count_zero_modes(slu, count, eta=eta)
         return replace(m, factor=m.factor or slu)
     n_below = f.inertia().n_neg

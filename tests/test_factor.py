@@ -232,3 +232,14 @@ def test_shift_and_count_bad_input_names_the_parameter():
     f = factor(A, backend="splu", shift=1e-12, scale=A.diagonal())
     with pytest.raises(ValueError, match="count"):
         fm.count_zero_modes(f, "threshold")
+
+
+def test_shifted_factor_keeps_the_memory_guard(monkeypatch):
+    """Every back end refuses a shifted factorisation predicted above the limit, before it
+    allocates (the stiffness's factors go through this guard)."""
+    A = _ring(50)
+    monkeypatch.setenv("MICROHOM_MEMORY_LIMIT", "1e-6")       # 1 kB
+    for b in ALL:
+        with pytest.raises(MemoryGuardError, match="predicted"):
+            factor(A, backend=b, shift=-1e-12 if b == "pardiso" else 1e-12, scale=A.diagonal(),
+                   perm=np.arange(50) if b == "cholmod" else None)
