@@ -1,7 +1,7 @@
 """Sparse symmetric factorisation back ends, their inertia and a memory guard.
 
 One interface over the direct solvers the exact stiffness (``dem.analysis.stiffness``) and the certified
-spectral bound (:mod:`microhom.spectral`) need:
+spectral bound (:mod:`microhom.spectral`) need; the only implementation of each back end in the project:
 
 - ``"pardiso"``: Intel MKL PARDISO (the ``mkl`` wheel from PyPI, x86-64 Linux and Windows),
   supernodal, multi-threaded, METIS nested dissection. Real symmetric *indefinite* mode (matrix type
@@ -17,6 +17,13 @@ spectral bound (:mod:`microhom.spectral`) need:
 
 :func:`factor` picks ``"auto"``: PARDISO where the ``mkl`` wheel is installed, else CHOLMOD for
 positive definite matrices, else SuperLU (``docs/stiffness.md``: measured candidates).
+``factor(A, shift=s, scale=d)`` factorises the shifted matrix ``A + s diag(d)`` (a Tikhonov shift
+relative to a positive diagonal scale ``d``); ``Factor.reshift(s2)`` factorises ``A + s2 diag(d)``
+on the same ordering (PARDISO: the same analysis; CHOLMOD: the same symbolic factor and memory).
+:func:`count_zero_modes` counts the zero and negative eigenvalues of the pencil ``(A, diag d)``
+from such a factor: by the inertia of PARDISO's ``LDL^T`` of ``A - eta diag(d)``, or by the
+relative pivots of CHOLMOD's or SuperLU's factor of ``A + eta diag(d)`` (threshold
+``ZERO_PIVOT``, or the rescaling test).
 :func:`inertia` counts the eigenvalues of a symmetric matrix below zero.
 :func:`memory_check` refuses a factorisation whose predicted size exceeds the available memory.
 """
@@ -26,21 +33,36 @@ import ctypes
 import glob
 import os
 import sys
+import warnings
 from ctypes.util import find_library
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import eigsh, splu
 
 from microhom.results import Result
 
-__all__ = ["BACKENDS", "Inertia", "Factor", "factor", "inertia", "available_backends", "have_pardiso",
+__all__ = ["BACKENDS", "COUNTS", "ETA", "ZERO_PIVOT", "AMBIGUOUS_PIVOTS", "RESCALE", "Inertia", "ZeroModes",
+           "Factor", "factor", "inertia", "count_zero_modes", "available_backends", "have_pardiso",
            "have_cholmod", "NotPositiveDefinite", "FactorisationError", "MemoryGuardError",
            "memory_check", "predicted_factor_bytes"]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "splu")
+#: the rules of :func:`count_zero_modes` for the pivots of CHOLMOD and SuperLU
+COUNTS = ("auto", "pivots", "rescale")
+#: default relative shift ``eta`` of the zero-mode count: ``A + eta diag(d)`` is factorised (CHOLMOD,
+#: SuperLU), ``A - eta diag(d)`` by PARDISO; eigenvalues of the pencil ``(A, diag d)`` in
+#: ``(-eta, eta)`` are zero modes (``docs/stiffness.md``: why 1e-12 is safe)
+ETA = 1e-12
+#: ``count="pivots"``: a pivot below this fraction of its diagonal entry marks a zero mode
+ZERO_PIVOT = 1e-8
+#: relative pivots in this band are ambiguous (a delocalised zero mode or a soft rigid mode):
+#: ``count="auto"`` settles them with the rescaling test
+AMBIGUOUS_PIVOTS = (1e-10, 1e-6)
+#: ``count="rescale"``: the second factorisation's shift, as a fraction of the first
+RESCALE = 1e-2
 
 
 class NotPositiveDefinite(RuntimeError):
@@ -129,6 +151,26 @@ class Inertia(Result):
     backend: str
 
 
+@dataclass(frozen=True, eq=False)
+class ZeroModes(Result):
+    """Zero and negative eigenvalues of the pencil ``(A, diag d)`` counted by
+    :func:`count_zero_modes` from a shifted factorisation.
+
+    ``n_zero``: eigenvalues taken as zero (in ``(-eta, eta)`` by the inertia; by the pivot rule
+    ``method`` otherwise); ``n_negative``: eigenvalues below ``-eta``; ``gap``: (largest relative
+    pivot counted zero, smallest kept) [-], NaN for the inertia and eigen-solver counts;
+    ``method``: ``"inertia"`` (PARDISO), ``"pivots"``, ``"rescale"`` (CHOLMOD, SuperLU) or
+    ``"eig"`` (dense / shift-invert fallback when SuperLU left the diagonal); ``factor``: the
+    factor to solve with when the count replaced its input (CHOLMOD's in-place rescaled factor,
+    or SuperLU's after PARDISO perturbed pivots), else None (keep using the input)."""
+
+    n_zero: int
+    n_negative: int
+    gap: tuple
+    method: str
+    factor: object = field(default=None, repr=False, compare=False, metadata={"export": False})
+
+
 # ---- memory guard ----------------------------------------------------------------------------
 
 
@@ -169,14 +211,61 @@ def memory_check(need: float, what: str, limit: float | None = None):
 
 
 # ---- factor objects --------------------------------------------------------------------------
+class _Pencil:
+    """``H - s M`` on the union of the upper-triangular patterns, for any ``s``: ``pattern`` a CSR
+    upper triangle with sorted indices, ``at(s)`` its values (``data`` order), so that one
+    PARDISO analysis serves every shift (:mod:`microhom.spectral`, and the diagonal shift of
+    :func:`factor`, ``M = -diag(scale)``)."""
+
+    def __init__(self, H, M):
+        Hu, Mu = sp.triu(H, format="csr"), sp.triu(M, format="csr")
+        for X in (Hu, Mu):
+            X.sum_duplicates()
+            X.sort_indices()
+        ones = lambda X: sp.csr_matrix((np.ones(X.nnz), X.indices, X.indptr), shape=X.shape)  # noqa: E731
+        U = (ones(Hu) + ones(Mu)).tocsr()          # entries >= 1: no cancellation
+        U.sort_indices()
+        ids = sp.csr_matrix((np.arange(1, U.nnz + 1, dtype=float), U.indices, U.indptr), shape=U.shape)
+        self.hpos = self._positions(ones(Hu), ids)
+        self.mpos = self._positions(ones(Mu), ids)
+        self.hv, self.mv = Hu.data, Mu.data
+        self.pattern = sp.csr_matrix((np.zeros(U.nnz), U.indices, U.indptr), shape=U.shape)
+
+    @staticmethod
+    def _positions(X1, ids):
+        P = X1.multiply(ids).tocsr()               # X's pattern, with U's entry ids
+        P.sort_indices()
+        return np.rint(P.data).astype(np.int64) - 1
+
+    def at(self, s):
+        v = np.zeros(self.pattern.nnz)
+        v[self.hpos] += self.hv
+        v[self.mpos] -= s * self.mv
+        return v
+
+    def matrix(self, s):
+        A = self.pattern.copy()
+        A.data = self.at(s)
+        return A
+
+
 class Factor:
-    """A factorisation of a real symmetric matrix ``A`` (n, n): ``solve(b)`` for (n,) or (n, k)
-    ``b``; ``inertia()`` an :class:`Inertia` (or None when the back end cannot tell);
-    ``pivots()`` (relative pivots, reliable?) where available; ``name`` the back end;
-    ``nnz`` non-zeros of the factor (or None); ``release()`` frees its memory."""
+    """A factorisation of a real symmetric matrix: ``solve(b)`` for (n,) or (n, k) ``b``;
+    ``inertia()`` an :class:`Inertia` (or None when the back end cannot tell); ``pivots()``
+    (relative pivots, reliable?) where available; ``name`` the back end; ``nnz`` non-zeros of
+    the factor (or None); ``release()`` frees its memory.
+
+    Made by :func:`factor` with a diagonal shift (``scale`` given), it factorises
+    ``A + shift diag(scale)``: ``A`` (n, n) the unshifted input, ``scale`` (n,), ``shift`` are
+    kept, and ``reshift(s)`` gives the factor of ``A + s diag(scale)`` on the same ordering
+    (``reshifts_in_place``: the result replaces this object, whose memory it reuses)."""
 
     name = "?"
     nnz = None
+    A = None
+    scale = None
+    shift = 0.0
+    reshifts_in_place = False
 
     def solve(self, b):
         raise NotImplementedError
@@ -187,25 +276,41 @@ class Factor:
     def pivots(self):
         return None, False
 
+    def reshift(self, shift):
+        raise NotImplementedError(f"{self.name} cannot refactorise with another shift")
+
     def release(self):
         pass
+
+    def _need_scale(self):
+        if self.scale is None:
+            raise ValueError("reshift needs a factor made with a diagonal shift: factor(A, shift=, scale=)")
 
 
 class _Pardiso(Factor):
     """MKL PARDISO of a real symmetric matrix: ``spd=True`` Cholesky (matrix type 2; raises
     :class:`NotPositiveDefinite`), else Bunch-Kaufman ``LDL^T`` (type -2) with its inertia.
-    The analysis (phase 11) predicts the memory; :func:`memory_check` runs before phase 22."""
+    The analysis (phase 11) predicts the memory; :func:`memory_check` runs before phase 22.
+    With ``scale``, the factorised matrix is ``A + shift diag(scale)`` on the pattern of a
+    :class:`_Pencil`, so that :meth:`reshift` reuses the analysis; ``inertias`` maps every shift
+    factorised on this analysis to its (:class:`Inertia`, number of perturbed pivots)."""
 
     name = "pardiso"
+    reshifts_in_place = True
 
     def __init__(self, A, spd=False, *, max_memory=None, perm=None, threads=None, upper=False,
-                 matching=True):
+                 matching=True, shift=0.0, scale=None):
         lib = _load_mkl()
         if not lib:
             raise RuntimeError("backend 'pardiso' needs the mkl wheel: pip install mkl (x86-64)")
         self._lib = lib
         n = A.shape[0]
-        if upper:     # the caller's upper triangle (CSR, sorted indices), taken as is
+        self._pencil = None
+        if scale is not None:     # A + shift diag(scale) = the pencil (A, -diag(scale)) at shift
+            self.A, self.scale, self.shift = A, scale, shift
+            self._pencil = _Pencil(A, sp.diags(-scale).tocsr())
+            U = self._pencil.matrix(shift)
+        elif upper:     # the caller's upper triangle (CSR, sorted indices), taken as is
             U = A
         else:
             U = sp.triu(A, format="csr")
@@ -237,6 +342,7 @@ class _Pardiso(Factor):
         self.iparm = ip
         self._perm = (np.asarray(perm, dtype=np.int32) + 1) if perm is not None else np.zeros(n, np.int32)
         self._released = False
+        self.inertias = {}
         if threads is not None:
             lib.MKL_Set_Num_Threads(ctypes.c_int(int(threads)))
         self._call(11)
@@ -260,6 +366,11 @@ class _Pardiso(Factor):
             self.release()
             raise NotPositiveDefinite(f"PARDISO Cholesky: {int(ip[22])} negative, {int(ip[13])} "
                                       "perturbed pivot(s)")
+        self._record()
+
+    def _record(self):
+        if self._pencil is not None:
+            self.inertias[self.shift] = (self.inertia(), self.n_perturbed)
 
     def refactor(self, data):
         """Numeric factorisation of a matrix with the *same* upper-triangular pattern (``data``
@@ -273,6 +384,14 @@ class _Pardiso(Factor):
         self._a = data
         self._call(22)
         self.n_perturbed = int(self.iparm[13])
+        return self
+
+    def reshift(self, shift):
+        """``A + shift diag(scale)`` factorised in place on the same analysis; returns self."""
+        self._need_scale()
+        self.refactor(self._pencil.at(shift))
+        self.shift = shift
+        self._record()
         return self
 
     def _call(self, phase, b=None):
@@ -331,14 +450,18 @@ class _Pardiso(Factor):
 class _SuperLU(Factor):
     """scipy SuperLU with symmetric diagonal pivoting (``SymmetricMode``, ``MMD_AT_PLUS_A``,
     ``diag_pivot_thresh=0``): when it pivoted symmetrically, its pivots are those of ``LDL^T`` and
-    their signs give the inertia. Always available."""
+    their signs give the inertia. Always available. With ``scale``, of ``A + shift diag(scale)``."""
 
     name = "splu"
 
-    def __init__(self, A, *, max_memory=None):
+    def __init__(self, A, *, max_memory=None, shift=0.0, scale=None, _guard=True):
+        if _guard:
+            memory_check(predicted_factor_bytes(A.shape[0], "splu"),
+                         f"SuperLU factorisation of {A.shape[0]} unknowns", max_memory)
+        if scale is not None:
+            self.A, self.scale, self.shift = A, scale, shift
+            A = A + sp.diags(shift * scale)
         A = sp.csc_matrix(A)
-        memory_check(predicted_factor_bytes(A.shape[0], "splu"),
-                     f"SuperLU factorisation of {A.shape[0]} unknowns", max_memory)
         try:
             self.lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                            options=dict(SymmetricMode=True))
@@ -348,9 +471,17 @@ class _SuperLU(Factor):
         self._A = A
         self.nnz = int(self.lu.L.nnz + self.lu.U.nnz)
 
+    def reshift(self, shift):
+        """The factor of ``A + shift diag(scale)`` (a new object; this one stays valid), or None
+        if SuperLU chose another ordering (its pivots would not compare one to one)."""
+        self._need_scale()
+        new = _SuperLU(self.A, shift=shift, scale=self.scale, _guard=False)
+        return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
+
     def _diag_pivots(self):
         lu = self.lu
         u = lu.U.diagonal()
+        # diagonal of Pr M Pc: row perm_r^-1, column perm_c^-1 -> entry M[q_r[k], q_c[k]]
         qr = np.empty_like(lu.perm_r)
         qr[lu.perm_r] = np.arange(qr.size)
         qc = np.empty_like(lu.perm_c)
@@ -377,27 +508,54 @@ class _SuperLU(Factor):
 
 class _Cholmod(Factor):
     """CHOLMOD supernodal Cholesky ``LL^T`` (scikit-sparse) of a positive definite matrix in the
-    given ordering ``perm`` (or CHOLMOD's own); raises :class:`NotPositiveDefinite`."""
+    given ordering ``perm`` (new position -> old index; or CHOLMOD's own); raises
+    :class:`NotPositiveDefinite`. With ``scale``, of ``A + shift diag(scale)``: ``A`` is permuted
+    once, and :meth:`reshift` reuses the permuted matrix, the symbolic analysis and the memory."""
 
     name = "cholmod"
+    reshifts_in_place = True
 
-    def __init__(self, A, *, perm=None, max_memory=None):
+    def __init__(self, A, *, perm=None, max_memory=None, shift=0.0, scale=None, _base=None):
         if _cholmod is None:
             raise RuntimeError("backend 'cholmod' needs scikit-sparse (CHOLMOD): apt-get install "
                                "libsuitesparse-dev, then pip install 'scikit-sparse==0.4.16'")
-        memory_check(predicted_factor_bytes(A.shape[0], "cholmod"),
-                     f"CHOLMOD factorisation of {A.shape[0]} unknowns", max_memory)
-        self.perm = perm
-        Ap = (A[perm][:, perm] if perm is not None else A).tocsc()
-        self._diag = Ap.diagonal()
+        if _base is None:
+            memory_check(predicted_factor_bytes(A.shape[0], "cholmod"),
+                         f"CHOLMOD factorisation of {A.shape[0]} unknowns", max_memory)
+            self.A, self.scale, self.n = A, scale, A.shape[0]
+            self._Ap = (A[perm][:, perm] if perm is not None else A).tocsc()
+            self._dp = None if scale is None else (scale[perm] if perm is not None else scale)
+            self.f = None
+        else:   # take over the base's permuted matrix and factor (numeric values replaced)
+            self.A, self.scale, self.n = _base.A, _base.scale, _base.n
+            self._Ap, self._dp, self.f = _base._Ap, _base._dp, _base.f
+        self.perm, self.shift = perm, shift
+        Mp = self._Ap if self._dp is None else (self._Ap + sp.diags(shift * self._dp)).tocsc()
+        self._diag = Mp.diagonal()
+        if self.f is None:
+            self.f = _cholmod.analyze(Mp, mode="supernodal",
+                                      ordering_method="natural" if perm is not None else "default")
         try:
-            self.f = _cholmod.cholesky(Ap, mode="supernodal",
-                                       ordering_method="natural" if perm is not None else "default")
+            self.f.cholesky_inplace(Mp)
         except _cholmod.CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
-        self.n = A.shape[0]
+
+    def reshift(self, shift):
+        """The factor of ``A + shift diag(scale)`` on the same pattern, computed *in place*: the
+        symbolic analysis and the memory are reused and this object must not be used afterwards.
+        Returns None (and this object refactored back to its own shift) if the new matrix is not
+        positive definite."""
+        self._need_scale()
+        try:
+            new = _Cholmod(None, perm=self.perm, shift=shift, _base=self)
+        except NotPositiveDefinite:
+            _Cholmod(None, perm=self.perm, shift=self.shift, _base=self)
+            return None
+        self.f = None
+        return new
 
     def pivots(self):
+        """(relative pivots, reliable?): D of LDL^T = diag(L)^2 over the matching diagonal."""
         return self.f.D() / self._diag[self.f.P()], True
 
     def inertia(self):
@@ -412,8 +570,20 @@ class _Cholmod(Factor):
         return x
 
 
-def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching=True) -> Factor:
-    """Factorise the real symmetric sparse matrix ``A`` (n, n).
+def _check_scale(scale, shift, n):
+    """The diagonal shift's arguments: ``scale`` (n,) finite and positive, ``shift`` finite."""
+    scale = np.asarray(scale, dtype=np.float64)
+    if scale.shape != (n,) or not np.all(np.isfinite(scale)) or not np.all(scale > 0):
+        raise ValueError(f"scale must be a finite positive diagonal of shape ({n},), got shape "
+                         f"{scale.shape}" + ("" if scale.shape != (n,) else f", min {scale.min():.3g}"))
+    if not np.isfinite(shift):
+        raise ValueError(f"shift must be a finite number, got {shift!r}")
+    return scale
+
+
+def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching=True, shift=0.0,
+           scale=None) -> Factor:
+    """Factorise the real symmetric sparse matrix ``A`` (n, n), or ``A + shift diag(scale)``.
 
     backend: one of ``BACKENDS``; ``"auto"`` takes PARDISO (Bunch-Kaufman ``LDL^T``, with the
     inertia) when available, else CHOLMOD when ``spd``, else SuperLU. ``spd``: the caller
@@ -421,21 +591,28 @@ def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching
     ``perm``: a fill-reducing ordering (new position -> old index) for CHOLMOD.
     ``max_memory`` [bytes]: refuse (:class:`MemoryGuardError`) a predicted factor above it or
     above the available memory. ``matching``: PARDISO's symmetric scaling and weighted matching
-    (default on; off saves time on nearly semi-definite matrices)."""
+    (default on; off saves time on nearly semi-definite matrices).
+    ``scale`` (n,) positive and ``shift`` [-]: factorise ``A + shift diag(scale)`` (a Tikhonov
+    shift relative to the diagonal scale); the factor keeps ``A``, ``scale`` and ``shift`` and
+    its ``reshift(s)`` factorises ``A + s diag(scale)`` on the same ordering, as
+    :func:`count_zero_modes` needs."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
-    A = sp.csr_matrix(A)
+    if not sp.issparse(A) or A.format not in ("csr", "csc"):
+        A = sp.csr_matrix(A)
     if A.shape[0] != A.shape[1]:
         raise ValueError(f"A must be square, got shape {A.shape}")
+    if scale is not None:
+        scale = _check_scale(scale, shift, A.shape[0])
     if backend == "auto":
         backend = available_backends()[0]
         if backend == "cholmod" and not spd:
             backend = "splu"
     if backend == "pardiso":
-        return _Pardiso(A, spd=False, max_memory=max_memory, matching=matching)
+        return _Pardiso(A, spd=False, max_memory=max_memory, matching=matching, shift=shift, scale=scale)
     if backend == "cholmod":
-        return _Cholmod(A.tocsc(), perm=perm, max_memory=max_memory)
-    return _SuperLU(A, max_memory=max_memory)
+        return _Cholmod(A, perm=perm, max_memory=max_memory, shift=shift, scale=scale)
+    return _SuperLU(A, max_memory=max_memory, shift=shift, scale=scale)
 
 
 def inertia(A, *, backend="auto", max_memory=None) -> Inertia:
@@ -454,3 +631,94 @@ def inertia(A, *, backend="auto", max_memory=None) -> Inertia:
         return ine
     finally:
         f.release()
+
+
+# ---- zero and negative modes of the pencil (A, diag scale) -----------------------------------
+def count_zero_modes(f, count="auto", *, eta=None, psd=False, max_memory=None) -> ZeroModes:
+    """Zero and negative eigenvalues of the pencil ``(A, diag d)`` from a shifted factor ``f``
+    made by ``factor(A, shift=, scale=d)`` (Sylvester's law of inertia: ``A + s diag d`` is
+    congruent to the diagonal of its ``LDL^T``). ``eta`` [-]: the zero threshold (default
+    ``|f.shift|``).
+
+    PARDISO (``method == "inertia"``, ``f`` the Bunch-Kaufman ``LDL^T`` of ``A - eta diag d``):
+    its negative pivots are the eigenvalues below ``eta`` (zero and negative modes); unless
+    ``psd`` (``A`` known to be positive semi-definite), those below ``-eta`` (negative modes)
+    come from the factorisation of ``A + eta diag d`` made on the same analysis before
+    (``f.inertias``), or from a new one. A factor with perturbed pivots counts another matrix:
+    the count falls back to SuperLU (with a warning) and ``ZeroModes.factor`` is SuperLU's.
+
+    CHOLMOD and SuperLU (``f`` the factor of ``A + eta diag d``), by the rule ``count``:
+    ``"pivots"``: a relative pivot below ``ZERO_PIVOT`` (1e-8) is a zero mode. ``"rescale"``: a
+    second factorisation with the shift ``RESCALE * eta``; a pivot belongs to a zero mode iff it
+    scales with the shift (below 1e-4 and shrunk below a tenth: no threshold to tune). With
+    CHOLMOD the second factorisation replaces the first in place (memory reused): solve with
+    ``ZeroModes.factor`` then. ``"auto"``: ``"pivots"``, switching to ``"rescale"`` when a relative
+    pivot falls in the ambiguous band ``AMBIGUOUS_PIVOTS`` (1e-10..1e-6). Negative pivots not
+    counted as zero are negative modes. When SuperLU left the diagonal (no symmetric pivots), a
+    dense (n <= 3000) or shift-invert eigen-solve of the pencil counts instead (a warning)."""
+    if count not in COUNTS:
+        raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
+    if f.scale is None:
+        raise ValueError("count_zero_modes needs a factor made with a diagonal shift: "
+                         "factor(A, shift=, scale=)")
+    eta = abs(f.shift) if eta is None else eta
+    if f.name == "pardiso":
+        return _count_inertia(f, count, eta, psd, max_memory)
+    piv, ok = f.pivots()
+    if not ok:
+        warnings.warn("SuperLU did not pivot symmetrically: mode counts from an eigen-solver "
+                      "fallback", RuntimeWarning, stacklevel=4)
+        nz, nn = _count_eig(f.A, f.scale)
+        return ZeroModes(nz, nn, (np.nan, np.nan), "eig")
+    small = np.abs(piv) < ZERO_PIVOT
+    a = np.abs(piv)
+    if count == "auto":
+        count = "rescale" if np.any((a > AMBIGUOUS_PIVOTS[0]) & (a < AMBIGUOUS_PIVOTS[1])) else "pivots"
+    f2 = None
+    if count == "rescale":
+        f2 = f.reshift(RESCALE * eta)
+        if f2 is not None:
+            piv2, ok2 = f2.pivots()
+            if ok2:
+                small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
+        if f2 is not None and not f2.reshifts_in_place:   # a separate object: the input stays valid
+            f2 = None
+    gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
+           float(np.abs(piv[~small]).min()) if (~small).any() else np.inf)
+    return ZeroModes(int(small.sum()), int(((piv < 0) & ~small).sum()), gap, count, factor=f2)
+
+
+def _count_inertia(f, count, eta, psd, max_memory):
+    """The PARDISO branch of :func:`count_zero_modes`."""
+    if f.shift >= 0:
+        raise ValueError(f"the inertia count needs PARDISO's factor of A - eta diag(scale) (shift < 0), "
+                         f"got shift {f.shift!r}")
+    if f.n_perturbed:   # the inertia is that of a perturbed matrix: count with SuperLU
+        warnings.warn(f"PARDISO perturbed {f.n_perturbed} pivot(s): modes counted with SuperLU",
+                      RuntimeWarning, stacklevel=5)
+        slu = _SuperLU(f.A, max_memory=max_memory, shift=eta, scale=f.scale)
+        m = count_zero_modes(slu, count, eta=eta)
+        return replace(m, factor=m.factor or slu)
+    n_below = f.inertia().n_neg
+    n_neg = 0
+    first = f.inertias.get(eta)
+    if not psd and first is not None and not first[1]:
+        n_neg = first[0].n_neg       # counted at +eta on this analysis before the solve factor
+    elif not psd:
+        f2 = _Pardiso(f.A, max_memory=max_memory, matching=False, shift=eta, scale=f.scale)
+        n_neg = f2.inertia().n_neg
+        f2.release()
+    return ZeroModes(n_below - n_neg, n_neg, (np.nan, np.nan), "inertia")
+
+
+def _count_eig(A, d):
+    """Zero / negative eigenvalues of the pencil (A, diag d) by a dense (n <= 3000) or
+    shift-invert eigen-solve: the fallback when SuperLU left the diagonal."""
+    s = 1.0 / np.sqrt(d)
+    B = sp.diags(s) @ A @ sp.diags(s)
+    if B.shape[0] <= 3000:
+        w = np.linalg.eigvalsh(B.toarray())
+    else:   # pragma: no cover - large fallback
+        w = eigsh(B, k=min(200, B.shape[0] - 1), sigma=-1e-3, return_eigenvectors=False)
+    small = np.abs(w) < ZERO_PIVOT
+    return int(small.sum()), int(((w < 0) & ~small).sum())

@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
-from microhom.factor import FactorisationError, _Pardiso, available_backends, factor
+from microhom.factor import FactorisationError, _Pardiso, _Pencil, available_backends, factor
 from microhom.results import Result
 
 __all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
@@ -95,43 +95,6 @@ def count_below(H, M, s, *, backend="auto", max_memory=None):
         return _neg(f)
     finally:
         f.release()
-
-
-class _Pencil:
-    """``H - s M`` on the union of the upper-triangular patterns, for any ``s``: ``pattern`` a CSR
-    upper triangle with sorted indices, ``at(s)`` its values (``data`` order), so that one
-    PARDISO analysis serves every shift."""
-
-    def __init__(self, H, M):
-        Hu, Mu = sp.triu(H, format="csr"), sp.triu(M, format="csr")
-        for X in (Hu, Mu):
-            X.sum_duplicates()
-            X.sort_indices()
-        ones = lambda X: sp.csr_matrix((np.ones(X.nnz), X.indices, X.indptr), shape=X.shape)  # noqa: E731
-        U = (ones(Hu) + ones(Mu)).tocsr()          # entries >= 1: no cancellation
-        U.sort_indices()
-        ids = sp.csr_matrix((np.arange(1, U.nnz + 1, dtype=float), U.indices, U.indptr), shape=U.shape)
-        self.hpos = self._positions(ones(Hu), ids)
-        self.mpos = self._positions(ones(Mu), ids)
-        self.hv, self.mv = Hu.data, Mu.data
-        self.pattern = sp.csr_matrix((np.zeros(U.nnz), U.indices, U.indptr), shape=U.shape)
-
-    @staticmethod
-    def _positions(X1, ids):
-        P = X1.multiply(ids).tocsr()               # X's pattern, with U's entry ids
-        P.sort_indices()
-        return np.rint(P.data).astype(np.int64) - 1
-
-    def at(self, s):
-        v = np.zeros(self.pattern.nnz)
-        v[self.hpos] += self.hv
-        v[self.mpos] -= s * self.mv
-        return v
-
-    def matrix(self, s):
-        A = self.pattern.copy()
-        A.data = self.at(s)
-        return A
 
 
 def _neg(f):

@@ -1,5 +1,7 @@
 """microhom.factor: inertia, solves and the memory guard of the sparse back ends, against dense
 numpy eigenvalues and closed forms (never the back end's own output)."""
+import warnings
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -114,3 +116,130 @@ def test_bad_input_names_the_parameter():
         factor(sp.identity(3).tocsr(), backend="umfpack")
     with pytest.raises(ValueError, match="square"):
         factor(sp.csr_matrix(np.ones((2, 3))))
+
+
+# ---- the diagonal shift, reshift and the zero-mode count (what dem.analysis.stiffness uses) -----
+ALL = [b for b in ("pardiso", "cholmod", "splu") if b in available_backends()]
+
+
+def _ring(n):
+    L = sp.diags([2 * np.ones(n), -np.ones(n - 1), -np.ones(n - 1)], [0, 1, -1]).tolil()
+    L[0, n - 1] = L[n - 1, 0] = -1
+    return L.tocsr()
+
+
+def _rings(k, n):
+    """k disjoint ring Laplacians of n nodes: the pencil (A, diag A) has eigenvalues
+    1 - cos(2 pi j / n), each k times: exactly k zero modes, the next at 1 - cos(2 pi / n)."""
+    return sp.block_diag([_ring(n)] * k, format="csr")
+
+
+@pytest.mark.parametrize("backend", ALL)
+def test_shifted_factor_solves_the_shifted_matrix(backend):
+    """factor(A, shift=s, scale=d) solves (A + s diag d) x = b, and reshift(s2) solves with s2,
+    against the explicitly shifted matrix (dense check)."""
+    A = _sym(150, 0.04, 11, 6.0)
+    d = np.random.default_rng(2).uniform(0.5, 2.0, 150)
+    perm = np.random.default_rng(3).permutation(150) if backend == "cholmod" else None
+    b = np.random.default_rng(4).standard_normal((150, 3))
+    shift = -0.5 if backend == "pardiso" else 0.5
+    f = factor(A, backend=backend, shift=shift, scale=d, perm=perm)
+    for s in (shift, 2.0):
+        if s != shift:
+            g = f.reshift(s)
+            assert g is not None and (g is f) == (backend == "pardiso")
+            f = g
+        As = (A + sp.diags(s * d)).toarray()
+        x = f.solve(b)
+        assert np.abs(As @ x - b).max() <= 1e-9 * np.abs(b).max(), s
+        assert f.shift == s and f.A is A
+    f.release()
+
+
+@pytest.mark.parametrize("backend", ALL)
+@pytest.mark.parametrize("count", ["pivots", "rescale", "auto"])
+def test_count_zero_modes_of_disjoint_rings(backend, count):
+    """k disjoint rings: exactly k zero eigenvalues of the pencil (A, diag A) (closed form), none
+    negative, with every back end and rule; the shift is -eta for PARDISO's inertia count."""
+    k, n = 3, 40
+    A = _rings(k, n)
+    d = A.diagonal()
+    eta = fm.ETA
+    f = factor(A, backend=backend, shift=-eta if backend == "pardiso" else eta, scale=d,
+               perm=np.arange(k * n) if backend == "cholmod" else None)
+    z = fm.count_zero_modes(f, count, psd=True)
+    assert (z.n_zero, z.n_negative) == (k, 0), z
+    assert z.method == ("inertia" if backend == "pardiso" else
+                        (count if count != "auto" else "pivots"))
+    if backend != "pardiso":     # the pivot gap: zero pivots about eta, rigid ones 1 - cos(2 pi / n)
+        assert z.gap[0] < 1e-10 and z.gap[1] > 1e-4
+    assert z.factor is None or (backend == "cholmod" and count == "rescale")
+    g = z.factor or f
+    x = g.solve(np.ones(k * n))
+    assert np.all(np.isfinite(x))
+    g.release()
+
+
+@pytest.mark.parametrize("backend", [b for b in ("pardiso", "splu") if b in available_backends()])
+def test_count_zero_and_negative_modes_of_an_indefinite_pencil(backend):
+    """A ring (one zero mode) beside a ring shifted by -0.3 diag (negative modes where
+    1 - cos(2 pi j / n) < 0.3): the counts against the closed form, psd=False."""
+    n = 40
+    lam = 1 - np.cos(2 * np.pi * np.arange(n) / n)
+    R = _ring(n)
+    A = sp.block_diag([R, R - 0.6 * sp.identity(n)], format="csr")      # diag of R = 2
+    d = np.full(2 * n, 2.0)
+    eta = fm.ETA
+    if backend == "pardiso":     # +eta first (negative modes), then -eta on the same analysis
+        f = factor(A, backend="pardiso", shift=eta, scale=d).reshift(-eta)
+        assert set(f.inertias) == {eta, -eta}
+    else:
+        f = factor(A, backend="splu", shift=eta, scale=d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # SuperLU may leave the diagonal: "eig"
+        z = fm.count_zero_modes(f, "pivots", psd=False)
+    assert (z.n_zero, z.n_negative) == (1, int((lam < 0.3).sum())), z
+    f.release()
+
+
+@pytest.mark.skipif("pardiso" not in available_backends(), reason="mkl wheel not installed")
+def test_perturbed_pardiso_count_falls_back_to_superlu():
+    """A shift far below PARDISO's pivot perturbation (1e-13): the zero pivots are perturbed, so
+    the inertia is another matrix's; the count warns and is SuperLU's, which solves."""
+    k, n = 2, 30
+    A = _rings(k, n)
+    f = factor(A, backend="pardiso", shift=-1e-15, scale=A.diagonal())
+    assert f.n_perturbed > 0
+    with pytest.warns(RuntimeWarning, match="perturbed .* counted with SuperLU"):
+        z = fm.count_zero_modes(f, "pivots", psd=True)
+    assert (z.n_zero, z.n_negative, z.method, z.factor.name) == (k, 0, "pivots", "splu")
+    f.release()
+
+
+def test_shift_and_count_bad_input_names_the_parameter():
+    A = _ring(10)
+    with pytest.raises(ValueError, match="scale"):
+        factor(A, backend="splu", shift=1e-12, scale=np.ones(9))
+    with pytest.raises(ValueError, match="scale"):
+        factor(A, backend="splu", shift=1e-12, scale=-np.ones(10))
+    with pytest.raises(ValueError, match="shift"):
+        factor(A, backend="splu", shift=np.nan, scale=np.ones(10))
+    plain = factor((A + sp.identity(10)).tocsr(), backend="splu")
+    with pytest.raises(ValueError, match="diagonal shift"):
+        fm.count_zero_modes(plain)
+    with pytest.raises(ValueError, match="diagonal shift"):
+        plain.reshift(1.0)
+    f = factor(A, backend="splu", shift=1e-12, scale=A.diagonal())
+    with pytest.raises(ValueError, match="count"):
+        fm.count_zero_modes(f, "threshold")
+
+
+def test_shifted_factor_keeps_the_memory_guard(monkeypatch):
+    """Every back end refuses a shifted factorisation predicted above the limit, before it
+    allocates (the stiffness's factors go through this guard)."""
+    A = _ring(50)
+    monkeypatch.setenv("MICROHOM_MEMORY_LIMIT", "1e-6")       # 1 kB
+    for b in ALL:
+        with pytest.raises(MemoryGuardError, match="predicted"):
+            factor(A, backend=b, shift=-1e-12 if b == "pardiso" else 1e-12, scale=A.diagonal(),
+                   perm=np.arange(50) if b == "cholmod" else None)

@@ -509,6 +509,19 @@ def test_pardiso_counts_negative_modes_under_prestress():
     assert np.abs(a.C_mandel - b.C_mandel).max() <= 1e-9 * np.abs(b.C_mandel).max()
 
 
+@pytest.mark.skipif(not have_cholmod(), reason="scikit-sparse (CHOLMOD) not installed")
+def test_cholmod_falls_back_to_superlu_under_negative_modes():
+    """CHOLMOD refuses the pre-stressed lattice with negative modes (not positive definite);
+    SuperLU's pivots then count them, as many as a dense eigen-solve of the pencil (H, diag H)."""
+    t = lattices.triangular(6, 6, kn=1.0, kt=0.0)
+    net = replace(t, fn=np.full(t.n_contacts, 0.8))
+    red = reduce_system(assemble(net, prestress=True))
+    w = np.linalg.eigvalsh((red.H / np.sqrt(np.outer(red.d, red.d))).toarray())
+    with pytest.warns(RuntimeWarning, match="unstable"):
+        r = stiffness(net, prestress=True, solver="cholmod")
+    assert r.solver == "splu" and r.n_unstable == int((w < -1e-9).sum()) > 0
+
+
 def test_memory_guard_refuses_before_assembling(monkeypatch):
     """Item 5: a predicted peak above max_memory is refused with the figure, before the
     assembly allocates anything."""

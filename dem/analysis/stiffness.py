@@ -45,7 +45,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import eigsh, splu
 
 from microhom.kinematics import affine_tensor, assemble, rotational_dofs, stress0
 from microhom.network import ContactNetwork
@@ -55,7 +54,8 @@ from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tens
                               voigt_to_mandel, voigt_to_tensor)
 
 from microhom import factor as _factor
-from microhom.factor import MemoryGuardError, have_pardiso, memory_check, predicted_factor_bytes
+from microhom.factor import (COUNTS, MemoryGuardError, NotPositiveDefinite, have_pardiso, memory_check,
+                             predicted_factor_bytes)
 
 _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
@@ -272,8 +272,8 @@ def reduce_system(asm) -> Reduced:
 
 
 # ---- step 3: factorise -----------------------------------------------------------------------
-_ETA = 1e-12         # relative Tikhonov shift of the factorised matrix  M = H + eta diag(H)
-_FLOPPY_TOL = 1e-8   # a pivot below this fraction of its diagonal entry marks a floppy mode
+# the back ends, the shift M = H + eta diag(H) and the floppy count live in microhom.factor
+_ETA = _factor.ETA   # relative Tikhonov shift of the factorised matrix  M = H + eta diag(H)
 
 
 def have_cholmod() -> bool:
@@ -306,97 +306,6 @@ def particle_ordering(red, pairs, n_particles, method="auto"):
     return np.lexsort((np.arange(red.particle.size), rank[red.particle]))
 
 
-class _Cholmod:
-    """CHOLMOD supernodal Cholesky LL^T (scikit-sparse) of the SPD M = H + eta diag(H), ordered
-    on the particle graph (H is permuted once; a re-factorisation with another shift reuses the
-    permuted matrix and the symbolic analysis). Raises :class:`NotPositiveDefinite` when M is
-    not SPD (pre-stress with negative modes); the caller falls back to SuperLU, whose pivots
-    count them."""
-
-    name = "cholmod"
-
-    def __init__(self, H, d, eta, perm, _base=None):
-        self.perm = perm
-        if _base is None:
-            self._Hp = H[perm][:, perm].tocsc()
-            self._dp = d[perm]
-            self.f = None
-        else:   # take over the base's permuted matrix and factor (numeric values replaced)
-            self._Hp, self._dp, self.f = _base._Hp, _base._dp, _base.f
-        self.eta = eta
-        Mp = (self._Hp + sp.diags(eta * self._dp)).tocsc()
-        self._diag = Mp.diagonal()
-        if self.f is None:
-            self.f = _cholmod.analyze(Mp, mode="supernodal", ordering_method="natural")
-        try:
-            self.f.cholesky_inplace(Mp)
-        except _cholmod.CholmodNotPositiveDefiniteError as exc:
-            raise NotPositiveDefinite(str(exc)) from None
-
-    def refactor(self, eta):
-        """The factor of H + eta diag(H) on the same pattern, computed *in place*: the symbolic
-        analysis and the memory are reused and this object must not be used afterwards. Returns
-        None (and this object refactored back to its own shift) if the new matrix is not SPD."""
-        try:
-            new = _Cholmod(None, None, eta, self.perm, _base=self)
-        except NotPositiveDefinite:
-            _Cholmod(None, None, self.eta, self.perm, _base=self)
-            return None
-        self.f = None
-        return new
-
-    def pivots(self):
-        """(relative pivots, reliable?): D of LDL^T = diag(L)^2 over the matching diagonal of M."""
-        return self.f.D() / self._diag[self.f.P()], True
-
-    def solve(self, b):
-        x = np.empty_like(b)
-        x[self.perm] = self.f(np.ascontiguousarray(b[self.perm]))
-        return x
-
-
-class NotPositiveDefinite(RuntimeError):
-    """The shifted Hessian is not positive definite (negative modes: only with pre-stress)."""
-
-
-class _SuperLU:
-    """scipy SuperLU of M = H + eta diag(H) with diagonal (symmetric) pivoting: its pivots give the
-    inertia of M (Sylvester), hence the number of (near-)zero and negative modes of H. Always
-    available; the fallback of CHOLMOD."""
-
-    name = "splu"
-
-    def __init__(self, H, d, eta):
-        self._H, self._d = H, d
-        M = (H + sp.diags(eta * d)).tocsc()
-        self.lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True))
-        self.symmetric = bool(np.array_equal(self.lu.perm_r, self.lu.perm_c))
-        self._M = M
-
-    def refactor(self, eta):
-        """The factor with another shift (a new object), or None if SuperLU chose another
-        ordering."""
-        new = _SuperLU(self._H, self._d, eta)
-        return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
-
-    def pivots(self):
-        """(relative pivots, reliable?) - pivots divided by the matching diagonal entry of M."""
-        lu = self.lu
-        u = lu.U.diagonal()
-        # diagonal of Pr M Pc: row perm_r^-1, column perm_c^-1 -> entry M[q_r[k], q_c[k]]
-        qr = np.empty_like(lu.perm_r)
-        qr[lu.perm_r] = np.arange(qr.size)
-        qc = np.empty_like(lu.perm_c)
-        qc[lu.perm_c] = np.arange(qc.size)
-        dm = np.asarray(self._M[qr, qc]).ravel() if qr.size else np.zeros(0)
-        ok = self.symmetric and np.all(dm > 0)
-        return u / np.where(dm != 0, dm, 1.0), ok
-
-    def solve(self, b):
-        return self.lu.solve(b)
-
-
 SOLVERS = ("auto", "pardiso", "cholmod", "splu")
 #: smallest system for which ``solver="auto"`` takes CHOLMOD (measured: 3e3 unknowns, SuperLU 0.03 s
 #: against 0.09 s; 3e4 unknowns, CHOLMOD 2.5x faster)
@@ -405,37 +314,6 @@ AUTO_CHOLMOD_DOF = 10_000
 #: analysis + factorisation + solve: 8.8e3 unknowns PARDISO 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns
 #: 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s; docs/stiffness.md)
 AUTO_PARDISO_DOF = 30_000
-
-
-class _PardisoLDL:
-    """MKL PARDISO Bunch-Kaufman ``LDL^T`` (:mod:`microhom.factor`) of ``H + shift diag(H)``:
-    its inertia counts the eigenvalues of the pencil ``(H, diag H)`` below ``-shift``
-    (Sylvester). With ``shift = -eta`` the negative pivots are the zero and negative modes."""
-
-    name = "pardiso"
-
-    def __init__(self, H, d, shift, max_memory=None, first_shift=None):
-        from microhom.spectral import _Pencil    # H + s diag(H) on one pattern for every s
-        pencil = _Pencil(H, sp.diags(-d).tocsr())
-        self.shift = shift
-        self.first_inertia = None
-        s0 = shift if first_shift is None else first_shift
-        self.f = _factor._Pardiso(pencil.matrix(s0), upper=True, max_memory=max_memory,
-                                  matching=first_shift is not None)    # pre-stress: indefinite
-        if first_shift is not None:   # count at first_shift, then refactor on the same analysis
-            self.first_inertia = (self.f.inertia(), self.f.n_perturbed)
-            self.f.refactor(pencil.at(shift))
-        self.inertia = self.f.inertia()
-        self.n_perturbed = self.f.n_perturbed
-
-    def solve(self, b):
-        return self.f.solve(b)
-
-    def pivots(self):
-        return None, False
-
-    def release(self):
-        self.f.release()
 
 
 def _auto_solver(n):
@@ -471,17 +349,20 @@ def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="aut
                            "Windows)")
     if solver == "auto":
         solver = _auto_solver(red.H.shape[0])
-    if solver == "pardiso":    # not psd: H + eta diag(H) counted first, on the same analysis
-        return _PardisoLDL(red.H, red.d, -eta, max_memory=max_memory,
-                           first_shift=None if psd else eta)
-    memory_check(predicted_factor_bytes(red.H.shape[0], solver),
-                 f"{solver} factorisation of {red.H.shape[0]} unknowns", max_memory)
+    shifted = dict(scale=red.d, max_memory=max_memory)
+    if solver == "pardiso":
+        if psd:     # H - eta diag(H): its inertia counts the zero modes, and it solves
+            return _factor.factor(red.H, backend="pardiso", shift=-eta, matching=False, **shifted)
+        # not psd: H + eta diag(H) counted first (negative modes), then H - eta diag(H) on the
+        # same analysis (f.inertias keeps the first count for count_modes)
+        return _factor.factor(red.H, backend="pardiso", shift=eta, **shifted).reshift(-eta)
     if solver == "cholmod" and pairs is not None:
+        perm = particle_ordering(red, pairs, n_particles, ordering)
         try:
-            return _Cholmod(red.H, red.d, eta, particle_ordering(red, pairs, n_particles, ordering))
+            return _factor.factor(red.H, backend="cholmod", shift=eta, perm=perm, **shifted)
         except NotPositiveDefinite:
             pass
-    return _SuperLU(red.H, red.d, eta)
+    return _factor.factor(red.H, backend="splu", shift=eta, **shifted)
 
 
 # ---- step 4: count the modes -----------------------------------------------------------------
@@ -502,77 +383,32 @@ class ModeCount:
     factor: object = field(default=None, repr=False, compare=False)
 
 
-COUNTS = ("auto", "pivots", "rescale")
-#: relative pivots in this band are ambiguous (a delocalised zero mode or a soft rigid mode):
-#: ``count="auto"`` settles them with the shift-rescaling test
-_AMBIGUOUS = (1e-10, 1e-6)
-
-
 def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=None) -> ModeCount:
-    """Count zero and negative modes from the pivots of the shifted factorisation (Sylvester's
-    law of inertia: M = H + eta diag H is congruent to the diagonal of its LDL^T).
+    """Count zero (floppy) and negative modes of the reduced Hessian from the factor made by
+    :func:`factorise`: :func:`microhom.factor.count_zero_modes` on the pencil ``(H, diag H)``
+    (Sylvester's law of inertia), plus the ``red.n_zero`` unknowns dropped with no stiffness.
 
-    PARDISO (``method == "inertia"``, the rules below do not apply): the factor is the
-    Bunch-Kaufman ``LDL^T`` of ``H - eta diag(H)``; its negative pivots are the eigenvalues of the
-    pencil ``(H, diag H)`` below ``eta`` (zero and negative modes); unless ``psd`` (``H`` known
-    to be positive semi-definite: no pre-stress), a second factorisation of ``H + eta diag(H)``
-    counts those below ``-eta`` (negative modes). Exact zero modes sit at ``|lam| < 1e-15`` and
-    the smallest rigid mode of the 1e5-disk network at ``7.8e-10`` (``docs/stiffness.md``), so
-    the threshold ``eta = 1e-12`` leaves orders of magnitude on both sides; the certified gap
-    (``stiffness(certify=True)``) proves it for a given network.
+    PARDISO (``method == "inertia"``): the inertia of the Bunch-Kaufman ``LDL^T`` of
+    ``H - eta diag(H)`` counts the eigenvalues below ``eta``; unless ``psd`` (``H`` known to be
+    positive semi-definite: no pre-stress), those below ``-eta`` (negative modes) come from
+    ``H + eta diag(H)``. Exact zero modes sit at ``|lam| < 1e-15`` and the smallest rigid mode of
+    the 1e5-disk network at ``7.8e-10`` (``docs/stiffness.md``), so the threshold
+    ``eta = 1e-12`` leaves orders of magnitude on both sides; the certified gap
+    (:func:`microhom.spectral.certified_bound`) proves it for a given network.
 
-    ``count="pivots"``: a relative pivot below 1e-8 is a zero mode. ``"rescale"``: a second
-    factorisation with a 100x smaller shift; a pivot belongs to a zero mode iff it scales with
-    the shift (no threshold to tune; used automatically on ill-conditioned networks). With
-    CHOLMOD the second factorisation replaces the first in place (memory reused): solve with
-    ``ModeCount.factor`` then.
-    ``"auto"`` (default): ``"pivots"``, switching to ``"rescale"`` when a relative pivot falls in
-    the ambiguous band 1e-10..1e-6 (measured: a zero mode spread over a 1e5-disk network had a
+    CHOLMOD and SuperLU, by the rule ``count``: ``"pivots"`` (a relative pivot below 1e-8 is a
+    zero mode), ``"rescale"`` (a second factorisation with a 100x smaller shift: a pivot belongs
+    to a zero mode iff it scales with the shift; forced on ill-conditioned networks; with CHOLMOD
+    it replaces the first in place, so solve with ``ModeCount.factor`` then) or ``"auto"``
+    (default: ``"pivots"``, switching to ``"rescale"`` when a relative pivot falls in the
+    ambiguous band 1e-10..1e-6; measured: a zero mode spread over a 1e5-disk network had a
     pivot of 1.2e-8, above the 1e-8 threshold)."""
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if red.H.shape[0] == 0:
         return ModeCount(red.n_zero, 0, (np.nan, np.nan), count)
-    if isinstance(factor, _PardisoLDL):
-        if factor.n_perturbed:   # the inertia is that of a perturbed matrix: count with SuperLU
-            warnings.warn(f"PARDISO perturbed {factor.n_perturbed} pivot(s): modes counted with "
-                          "SuperLU", RuntimeWarning, stacklevel=3)
-            slu = _SuperLU(red.H, red.d, eta)
-            m = count_modes(slu, red, count, eta)
-            return replace(m, factor=m.factor or slu)
-        n_below = factor.inertia.n_neg
-        n_neg = 0
-        if not psd and factor.first_inertia is not None and not factor.first_inertia[1]:
-            n_neg = factor.first_inertia[0].n_neg      # counted at +eta before the solve factor
-        elif not psd:
-            f2 = _PardisoLDL(red.H, red.d, eta, max_memory=max_memory)
-            n_neg = f2.inertia.n_neg
-            f2.release()
-        return ModeCount(red.n_zero + n_below - n_neg, n_neg, (np.nan, np.nan), "inertia")
-    piv, ok = factor.pivots()
-    if not ok:
-        warnings.warn("SuperLU did not pivot symmetrically: mode counts from an eigen-solver "
-                      "fallback", RuntimeWarning, stacklevel=3)
-        nf, nu = _count_modes_eig(red.H, red.d)
-        return ModeCount(red.n_zero + nf, nu, (np.nan, np.nan), "eig")
-    small = np.abs(piv) < _FLOPPY_TOL
-    a = np.abs(piv)
-    if count == "auto":
-        count = "rescale" if np.any((a > _AMBIGUOUS[0]) & (a < _AMBIGUOUS[1])) else "pivots"
-    f2 = None
-    if count == "rescale":
-        f2 = factor.refactor(1e-2 * eta)
-        if f2 is not None:
-            piv2, ok2 = f2.pivots()
-            if ok2:
-                small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
-        if not isinstance(f2, _Cholmod):   # SuperLU: a separate object, the input stays valid
-            f2 = None
-    nf = int(small.sum())
-    nu = int(((piv < 0) & ~small).sum())
-    gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
-           float(np.abs(piv[~small]).min()) if (~small).any() else np.inf)
-    return ModeCount(red.n_zero + nf, nu, gap, count, factor=f2)
+    z = _factor.count_zero_modes(factor, count, eta=eta, psd=psd, max_memory=max_memory)
+    return ModeCount(red.n_zero + z.n_zero, z.n_negative, z.gap, z.method, factor=z.factor)
 
 
 # ---- step 5: solve ---------------------------------------------------------------------------
@@ -830,16 +666,3 @@ def stress_increment(network, grad, u=None, omega=None) -> np.ndarray:
     f = np.einsum("cab,cb->ca", network.stiffness_tensors(), delta)
     s = (f[:, :, None] * c[:, None, :]).sum(axis=0) / network.area
     return 0.5 * (s + s.T)
-
-
-def _count_modes_eig(H, d):
-    """Fallback count of zero / negative modes of the pencil (H, diag d) by a dense or shift-invert
-    eigen-solve (small systems only)."""
-    s = 1.0 / np.sqrt(d)
-    A = sp.diags(s) @ H @ sp.diags(s)
-    if A.shape[0] <= 3000:
-        w = np.linalg.eigvalsh(A.toarray())
-    else:   # pragma: no cover - large fallback
-        w = eigsh(A, k=min(200, A.shape[0] - 1), sigma=-1e-3, return_eigenvectors=False)
-    small = np.abs(w) < _FLOPPY_TOL
-    return int(small.sum()), int(((w < 0) & ~small).sum())
