@@ -35,6 +35,12 @@ Protocols (:data:`PROTOCOLS`):
 ``pack_slowdamped``
     :func:`dem.engine.packing.pack` with the older single-damping protocol (``damping_compaction=None,
     fire=False``: heavy local damping throughout the slow compaction), frictional.
+``pack_study``
+    The main study's packings (``python -m studies.kuhn``): :func:`dem.engine.packing.pack` with the
+    protocol of ``studies.cases.PROTOCOL`` (the one before issue 12.3: ``damping_compaction=0.1,
+    dt_over_dtcrit=0.8, fire=False``), identical disks, test friction tan 26 deg (0.4877), kt = kn;
+    knobs mu_prep (0.05: the main study's) and p/kn (1e-4: the main study's). Identical disks at
+    small mu_prep partly order (psi6 up to ~0.5).
 
 Exact response: :func:`dem.analysis.stiffness.stiffness` of the network with ``kt = ratio * kn`` (kn = 1),
 without pre-stress (``K``, ``G``; the target of the closure, as the theory) and with it (``K_ps``,
@@ -62,7 +68,7 @@ __all__ = ["CorpusRow", "packing_protocol", "PROTOCOLS", "KT_RATIOS", "corpus_ro
 KT_RATIOS = (0.0, 0.05, 0.2, 0.5, 1.0)
 #: bump when the measurement changes (invalidates the cached measurement CSVs, not the packings)
 MEASURE_VERSION = 4
-PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped")
+PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped", "pack_study")
 
 
 @dataclass(frozen=True)
@@ -121,6 +127,9 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
                 rows.append(_row("lammps_prep", 1000, seed, phi=phi, dispersity=d))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-2, mu_prep=0.3, dispersity=0.0))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-3, mu_prep=0.05, dispersity=0.3))
+        for mp in (0.05, 0.3):    # the main study's packings (identical frictional disks, low p)
+            for p in (1e-4, 1e-3):
+                rows.append(_row("pack_study", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
     big = [_row("pack_frictional", 4000, 7, p_over_kn=1e-3, mu_prep=0.3, dispersity=0.2),
            _row("minimise", 4000, 7, phi=0.87, radii="bidisperse")]
     # build order: seeds 1 and 2 of every protocol (interleaved, so that a partial corpus is
@@ -233,6 +242,9 @@ def packing_protocol(row: CorpusRow):
         kw.update(mu=0.5, mu_prep=p["mu_prep"])
     if row.protocol == "pack_slowdamped":
         kw.update(damping_compaction=None, fire=False)
+    if row.protocol == "pack_study":
+        from studies.cases import DEFAULTS, PROTOCOL
+        kw.update(mu=DEFAULTS["mu"], **PROTOCOL)
     return PackingProtocol(**kw)
 
 
@@ -247,7 +259,7 @@ def build_network(row: CorpusRow, cache: Path):
     t0 = time.perf_counter()
     p = row.params
     meta = dict(row=asdict(row))
-    if row.protocol in ("pack_frictional", "pack_frictionless", "pack_slowdamped"):
+    if row.protocol.startswith("pack_"):
         from dem.engine.packing import pack
         res = pack(packing_protocol(row))
         net = res.to_network()

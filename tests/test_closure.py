@@ -216,3 +216,39 @@ def test_identical_frictional_disks_below_the_corpus_pressure_are_flagged():
     assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-2, **kw).flags) & 32
     assert not int(predict_closure(dispersity=0.2, size_coordination=0.03, p_over_kn=1e-4, **kw).flags) & 32
     assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-4, **{**kw, "kt_over_kn": 0.0}).flags) & 32
+
+
+def test_bond_order_exact_lattices_and_delaunay():
+    """psi_m of the load-bearing contacts (microhom.structural_sums.bond_order), exact cases: a
+    triangular lattice gives psi6 = 1 and psi4 = 0, a square lattice psi6 = 0 and psi4 = 1 (global
+    and local), in any orientation (the global modulus and the local one are rotation invariant);
+    second method: on the triangular lattice the contacts are the Delaunay neighbours, so the
+    contact psi6 equals dem.analysis.measure.hexatic_order's; bad m is refused."""
+    from dem.analysis.measure import hexatic_order
+    from microhom.lattices import square, triangular
+    from microhom.structural_sums import bond_order
+    for angle in (0.0, 0.37):
+        tri, sq = triangular(6, 6, kt=1.0, angle=angle), square(5, 5, kt=1.0, angle=angle)
+        for net, m, want in ((tri, 6, 1.0), (tri, 4, 0.0), (sq, 6, 0.0), (sq, 4, 1.0)):
+            b = bond_order(net, m)
+            assert b.psi == pytest.approx(want, abs=1e-12) and b.psi_local == pytest.approx(want, abs=1e-12)
+            assert b.n_particles == net.n_particles
+        hx = hexatic_order(tri)
+        assert bond_order(tri).psi == pytest.approx(hx.psi6, abs=1e-9)
+    # amorphous: a corpus packing of the committed summary is not needed; random bond angles give
+    # |<psi6>| ~ N^-1/2 and <|psi6_i|> ~ z^-1/2 (the mean modulus of a random walk of z unit steps)
+    rng = np.random.default_rng(0)
+    from microhom.network import ContactNetwork
+    n = 4000
+    pairs = np.stack([np.arange(n), (np.arange(n) + 1) % n], 1)
+    th = rng.uniform(0, 2 * np.pi, n)
+    pos = rng.uniform(0, 100, (n, 2))
+    net = ContactNetwork(positions=pos, radii=np.full(n, 0.5), cell=np.eye(2) * 100, pairs=pairs,
+                         branch=np.stack([np.cos(th), np.sin(th)], 1), kn=np.ones(n), kt=np.ones(n),
+                         sliding=np.zeros(n, bool))
+    b = bond_order(net, 6)
+    assert b.psi < 4 / np.sqrt(n)
+    # two independent unit steps: E|e^{ia} + e^{ib}| / 2 = 2/pi
+    assert b.psi_local == pytest.approx(2 / np.pi, abs=0.02)
+    with pytest.raises(ValueError, match="m must be an integer >= 1"):
+        bond_order(net, 0)
