@@ -56,16 +56,17 @@ from .results import Result
 
 __all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_point", "predict_closure", "predict_network", "closure_inputs", "size_coordination",
            "dispersity", "ClosurePrediction", "FEATURES", "COEF_K",
-           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR"]
+           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR",
+           "PSI6_LOCAL_DEFAULT"]
 
 #: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
 ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
-                "frictionless * log dZ", "dispersity", "r", "size-coordination", "rattler fraction",
-                "log10 p/kn")
-FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
-              "rattler fraction", "log10 p/kn")
+                "frictionless * log dZ", "log kt/kn * log dZ", "dispersity", "r", "size-coordination",
+                "rattler fraction", "log10 p/kn", "psi6_local")
+FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
+              "frictionless * log dZ", "r", "rattler fraction", "log10 p/kn", "psi6_local")
 FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
-              "frictionless * log dZ", "dispersity", "r", "size-coordination")
+              "frictionless * log dZ", "log kt/kn * log dZ", "dispersity", "r", "size-coordination")
 FEATURES = {"K": FEATURES_K, "G": FEATURES_G}
 # --- fitted by python -m studies.closure_fit (data: docs/results/closure.md) ---------------------
 COEF_K = np.array([-1.1819842241, -0.0539255135, -0.2761512026,  0.0262850602, -1.3922509229,  0.7790928027, -8.3674545971,
@@ -114,15 +115,13 @@ H_MAX = {'K': 1.0366164, 'G': 1.0280924}   # 3 x the largest leverage of the cor
 RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8082, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163]}   # the box of the corpus (usable rows)
 DZ_MIN = 0.05
 # -------------------------------------------------------------------------------------------------
+#: psi6_local assumed when not given (flagged, bit 32): the median of the corpus's usable rows
+PSI6_LOCAL_DEFAULT = 0.6
 ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
 
 #: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
 #: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
 PHI_INFLATED_MAX = 1.1
-#: identical frictional disks are in the corpus only at p/kn >= MONO_P_MIN (dispersity below
-#: MONO_DISPERSITY): elsewhere they are outside the data (flag 32; docs/results/closure.md)
-MONO_DISPERSITY = 0.05
-MONO_P_MIN = 1e-2
 
 _REASONS = (
     (1, "outside the data the closure was fitted on (feature-space distance or range)"),
@@ -131,9 +130,8 @@ _REASONS = (
     (4, "size_coordination not given for a polydisperse packing (dispersity > 0.05)"),
     (8, "p_over_kn not given"),
     (16, "phi above 1 (overlaps inflate it): outside the data; the moduli scale with phi"),
-    (32, "identical disks (dispersity < 0.05) with friction below p/kn = 1e-2: outside the data (the "
-         "corpus's frictional identical disks are at p/kn = 1e-2 only; such packings partly order, "
-         "which the closure does not see: on the main study's packings K came out 15-17 % too stiff)"),
+    (32, "psi6_local not given (the mean local bond order of the load-bearing contacts: it changes K by "
+         "up to ~15 % on the corpus, most for identical disks, which partly order)"),
 )
 
 
@@ -146,27 +144,30 @@ def isostatic_point(kt_over_kn, sliding_fraction=0.0):
 
 
 def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0, size_coordination=0.0, rattler_fraction=0.0,
-             p_over_kn=1e-3, names=ALL_FEATURES):
+             p_over_kn=1e-3, psi6_local=PSI6_LOCAL_DEFAULT, names=ALL_FEATURES):
     """(..., len(names)) feature matrix of the closure (columns named in ``ALL_FEATURES``) and
     dZ = Z - Z_iso (...,).
 
     nc: mean contacts per load-bearing particle; kt_over_kn >= 0; dispersity >= 0 (sqrt(3) times
     the relative standard deviation of the radii: the half-width of a uniform law); r =
     var(Nc)/Nc^2 over the load-bearing particles; sliding_fraction in [0, 1]; size_coordination
-    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn).
+    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn);
+    psi6_local in [0, 1] (mean local bond order of the load-bearing contacts,
+    :func:`microhom.structural_sums.bond_order`).
     dZ is floored at 1e-3 inside the logarithm so that the matrix stays finite for flagged inputs.
     """
-    nc, kr, d, r, s, zs, xr, p = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
-                                                       (nc, kt_over_kn, dispersity, r, sliding_fraction,
-                                                        size_coordination, rattler_fraction, p_over_kn)))
+    nc, kr, d, r, s, zs, xr, p, q6 = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
+                                                           (nc, kt_over_kn, dispersity, r, sliding_fraction,
+                                                            size_coordination, rattler_fraction, p_over_kn,
+                                                            psi6_local)))
     dz = nc - isostatic_point(kr, s)
     fl = (kr <= 0).astype(float)
     lk = np.where(kr > 0, np.log(np.maximum(kr, 1e-12)), 0.0)
     lz = np.log(np.maximum(dz, 1e-3))
     cols = {"1": np.ones_like(lz), "frictionless": fl, "log kt/kn": lk, "(log kt/kn)^2": lk * lk,
             "log kt/kn * tanh(Z - 4)": lk * np.tanh(nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
-            "dispersity": d, "r": r, "size-coordination": zs, "rattler fraction": xr,
-            "log10 p/kn": np.log10(np.maximum(p, 1e-300))}
+            "log kt/kn * log dZ": lk * lz, "dispersity": d, "r": r, "size-coordination": zs,
+            "rattler fraction": xr, "log10 p/kn": np.log10(np.maximum(p, 1e-300)), "psi6_local": q6}
     return np.stack([cols[n] for n in names], axis=-1), dz
 
 
@@ -197,11 +198,11 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     """The keyword arguments of :func:`predict_closure` measured on a
     :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
     (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
-    and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
+    psi6_local (:func:`microhom.structural_sums.bond_order`) and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
     ``kn * overlap``; absent if not positive); kt/kn the mean tangent
     stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
     unless given."""
-    from .structural_sums import network_statistics
+    from .structural_sums import bond_order, network_statistics
     st = network_statistics(network)
     stuck = ~np.asarray(network.sliding)
     kn_mean = float(np.mean(network.kn))
@@ -209,7 +210,8 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
         kt_over_kn = float(np.mean(network.kt[stuck]) / kn_mean) if stuck.any() else 0.0
     out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
                kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
-               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network),
+               psi6_local=bond_order(network, 6).psi_local)
     if network.n_contacts:
         fn = network.fn if network.fn is not None else np.asarray(network.kn) * np.maximum(network.overlaps, 0.0)
         sig = -np.einsum("c,ci,cj->ij", fn, network.branch, network.normals) / network.area
@@ -249,7 +251,7 @@ class ClosurePrediction(Result):
     flags : ndarray of int8
         Bit mask: 1 outside the data, 2 at or below the isostatic point, 4 size_coordination
         missing for a polydisperse packing, 8 p_over_kn missing, 16 phi above 1 (overlap-inflated,
-        as ``predict_from_network`` flags it), 32 identical frictional disks below p/kn = 1e-2.
+        as ``predict_from_network`` flags it), 32 psi6_local not given.
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -290,7 +292,7 @@ def _leverage(X, cov):
 
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
-                    size_coordination=None, rattler_fraction=None, p_over_kn=None,
+                    size_coordination=None, rattler_fraction=None, p_over_kn=None, psi6_local=None,
                     model=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
@@ -324,6 +326,11 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         ``sum z_i R_i / sum R_i - Z`` over the load-bearing particles (:func:`size_coordination`),
         finite. Not given: 0 (exact for identical disks); for ``dispersity > 0.05`` the prediction
         is then flagged (it changes G by up to ~20 % on the corpus).
+    psi6_local : array_like, optional
+        Mean local bond order ``<|psi6_i|>`` of the load-bearing contacts, in [0, 1]
+        (:func:`microhom.structural_sums.bond_order`; ~0.5 for polydisperse, 0.6-0.7 for
+        amorphous identical disks, -> 1 for a crystal). Not given: ``PSI6_LOCAL_DEFAULT`` and the
+        prediction is flagged (bit 32).
     model : dict, optional
         Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
         ``h_mean``, ``h_max``; used by the refit study).
@@ -372,8 +379,10 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         raise ValueError(f"size_coordination must be finite; got {zs!r}")
     missing_p = p_over_kn is None
     pk = _check("p_over_kn", 1e-3 if missing_p else p_over_kn, 0.0, lo_open=True)
-    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_K)
-    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_G)
+    missing_q6 = psi6_local is None
+    q6 = _check("psi6_local", PSI6_LOCAL_DEFAULT if missing_q6 else psi6_local, 0.0, 1.0)
+    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, q6, names=FEATURES_K)
+    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, q6, names=FEATURES_G)
     K_mf = nc * phi * (1 - xr) * kn / (2 * np.pi)
     G_mf = nc * phi * (1 - xr) * kn * (1 + kr) / (4 * np.pi)
     with np.errstate(over="ignore"):
@@ -387,7 +396,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
     box = np.zeros(K.shape, dtype=bool)
     for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi), ("p_over_kn", pk),
-                    ("size_coordination", zs), ("rattler_fraction", xr)):
+                    ("size_coordination", zs), ("rattler_fraction", xr), ("psi6_local", q6)):
         lo, hi = RANGES[name]
         box |= (v < lo - 1e-9) | (v > hi + 1e-9)
     klo, khi = RANGES["kt_over_kn"]
@@ -396,7 +405,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
              | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)
              | np.where(phi > 1.0, 16, 0)
-             | np.where((kr > 0) & (d < MONO_DISPERSITY) & (pk < MONO_P_MIN * (1 - 1e-9)), 32, 0)).astype(np.int8)
+             | (32 if missing_q6 else 0)).astype(np.int8)
     flags = np.broadcast_to(flags, K.shape)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
                              error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,

@@ -67,7 +67,11 @@ __all__ = ["CorpusRow", "packing_protocol", "PROTOCOLS", "KT_RATIOS", "corpus_ro
 #: tangent over normal stiffness at which every packing is analysed
 KT_RATIOS = (0.0, 0.05, 0.2, 0.5, 1.0)
 #: bump when the measurement changes (invalidates the cached measurement CSVs, not the packings)
-MEASURE_VERSION = 4
+MEASURE_VERSION = 5
+#: measurement versions that differ from the current one only by statistics of
+#: :func:`network_features` (5 added psi6, psi6_local): their exact moduli are kept and the
+#: statistics recomputed from the cached network
+FEATURES_ONLY_SINCE = (4,)
 PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped", "pack_study")
 
 
@@ -114,8 +118,11 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
     rows = []
     for seed in (1, 2, 3):
         for mp in (0.1, 0.3, 1.0):
-            for p in (1e-4, 1e-2):
+            for p in (1e-4, 1e-3, 1e-2, 3e-2):
                 rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.2))
+        for mp in (0.05, 0.3):    # identical disks with the default protocol, as pack_study
+            for p in (1e-4, 1e-3):
+                rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
         for d in (0.2, 0.45):     # dem.engine.packing takes dispersity < 0.5
             for p in (1e-4, 1e-3, 1e-2):
                 rows.append(_row("pack_frictionless", 1000, seed, p_over_kn=p, dispersity=d))
@@ -289,12 +296,15 @@ def network_features(net) -> dict:
     dZ = Z - Z_iso, r, phi, rattler_fraction, sliding_fraction, dispersity (sqrt(3) std/mean of the
     radii), z_size_corr (correlation of radius and contact count over load-bearing particles),
     Z_size (radius-weighted mean contact count), f_min (fraction of load-bearing particles with the
-    minimum contact count: 2 frictional, 3 frictionless), fabric_anisotropy, force_anisotropy
+    minimum contact count: 2 frictional, 3 frictionless), psi6 and psi6_local (bond-orientational
+    order of the load-bearing contacts, global ``|<psi6_i>|`` and mean ``|psi6_i|``:
+    :func:`microhom.structural_sums.bond_order`), fabric_anisotropy, force_anisotropy
     (2 (F1 - F2) of the force-weighted fabric), p_over_kn (pressure over mean kn), fn_cv (normal
     force coefficient of variation).
     """
-    from microhom.structural_sums import network_statistics, rattlers
+    from microhom.structural_sums import bond_order, network_statistics, rattlers
     st = network_statistics(net)
+    bo = bond_order(net, 6)
     rat, active = rattlers(net)
     n = net.n_particles
     counts = (np.bincount(net.pairs[active, 0], minlength=n) + np.bincount(net.pairs[active, 1], minlength=n))
@@ -314,7 +324,7 @@ def network_features(net) -> dict:
                dispersity=float(np.sqrt(3) * R.std() / R.mean()), z_size_corr=zsc,
                Z_size=float(np.sum(c * rk) / np.sum(rk)) if len(c) else 0.0,
                f_min=float(np.mean(c == (2 if fric else 3))) if len(c) else 0.0,
-               fabric_anisotropy=float(2 * (w[1] - w[0])))
+               fabric_anisotropy=float(2 * (w[1] - w[0])), psi6=bo.psi, psi6_local=bo.psi_local)
     if net.fn is not None and active.any():
         fn = net.fn[active]
         Ff = np.einsum("c,ci,cj->ij", fn, nrm, nrm) / np.sum(fn)
@@ -365,13 +375,35 @@ def _measured(row, cache, kt_ratios):
     path = Path(cache) / f"{row.key}.v{MEASURE_VERSION}.csv"
     if path.exists():
         return pd.read_csv(path, keep_default_na=False, na_values=[""])
-    net, meta = build_network(row, cache)
-    df = pd.DataFrame(measure_network(net, row, kt_ratios))
-    df["build_s"] = meta.get("build_s", np.nan)
+    old = [Path(cache) / f"{row.key}.v{v}.csv" for v in FEATURES_ONLY_SINCE]
+    old = [p for p in old if p.exists()]
+    if old and (Path(cache) / f"{row.key}.npz").exists():
+        df = _refresh_features(pd.read_csv(old[-1], keep_default_na=False, na_values=[""]), row, cache)
+    else:
+        net, meta = build_network(row, cache)
+        df = pd.DataFrame(measure_network(net, row, kt_ratios))
+        df["build_s"] = meta.get("build_s", np.nan)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".csv")
     os.close(fd)
     df.to_csv(tmp, index=False)
     os.replace(tmp, path)
+    return df
+
+
+def _refresh_features(df, row, cache):
+    """An older measurement (``FEATURES_ONLY_SINCE``) brought to the current one: the statistics
+    of :func:`network_features` recomputed on the cached network at each kt/kn, the exact moduli
+    kept (they do not depend on the statistics)."""
+    net, _ = build_network(row, cache)
+    if row.protocol == "pack_frictionless":
+        net = net.with_stiffness(sliding=False)
+    df = df.copy()
+    notes = df["note"].fillna("").astype(str) if "note" in df else pd.Series([""] * len(df))
+    for i, kr in enumerate(df.kt_over_kn.to_numpy()):
+        if notes.iloc[i].startswith("statistics:"):
+            continue
+        for k, v in network_features(net.with_stiffness(kt=kr * np.asarray(net.kn))).items():
+            df.loc[i, k] = v
     return df
 
 
