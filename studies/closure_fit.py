@@ -281,7 +281,7 @@ def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
     f = lambda a: np.array2string(np.asarray(a), precision=8, separator=", ", max_line_width=100,
                                   floatmode="maxprec")
     return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = np.array({f(covK)})\n"
-            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\n"
+            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.6g}, 'G': {q['G']:.6g}}}\n"
             f"H_MEAN = {{'K': {h_mean['K']:.6g}, 'G': {h_mean['G']:.6g}}}\n"
             f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n")
 
