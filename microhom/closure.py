@@ -228,11 +228,11 @@ def dispersity(network) -> float:
 def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     """The keyword arguments of :func:`predict_closure` measured on a
     :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
-    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
-    psi6_local (:func:`microhom.structural_sums.bond_order`) and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
-    ``kn * overlap``; absent if not positive); kt/kn the mean tangent
-    stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
-    unless given."""
+    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination,
+    psi6_local (:func:`microhom.structural_sums.bond_order`; absent without load-bearing
+    particles) and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of
+    linear contacts ``kn * overlap``; absent if not positive); kt/kn the mean tangent stiffness of
+    the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m] unless given."""
     from .structural_sums import bond_order, network_statistics
     st = network_statistics(network)
     stuck = ~np.asarray(network.sliding)
@@ -241,8 +241,10 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
         kt_over_kn = float(np.mean(network.kt[stuck]) / kn_mean) if stuck.any() else 0.0
     out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
                kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
-               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network),
-               psi6_local=bond_order(network, 6).psi_local)
+               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+    q6 = bond_order(network, 6).psi_local
+    if np.isfinite(q6):
+        out["psi6_local"] = float(q6)
     if network.n_contacts:
         fn = network.fn if network.fn is not None else np.asarray(network.kn) * np.maximum(network.overlaps, 0.0)
         sig = -np.einsum("c,ci,cj->ij", fn, network.branch, network.normals) / network.area
