@@ -1,14 +1,14 @@
 """Statistics-only closure: the moduli of a random disk packing from numbers a user can know
 (Z, phi, the contact-number fluctuation r, kt/kn, the radius dispersity, the sliding and rattler
-fractions, the size-coordination, p/kn), with an error stated per prediction and a flag wherever
+fractions, the size-coordination, p/kn, the local bond order psi6_local), with an error stated per prediction and a flag wherever
 the input is far from the data.
 
 Where the seed's first-order formula (:func:`microhom.moduli.predict_moduli`, kept unchanged)
 misses the non-affine relaxation (docs/results/kuhn.md, sweep.md), this closure is fitted to the
-exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corpus of 63 packings made by
-five protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
-heavily damped one, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000 and 4000, three
-seeds, kt/kn 0-1, dispersity 0-0.5). Results, leave-one-protocol-out errors and what fails:
+exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corpus of 105 packings made by
+six protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
+heavily damped one, the main study's, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000
+and 4000, three seeds, kt/kn 0-1, dispersity 0-0.5, identical disks included). Results, leave-one-protocol-out errors and what fails:
 docs/results/closure.md. It is an empirical closure with the known limits built into its form:
 
     G = G_mf  dZ / (dZ + a),        a = exp(c_G . f_G)
@@ -40,10 +40,10 @@ of every protocol lie within it.
 Flags (``valid = False`` with a reason, never silent): 1 outside the data (leverage above
 ``H_MAX`` = 3x the largest of the corpus, or outside the box ``RANGES``), 2 at or below the
 isostatic point (``dZ < DZ_MIN``: G -> 0, relative error unbounded), 4 size-coordination not
-given for a polydisperse packing, 8 p/kn not given.
+given for a polydisperse packing, 8 p/kn not given, 16 phi above 1, 32 psi6_local not given.
 
-Vectorised numpy: >= 1e6 parameter sets per second per core (``python -m studies.closure_fit
---quick --bench``: 1.2-1.3e6 measured).
+Vectorised numpy: ~1e6 parameter sets per second per core (``python -m studies.closure_fit
+--quick --bench``: 1.2-1.3e6 measured at low load; 0.7-0.9e6 at load 16, as before psi6_local).
 """
 from __future__ import annotations
 

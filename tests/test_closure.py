@@ -42,6 +42,10 @@ def test_limits_of_the_form():
     iG, iK = FEATURES_G.index("log dZ"), FEATURES_K.index("log dZ")
     assert abs(COEF_G[iG]) < 0.2 and abs(COEF_G[iG] + COEF_G[FEATURES_G.index("frictionless * log dZ")]) < 0.2
     assert COEF_K[iK] < 0 and COEF_K[iK] + COEF_K[FEATURES_K.index("frictionless * log dZ")] < 0
+    # with log kt/kn * log dZ the exponent depends on kt/kn: small over the data's kt/kn 0.05-1
+    c_lk = COEF_G[FEATURES_G.index("log kt/kn * log dZ")] if "log kt/kn * log dZ" in FEATURES_G else 0.0
+    for kt in (0.05, 0.2, 1.0):
+        assert abs(COEF_G[iG] + c_lk * np.log(kt)) < 0.3
     for kt in (0.0, 0.2, 1.0):
         ziso = float(isostatic_point(kt))
         dz = np.array([1e-7, 1e-6])
