@@ -285,3 +285,17 @@ def test_bond_order_exact_lattices_and_delaunay():
     assert b.psi_local == pytest.approx(2 / np.pi, abs=0.02)
     with pytest.raises(ValueError, match="m must be an integer >= 1"):
         bond_order(net, 0)
+
+
+def test_pack_study_rows_are_the_main_study_packings():
+    """The corpus's pack_study protocol at mu_prep 0.05, p/kn 1e-4 is the packing protocol
+    studies.cases builds the main study's packings with (same PackingProtocol, field by field)."""
+    from dem.engine.packing import PackingProtocol
+    from studies.cases import DEFAULTS, PROTOCOL
+    from studies.corpus import _row, packing_protocol
+    for seed in (1, 2, 3):
+        row = _row("pack_study", 1000, seed, p_over_kn=1e-4, mu_prep=0.05, dispersity=0.0)
+        main = PackingProtocol(n=DEFAULTS["n"], p_over_kn=DEFAULTS["p_over_kn"], kn=1.0,
+                               kt_over_kn=DEFAULTS["kt_over_kn"], mu=DEFAULTS["mu"], mu_prep=DEFAULTS["mu_prep"],
+                               dispersity=DEFAULTS["dispersity"], seed=seed, **PROTOCOL)
+        assert packing_protocol(row) == main
