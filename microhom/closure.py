@@ -1,14 +1,14 @@
 """Statistics-only closure: the moduli of a random disk packing from numbers a user can know
 (Z, phi, the contact-number fluctuation r, kt/kn, the radius dispersity, the sliding and rattler
-fractions, the size-coordination, p/kn), with an error stated per prediction and a flag wherever
+fractions, the size-coordination, p/kn, the local bond order psi6_local), with an error stated per prediction and a flag wherever
 the input is far from the data.
 
 Where the seed's first-order formula (:func:`microhom.moduli.predict_moduli`, kept unchanged)
 misses the non-affine relaxation (docs/results/kuhn.md, sweep.md), this closure is fitted to the
-exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corpus of 63 packings made by
-five protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
-heavily damped one, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000 and 4000, three
-seeds, kt/kn 0-1, dispersity 0-0.5). Results, leave-one-protocol-out errors and what fails:
+exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corpus of 105 packings made by
+six protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
+heavily damped one, the main study's, LAMMPS's ``in.prep``, harmonic energy minimisation; N = 1000
+and 4000, three seeds, kt/kn 0-1, dispersity 0-0.5, identical disks included). Results, leave-one-protocol-out errors and what fails:
 docs/results/closure.md. It is an empirical closure with the known limits built into its form:
 
     G = G_mf  dZ / (dZ + a),        a = exp(c_G . f_G)
@@ -40,10 +40,10 @@ of every protocol lie within it.
 Flags (``valid = False`` with a reason, never silent): 1 outside the data (leverage above
 ``H_MAX`` = 3x the largest of the corpus, or outside the box ``RANGES``), 2 at or below the
 isostatic point (``dZ < DZ_MIN``: G -> 0, relative error unbounded), 4 size-coordination not
-given for a polydisperse packing, 8 p/kn not given.
+given for a polydisperse packing, 8 p/kn not given, 16 phi above 1, 32 psi6_local not given.
 
-Vectorised numpy: >= 1e6 parameter sets per second per core (``python -m studies.closure_fit
---quick --bench``: 1.2-1.3e6 measured).
+Vectorised numpy: ~1e6 parameter sets per second per core (``python -m studies.closure_fit
+--quick --bench``: 1.2-1.3e6 measured at low load; 0.7-0.9e6 at load 16, as before psi6_local).
 """
 from __future__ import annotations
 
@@ -56,73 +56,103 @@ from .results import Result
 
 __all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_point", "predict_closure", "predict_network", "closure_inputs", "size_coordination",
            "dispersity", "ClosurePrediction", "FEATURES", "COEF_K",
-           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR"]
+           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR",
+           "PSI6_LOCAL_DEFAULT"]
 
 #: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
 ALL_FEATURES = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
-                "frictionless * log dZ", "dispersity", "r", "size-coordination", "rattler fraction",
-                "log10 p/kn")
-FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
-              "rattler fraction", "log10 p/kn")
+                "frictionless * log dZ", "log kt/kn * log dZ", "dispersity", "r", "size-coordination",
+                "rattler fraction", "log10 p/kn", "psi6_local")
+FEATURES_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
+              "frictionless * log dZ", "r", "rattler fraction", "log10 p/kn", "psi6_local")
 FEATURES_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
-              "frictionless * log dZ", "dispersity", "r", "size-coordination")
+              "frictionless * log dZ", "log kt/kn * log dZ", "dispersity", "r", "size-coordination")
 FEATURES = {"K": FEATURES_K, "G": FEATURES_G}
 # --- fitted by python -m studies.closure_fit (data: docs/results/closure.md) ---------------------
-COEF_K = np.array([-1.1819842241, -0.0539255135, -0.2761512026,  0.0262850602, -1.3922509229,  0.7790928027, -8.3674545971,
-  0.2431649865])
-COEF_G = np.array([-1.7648418832,  0.9794369596,  0.1626074337,  0.1851163754, -0.1076899239,  0.0682762048, -0.0401103333,
-  0.2346526977, 27.5623006531, -4.5180758562])
-COV_K = np.array([[ 5.8682103187e-02, -3.1169615187e-02,  1.7581900725e-02,  4.3649995084e-03, -1.4645440124e-02,
-  -1.2481266761e-03,  5.1952852904e-02,  1.9558892644e-02],
- [-3.1169615187e-02,  1.4736234841e-01, -1.7581900725e-02, -4.3649995084e-03,  2.8777356070e-02,
-   5.4687265741e-02,  4.5838286153e-01, -1.8325621792e-04],
- [ 1.7581900725e-02, -1.7581900725e-02,  4.2151466528e-02,  1.2702554753e-02,  1.2016531045e-15,
-  -9.2007962303e-16,  1.8622665402e-14, -2.5531459591e-17],
- [ 4.3649995084e-03, -4.3649995084e-03,  1.2702554753e-02,  4.1379432083e-03,  3.6526496611e-16,
-  -2.5331440909e-16,  5.0571419680e-15, -2.6547702512e-17],
- [-1.4645440124e-02,  2.8777356070e-02,  1.1454728566e-15,  3.3166049947e-16,  8.7627240396e-02,
-  -7.7440828807e-02,  1.3767039344e+00,  1.4398258941e-02],
- [-1.2481266761e-03,  5.4687265741e-02, -8.6452132047e-16, -2.4659360477e-16, -7.7440828807e-02,
-   1.4799598594e-01, -1.3022370264e+00, -1.9966821427e-02],
- [ 5.1952852904e-02,  4.5838286153e-01,  1.6926278132e-14,  4.6027606993e-15,  1.3767039344e+00,
-  -1.3022370264e+00,  2.8131505187e+01,  4.5037724273e-01],
- [ 1.9558892644e-02, -1.8325621792e-04, -1.0941150676e-16, -5.2654767773e-17,  1.4398258941e-02,
-  -1.9966821427e-02,  4.5037724273e-01,  1.5108164861e-02]])   # (F^T F)^-1 of the fitted design
-COV_G = np.array([[ 4.9091607896e-01, -1.7519194184e-01,  1.6331180087e-02,  4.3649995084e-03,  3.0753404907e-02,
-  -1.4737714791e-01,  6.9940723085e-02, -4.6840198695e-01, -1.0077342350e+01,  1.8250096629e+00],
- [-1.7519194184e-01,  2.0068185116e-01, -1.6977853733e-02, -4.3649995084e-03, -1.4852638684e-02,
-   5.6314641650e-02,  5.1140184052e-02,  1.4094649396e-01,  3.6555791251e+00, -7.3991743838e-01],
- [ 1.6331180087e-02, -1.6977853733e-02,  4.2188237276e-02,  1.2702554753e-02, -9.0413931618e-04,
-  -1.6343498096e-04,  4.1472982952e-04,  6.8533326390e-04,  2.9198982666e-02, -5.3963621938e-03],
- [ 4.3649995084e-03, -4.3649995084e-03,  1.2702554753e-02,  4.1379432083e-03, -4.9831911350e-16,
-   2.1713296976e-15, -1.0860963301e-15,  5.0570382585e-15,  1.5044687028e-13, -2.3981465348e-14],
- [ 3.0753404907e-02, -1.4852638684e-02, -9.0413931618e-04, -3.2026142061e-16,  2.2231473308e-02,
-   4.0186289347e-03, -1.0197604474e-02, -1.6851350108e-02, -7.1796059759e-01,  1.3268871282e-01],
- [-1.4737714791e-01,  5.6314641650e-02, -1.6343498096e-04,  1.2984506834e-15,  4.0186289347e-03,
-   7.6740264523e-02, -4.9727919711e-02,  1.1685011678e-01,  3.3581418386e+00, -6.0332502187e-01],
- [ 6.9940723085e-02,  5.1140184052e-02,  4.1472982953e-04, -6.3485579975e-16, -1.0197604474e-02,
-  -4.9727919711e-02,  1.1287018680e-01, -1.7134680244e-02, -1.7081474047e+00,  1.9674490997e-01],
- [-4.6840198695e-01,  1.4094649396e-01,  6.8533326389e-04,  2.4478286242e-15, -1.6851350108e-02,
-   1.1685011678e-01, -1.7134680244e-02,  2.0771762718e+00,  4.9024618326e+00, -4.7578056345e+00],
- [-1.0077342350e+01,  3.6555791251e+00,  2.9198982665e-02,  9.0841198139e-14, -7.1796059759e-01,
-   3.3581418386e+00, -1.7081474047e+00,  4.9024618326e+00,  2.3149618642e+02, -3.1737176707e+01],
- [ 1.8250096629e+00, -7.3991743838e-01, -5.3963621938e-03, -1.3547249776e-14,  1.3268871282e-01,
-  -6.0332502187e-01,  1.9674490997e-01, -4.7578056345e+00, -3.1737176707e+01,  1.4226615345e+01]])
-Q = {'K': 0.075184, 'G': 0.124554}   # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
-H_MEAN = {'K': 0.028985507, 'G': 0.036231884}   # mean leverage of the corpus
-H_MAX = {'K': 1.0366164, 'G': 1.0280924}   # 3 x the largest leverage of the corpus: beyond, flagged
-RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8082, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163]}   # the box of the corpus (usable rows)
+COEF_K = np.array([-3.33852123,  0.1734875 , -0.23085061,  0.02733073,  0.12291658, -0.95953591,  0.52714692,
+ 13.2068993 , -7.06578145,  0.16968629,  2.40511176])
+COEF_G = np.array([-1.34855446e+00,  7.99163315e-01,  1.69626823e-01,  1.85644520e-01,  4.89430265e-02,
+ -6.54659081e-02,  3.78455934e-02, -9.08631282e-02, -5.67472065e-03,  1.89547360e+01,
+ -2.99893344e+00])
+COV_K = np.array([[ 1.62887456e-01, -3.63954205e-02,  1.06355628e-02,  2.61899971e-03,  3.50876189e-03,
+  -1.70071872e-02,  1.00625521e-02, -1.69659763e+00, -8.57461216e-02, -3.92706105e-03,
+  -1.23904368e-01],
+ [-3.63954205e-02,  1.40369954e-01, -1.05820004e-02, -2.61899971e-03, -1.33411977e-03,
+   2.08758131e-02,  5.97463010e-02,  2.17827798e-01,  3.38363342e-01,  2.13302089e-03,
+   1.43250076e-02],
+ [ 1.06355628e-02, -1.05820004e-02,  2.52976772e-02,  7.62153285e-03,  2.75969169e-04,
+   2.64925627e-04, -2.64932689e-04, -9.13683530e-04,  7.52961256e-04,  1.03733758e-05,
+  -1.35425452e-05],
+ [ 2.61899971e-03, -2.61899971e-03,  7.62153285e-03,  2.48276592e-03, -1.13666491e-17,
+   2.13219324e-16, -1.01711106e-16,  7.98547334e-15,  3.22719941e-15,  1.01723829e-16,
+   1.04371421e-15],
+ [ 3.50876189e-03, -1.33411977e-03,  2.75969169e-04, -2.66071427e-17,  1.12043893e-02,
+   1.07560199e-02, -1.07563066e-02, -3.70956873e-02,  3.05703390e-02,  4.21160603e-04,
+  -5.49829350e-04],
+ [-1.70071872e-02,  2.08758131e-02,  2.64925627e-04,  2.67228809e-16,  1.07560199e-02,
+   7.40693349e-02, -6.73231570e-02,  1.81074685e-01,  9.87078065e-01,  1.17668951e-02,
+   2.55586545e-03],
+ [ 1.00625521e-02,  5.97463010e-02, -2.64932689e-04, -1.71625596e-16, -1.07563066e-02,
+  -6.73231570e-02,  1.38969154e-01, -1.03179702e-01, -9.44800525e-01, -1.52270024e-02,
+  -1.36151131e-02],
+ [-1.69659763e+00,  2.17827798e-01, -9.13683530e-04,  1.89046566e-14, -3.70956873e-02,
+   1.81074685e-01, -1.03179702e-01,  5.29986805e+01, -5.43680087e+00, -1.55368070e-02,
+  -1.01943279e+00],
+ [-8.57461216e-02,  3.38363342e-01,  7.52961256e-04,  2.69432512e-15,  3.05703390e-02,
+   9.87078065e-01, -9.44800525e-01, -5.43680087e+00,  1.94281098e+01,  3.17798365e-01,
+   5.90320584e-01],
+ [-3.92706105e-03,  2.13302089e-03,  1.03733758e-05,  1.06579641e-16,  4.21160603e-04,
+   1.17668951e-02, -1.52270024e-02, -1.55368070e-02,  3.17798365e-01,  1.09636542e-02,
+   3.06432402e-02],
+ [-1.23904368e-01,  1.43250076e-02, -1.35425452e-05,  1.80966375e-15, -5.49829350e-04,
+   2.55586545e-03, -1.36151131e-02, -1.01943279e+00,  5.90320584e-01,  3.06432402e-02,
+   3.51953462e-01]])   # (F^T F)^-1 of the fitted design
+COV_G = np.array([[ 1.89752715e-01, -6.01047420e-02,  9.36110067e-03,  2.61899971e-03,  1.75927313e-02,
+  -4.33333879e-02,  1.72100966e-02, -9.97846806e-03, -2.43101216e-01, -3.46284603e+00,
+   6.99771834e-01],
+ [-6.01047420e-02,  1.53967056e-01, -9.82521885e-03, -2.61899971e-03, -1.17359528e-02,
+   1.61194156e-02,  7.19182075e-02,  6.23429911e-03,  8.43992180e-02,  1.06377016e+00,
+  -3.53920632e-01],
+ [ 9.36110067e-03, -9.82521885e-03,  2.57876406e-02,  7.62153285e-03, -4.30530281e-03,
+   1.89493434e-03, -1.49391580e-03,  3.70988284e-03,  2.04818370e-03,  3.14968763e-02,
+  -1.11941305e-02],
+ [ 2.61899971e-03, -2.61899971e-03,  7.62153285e-03,  2.48276592e-03, -1.87816456e-16,
+   2.05976079e-16, -1.33680992e-16,  1.29513857e-16,  8.82440072e-16,  1.38494340e-14,
+  -2.74051841e-15],
+ [ 1.75927313e-02, -1.17359528e-02, -4.30530281e-03, -1.54083436e-16,  5.43292768e-02,
+  -7.90688690e-03,  2.84637247e-03, -3.47320613e-02, -2.58463444e-02, -3.97463915e-01,
+   1.41260451e-01],
+ [-4.33333879e-02,  1.61194156e-02,  1.89493434e-03,  1.65853791e-16, -7.90688690e-03,
+   3.25398101e-02, -2.36303328e-02,  1.28607422e-02,  6.48467531e-02,  9.36590365e-01,
+  -2.44756304e-01],
+ [ 1.72100966e-02,  7.19182075e-02, -1.49391580e-03, -5.81792987e-17,  2.84637247e-03,
+  -2.36303328e-02,  9.56127832e-02, -9.62561547e-03, -9.91992190e-03, -4.29908762e-01,
+   5.09404970e-02],
+ [-9.97846806e-03,  6.23429911e-03,  3.70988284e-03,  1.19975580e-16, -3.47320613e-02,
+   1.28607422e-02, -9.62561547e-03,  2.80969583e-02,  1.65232609e-02,  2.54093959e-01,
+  -9.03061283e-02],
+ [-2.43101216e-01,  8.43992180e-02,  2.04818370e-03,  5.35352348e-16, -2.58463444e-02,
+   6.48467531e-02, -9.91992190e-03,  1.65232609e-02,  7.87942701e-01,  3.87249904e+00,
+  -2.11967123e+00],
+ [-3.46284603e+00,  1.06377016e+00,  3.14968763e-02,  1.03566218e-14, -3.97463915e-01,
+   9.36590365e-01, -4.29908762e-01,  2.54093959e-01,  3.87249904e+00,  6.87087026e+01,
+  -1.25146842e+01],
+ [ 6.99771834e-01, -3.53920632e-01, -1.11941305e-02, -1.80468841e-15,  1.41260451e-01,
+  -2.44756304e-01,  5.09404970e-02, -9.03061283e-02, -2.11967123e+00, -1.25146842e+01,
+   6.89477480e+00]])   # (F^T F)^-1 of the fitted design
+Q = {'K': 0.0985950, 'G': 0.102545}   # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
+H_MEAN = {'K': 0.0247748, 'G': 0.0247748}   # mean leverage of the corpus
+H_MAX = {'K': 1.01966, 'G': 1.00086}   # 3 x the largest leverage of the corpus: beyond, flagged
+RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8042, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163], 'psi6_local': [0.477, 0.9734]}   # the box of the corpus (usable rows)
 DZ_MIN = 0.05
 # -------------------------------------------------------------------------------------------------
+#: psi6_local assumed when not given (flagged, bit 32): the median of the corpus's usable rows
+PSI6_LOCAL_DEFAULT = 0.62
 ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
 
 #: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
 #: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
 PHI_INFLATED_MAX = 1.1
-#: identical frictional disks are in the corpus only at p/kn >= MONO_P_MIN (dispersity below
-#: MONO_DISPERSITY): elsewhere they are outside the data (flag 32; docs/results/closure.md)
-MONO_DISPERSITY = 0.05
-MONO_P_MIN = 1e-2
 
 _REASONS = (
     (1, "outside the data the closure was fitted on (feature-space distance or range)"),
@@ -131,9 +161,8 @@ _REASONS = (
     (4, "size_coordination not given for a polydisperse packing (dispersity > 0.05)"),
     (8, "p_over_kn not given"),
     (16, "phi above 1 (overlaps inflate it): outside the data; the moduli scale with phi"),
-    (32, "identical disks (dispersity < 0.05) with friction below p/kn = 1e-2: outside the data (the "
-         "corpus's frictional identical disks are at p/kn = 1e-2 only; such packings partly order, "
-         "which the closure does not see: on the main study's packings K came out 15-17 % too stiff)"),
+    (32, "psi6_local not given (the mean local bond order of the load-bearing contacts: it changes K by "
+         "up to ~15 % on the corpus, most for identical disks, which partly order)"),
 )
 
 
@@ -146,27 +175,30 @@ def isostatic_point(kt_over_kn, sliding_fraction=0.0):
 
 
 def features(nc, kt_over_kn, dispersity, r, sliding_fraction=0.0, size_coordination=0.0, rattler_fraction=0.0,
-             p_over_kn=1e-3, names=ALL_FEATURES):
+             p_over_kn=1e-3, psi6_local=PSI6_LOCAL_DEFAULT, names=ALL_FEATURES):
     """(..., len(names)) feature matrix of the closure (columns named in ``ALL_FEATURES``) and
     dZ = Z - Z_iso (...,).
 
     nc: mean contacts per load-bearing particle; kt_over_kn >= 0; dispersity >= 0 (sqrt(3) times
     the relative standard deviation of the radii: the half-width of a uniform law); r =
     var(Nc)/Nc^2 over the load-bearing particles; sliding_fraction in [0, 1]; size_coordination
-    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn).
+    (:func:`size_coordination`); rattler_fraction in [0, 1); p_over_kn > 0 (pressure over kn);
+    psi6_local in [0, 1] (mean local bond order of the load-bearing contacts,
+    :func:`microhom.structural_sums.bond_order`).
     dZ is floored at 1e-3 inside the logarithm so that the matrix stays finite for flagged inputs.
     """
-    nc, kr, d, r, s, zs, xr, p = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
-                                                       (nc, kt_over_kn, dispersity, r, sliding_fraction,
-                                                        size_coordination, rattler_fraction, p_over_kn)))
+    nc, kr, d, r, s, zs, xr, p, q6 = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
+                                                           (nc, kt_over_kn, dispersity, r, sliding_fraction,
+                                                            size_coordination, rattler_fraction, p_over_kn,
+                                                            psi6_local)))
     dz = nc - isostatic_point(kr, s)
     fl = (kr <= 0).astype(float)
     lk = np.where(kr > 0, np.log(np.maximum(kr, 1e-12)), 0.0)
     lz = np.log(np.maximum(dz, 1e-3))
     cols = {"1": np.ones_like(lz), "frictionless": fl, "log kt/kn": lk, "(log kt/kn)^2": lk * lk,
             "log kt/kn * tanh(Z - 4)": lk * np.tanh(nc - 4.0), "log dZ": lz, "frictionless * log dZ": fl * lz,
-            "dispersity": d, "r": r, "size-coordination": zs, "rattler fraction": xr,
-            "log10 p/kn": np.log10(np.maximum(p, 1e-300))}
+            "log kt/kn * log dZ": lk * lz, "dispersity": d, "r": r, "size-coordination": zs,
+            "rattler fraction": xr, "log10 p/kn": np.log10(np.maximum(p, 1e-300)), "psi6_local": q6}
     return np.stack([cols[n] for n in names], axis=-1), dz
 
 
@@ -196,12 +228,12 @@ def dispersity(network) -> float:
 def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     """The keyword arguments of :func:`predict_closure` measured on a
     :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
-    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination
-    and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of linear contacts
-    ``kn * overlap``; absent if not positive); kt/kn the mean tangent
-    stiffness of the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m]
-    unless given."""
-    from .structural_sums import network_statistics
+    (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination,
+    psi6_local (:func:`microhom.structural_sums.bond_order`; absent without load-bearing
+    particles) and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of
+    linear contacts ``kn * overlap``; absent if not positive); kt/kn the mean tangent stiffness of
+    the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m] unless given."""
+    from .structural_sums import bond_order, network_statistics
     st = network_statistics(network)
     stuck = ~np.asarray(network.sliding)
     kn_mean = float(np.mean(network.kn))
@@ -210,6 +242,9 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
                kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
                rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+    q6 = bond_order(network, 6).psi_local
+    if np.isfinite(q6):
+        out["psi6_local"] = float(q6)
     if network.n_contacts:
         fn = network.fn if network.fn is not None else np.asarray(network.kn) * np.maximum(network.overlaps, 0.0)
         sig = -np.einsum("c,ci,cj->ij", fn, network.branch, network.normals) / network.area
@@ -249,7 +284,7 @@ class ClosurePrediction(Result):
     flags : ndarray of int8
         Bit mask: 1 outside the data, 2 at or below the isostatic point, 4 size_coordination
         missing for a polydisperse packing, 8 p_over_kn missing, 16 phi above 1 (overlap-inflated,
-        as ``predict_from_network`` flags it), 32 identical frictional disks below p/kn = 1e-2.
+        as ``predict_from_network`` flags it), 32 psi6_local not given.
     reason : ndarray of str
         Text of the flags per entry (``"ok"`` when none; property).
     """
@@ -290,7 +325,7 @@ def _leverage(X, cov):
 
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
-                    size_coordination=None, rattler_fraction=None, p_over_kn=None,
+                    size_coordination=None, rattler_fraction=None, p_over_kn=None, psi6_local=None,
                     model=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
@@ -324,6 +359,11 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         ``sum z_i R_i / sum R_i - Z`` over the load-bearing particles (:func:`size_coordination`),
         finite. Not given: 0 (exact for identical disks); for ``dispersity > 0.05`` the prediction
         is then flagged (it changes G by up to ~20 % on the corpus).
+    psi6_local : array_like, optional
+        Mean local bond order ``<|psi6_i|>`` of the load-bearing contacts, in [0, 1]
+        (:func:`microhom.structural_sums.bond_order`; ~0.5 for polydisperse, 0.6-0.7 for
+        amorphous identical disks, -> 1 for a crystal). Not given: ``PSI6_LOCAL_DEFAULT`` and the
+        prediction is flagged (bit 32).
     model : dict, optional
         Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
         ``h_mean``, ``h_max``; used by the refit study).
@@ -372,8 +412,10 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         raise ValueError(f"size_coordination must be finite; got {zs!r}")
     missing_p = p_over_kn is None
     pk = _check("p_over_kn", 1e-3 if missing_p else p_over_kn, 0.0, lo_open=True)
-    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_K)
-    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, names=FEATURES_G)
+    missing_q6 = psi6_local is None
+    q6 = _check("psi6_local", PSI6_LOCAL_DEFAULT if missing_q6 else psi6_local, 0.0, 1.0)
+    XK, dz = features(nc, kr, d, r, s, zs, xr, pk, q6, names=FEATURES_K)
+    XG, _ = features(nc, kr, d, r, s, zs, xr, pk, q6, names=FEATURES_G)
     K_mf = nc * phi * (1 - xr) * kn / (2 * np.pi)
     G_mf = nc * phi * (1 - xr) * kn * (1 + kr) / (4 * np.pi)
     with np.errstate(over="ignore"):
@@ -387,7 +429,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
     box = np.zeros(K.shape, dtype=bool)
     for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi), ("p_over_kn", pk),
-                    ("size_coordination", zs), ("rattler_fraction", xr)):
+                    ("size_coordination", zs), ("rattler_fraction", xr), ("psi6_local", q6)):
         lo, hi = RANGES[name]
         box |= (v < lo - 1e-9) | (v > hi + 1e-9)
     klo, khi = RANGES["kt_over_kn"]
@@ -396,7 +438,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
              | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)
              | np.where(phi > 1.0, 16, 0)
-             | np.where((kr > 0) & (d < MONO_DISPERSITY) & (pk < MONO_P_MIN * (1 - 1e-9)), 32, 0)).astype(np.int8)
+             | (32 if missing_q6 else 0)).astype(np.int8)
     flags = np.broadcast_to(flags, K.shape)
     return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
                              error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,

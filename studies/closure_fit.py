@@ -37,12 +37,17 @@ from studies.common import cli_out_dir, out_dir, write_table
 SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
 COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob_mu_prep", "knob_dispersity",
            "knob_phi", "knob_radii", "Z", "Z_all", "Z_iso", "dZ", "r", "phi", "rattler_fraction",
-           "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "fabric_anisotropy",
+           "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "psi6", "psi6_local", "fabric_anisotropy",
            "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
            "flags"]
 #: candidate statistics tried on top of the base features (item 2 of issue 25)
 CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
-              "sliding_fraction")
+              "sliding_fraction", "psi6")
+#: the closure before the corpus held identical disks at low pressure and psi6 (for the table)
+PREVIOUS_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
+              "rattler fraction", "log10 p/kn")
+PREVIOUS_G = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log kt/kn * tanh(Z - 4)", "log dZ",
+              "frictionless * log dZ", "dispersity", "r", "size-coordination")
 
 
 #: protocols whose packings are in force balance without tangential forces (kt = 0 is physical)
@@ -67,7 +72,7 @@ def design(df, names, extra=()):
     corpus columns ``extra``) and dZ."""
     X, dz = features(df.Z.to_numpy(), df.kt_over_kn.to_numpy(), df.dispersity.to_numpy(), df.r.to_numpy(),
                      df.sliding_fraction.to_numpy(), (df.Z_size - df.Z).to_numpy(), df.rattler_fraction.to_numpy(),
-                     df.p_over_kn.to_numpy(), names=names)
+                     df.p_over_kn.to_numpy(), df.psi6_local.to_numpy(), names=names)
     if extra:
         X = np.concatenate([X, df[list(extra)].to_numpy(float)], axis=1)
     return X, dz
@@ -177,9 +182,14 @@ def candidates(df):
                 rms_logG=float(np.std(np.log(df.G / G_mf))))]
     core = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ")
     trials = [("Z - Z_iso and kt/kn only", (), core, core + ("log kt/kn * tanh(Z - 4)",)),
-              ("closure (K: + rattler fraction, log p; G: + dispersity, r, size-coordination)", (), FEATURES_K,
-               FEATURES_G)]
-    for name in ("dispersity", "r", "size-coordination", "rattler fraction", "log10 p/kn"):
+              ("previous closure (K: + rattler fraction, log p; G: + dispersity, r, size-coordination)", (),
+               PREVIOUS_K, PREVIOUS_G),
+              ("the closure", (), FEATURES_K, FEATURES_G),
+              ("closure without psi6_local (K)", (), tuple(f for f in FEATURES_K if f != "psi6_local"), FEATURES_G),
+              ("closure without log kt/kn * log dZ (G)", (), FEATURES_K,
+               tuple(f for f in FEATURES_G if f != "log kt/kn * log dZ"))]
+    for name in ("dispersity", "r", "size-coordination", "rattler fraction", "log10 p/kn", "psi6_local",
+                 "log kt/kn * log dZ"):
         trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * tanh(Z - 4)", name)))
     for c in CANDIDATES:
         trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
@@ -244,7 +254,7 @@ def bench(n=1_000_000):
     args = dict(nc=rng.uniform(3.3, 5.3, n), r=rng.uniform(0.02, 0.06, n), phi=rng.uniform(0.82, 0.9, n),
                 kt_over_kn=rng.uniform(0.05, 1, n), dispersity=rng.uniform(0, 0.5, n),
                 size_coordination=rng.uniform(0, 0.1, n), rattler_fraction=rng.uniform(0, 0.1, n),
-                p_over_kn=10 ** rng.uniform(-4, -2, n))
+                p_over_kn=10 ** rng.uniform(-4, -2, n), psi6_local=rng.uniform(0.5, 0.8, n))
     predict_closure(**{k: v[:10] for k, v in args.items()})
     t0, c0 = time.perf_counter(), time.process_time()
     predict_closure(**args)
@@ -263,14 +273,15 @@ def data_ranges(df) -> dict:
             "dispersity": rd(df.dispersity.min(), df.dispersity.max()), "r": rd(df.r.min(), df.r.max()),
             "phi": rd(df.phi.min(), df.phi.max()), "p_over_kn": (float(df.p_over_kn.min()), float(df.p_over_kn.max())),
             "size_coordination": rd(zs.min(), zs.max()),
-            "rattler_fraction": rd(df.rattler_fraction.min(), df.rattler_fraction.max())}
+            "rattler_fraction": rd(df.rattler_fraction.min(), df.rattler_fraction.max()),
+            "psi6_local": rd(df.psi6_local.min(), df.psi6_local.max())}
 
 
 def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
     f = lambda a: np.array2string(np.asarray(a), precision=8, separator=", ", max_line_width=100,
                                   floatmode="maxprec")
     return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = np.array({f(covK)})\n"
-            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.4f}, 'G': {q['G']:.4f}}}\n"
+            f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.6g}, 'G': {q['G']:.6g}}}\n"
             f"H_MEAN = {{'K': {h_mean['K']:.6g}, 'G': {h_mean['G']:.6g}}}\n"
             f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n")
 
@@ -286,7 +297,7 @@ def quick_end_to_end():
     p = predict_closure(nc=m.Z.to_numpy(), r=m.r.to_numpy(), phi=m.phi.to_numpy(), kt_over_kn=m.kt_over_kn.to_numpy(),
                         dispersity=m.dispersity.to_numpy(), sliding_fraction=m.sliding_fraction.to_numpy(),
                         size_coordination=(m.Z_size - m.Z).to_numpy(), rattler_fraction=m.rattler_fraction.to_numpy(),
-                        p_over_kn=m.p_over_kn.to_numpy())
+                        p_over_kn=m.p_over_kn.to_numpy(), psi6_local=m.psi6_local.to_numpy())
     m["closure_G"], m["err_G"], m["stated_G"], m["valid"] = p.G, p.G / m.G - 1, p.rel_error_G, p.valid
     print(m[["kt_over_kn", "Z", "dZ", "r", "K", "G", "closure_G", "err_G", "stated_G", "valid"]].to_string(index=False))
     return m
@@ -315,7 +326,8 @@ def heldout(paths, kt_ratios=(0.0, 0.2, 1.0)) -> pd.DataFrame:
                         sliding_fraction=np.where(ok, df.sliding_fraction, 0.0),
                         size_coordination=np.where(ok, df.Z_size - df.Z, 0.0),
                         rattler_fraction=np.where(ok, df.rattler_fraction, 0.0),
-                        p_over_kn=np.where(ok & (df.p_over_kn > 0), df.p_over_kn, 1e-3))
+                        p_over_kn=np.where(ok & (df.p_over_kn > 0), df.p_over_kn, 1e-3),
+                        psi6_local=np.where(ok, df.psi6_local, 0.6))
     df["closure_K"], df["closure_G"] = p.K, p.G
     df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
     df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G

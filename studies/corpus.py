@@ -35,6 +35,12 @@ Protocols (:data:`PROTOCOLS`):
 ``pack_slowdamped``
     :func:`dem.engine.packing.pack` with the older single-damping protocol (``damping_compaction=None,
     fire=False``: heavy local damping throughout the slow compaction), frictional.
+``pack_study``
+    The main study's packings (``python -m studies.kuhn``): :func:`dem.engine.packing.pack` with the
+    protocol of ``studies.cases.PROTOCOL`` (the one before issue 12.3: ``damping_compaction=0.1,
+    dt_over_dtcrit=0.8, fire=False``), identical disks, test friction tan 26 deg (0.4877), kt = kn;
+    knobs mu_prep (0.05: the main study's) and p/kn (1e-4: the main study's). Identical disks at
+    small mu_prep partly order (psi6 up to ~0.5).
 
 Exact response: :func:`dem.analysis.stiffness.stiffness` of the network with ``kt = ratio * kn`` (kn = 1),
 without pre-stress (``K``, ``G``; the target of the closure, as the theory) and with it (``K_ps``,
@@ -61,8 +67,12 @@ __all__ = ["CorpusRow", "packing_protocol", "PROTOCOLS", "KT_RATIOS", "corpus_ro
 #: tangent over normal stiffness at which every packing is analysed
 KT_RATIOS = (0.0, 0.05, 0.2, 0.5, 1.0)
 #: bump when the measurement changes (invalidates the cached measurement CSVs, not the packings)
-MEASURE_VERSION = 4
-PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped")
+MEASURE_VERSION = 5
+#: measurement versions that differ from the current one only by statistics of
+#: :func:`network_features` (5 added psi6, psi6_local): their exact moduli are kept and the
+#: statistics recomputed from the cached network
+FEATURES_ONLY_SINCE = (4,)
+PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped", "pack_study")
 
 
 @dataclass(frozen=True)
@@ -108,8 +118,11 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
     rows = []
     for seed in (1, 2, 3):
         for mp in (0.1, 0.3, 1.0):
-            for p in (1e-4, 1e-2):
+            for p in (1e-4, 1e-3, 1e-2, 3e-2):
                 rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.2))
+        for mp in (0.05, 0.3):    # identical disks with the default protocol, as pack_study
+            for p in (1e-4, 1e-3):
+                rows.append(_row("pack_frictional", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
         for d in (0.2, 0.45):     # dem.engine.packing takes dispersity < 0.5
             for p in (1e-4, 1e-3, 1e-2):
                 rows.append(_row("pack_frictionless", 1000, seed, p_over_kn=p, dispersity=d))
@@ -121,6 +134,9 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
                 rows.append(_row("lammps_prep", 1000, seed, phi=phi, dispersity=d))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-2, mu_prep=0.3, dispersity=0.0))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-3, mu_prep=0.05, dispersity=0.3))
+        for mp in (0.05, 0.3):    # the main study's packings (identical frictional disks, low p)
+            for p in (1e-4, 1e-3):
+                rows.append(_row("pack_study", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
     big = [_row("pack_frictional", 4000, 7, p_over_kn=1e-3, mu_prep=0.3, dispersity=0.2),
            _row("minimise", 4000, 7, phi=0.87, radii="bidisperse")]
     # build order: seeds 1 and 2 of every protocol (interleaved, so that a partial corpus is
@@ -233,6 +249,9 @@ def packing_protocol(row: CorpusRow):
         kw.update(mu=0.5, mu_prep=p["mu_prep"])
     if row.protocol == "pack_slowdamped":
         kw.update(damping_compaction=None, fire=False)
+    if row.protocol == "pack_study":
+        from studies.cases import DEFAULTS, PROTOCOL
+        kw.update(mu=DEFAULTS["mu"], **PROTOCOL)
     return PackingProtocol(**kw)
 
 
@@ -247,7 +266,7 @@ def build_network(row: CorpusRow, cache: Path):
     t0 = time.perf_counter()
     p = row.params
     meta = dict(row=asdict(row))
-    if row.protocol in ("pack_frictional", "pack_frictionless", "pack_slowdamped"):
+    if row.protocol.startswith("pack_"):
         from dem.engine.packing import pack
         res = pack(packing_protocol(row))
         net = res.to_network()
@@ -277,12 +296,15 @@ def network_features(net) -> dict:
     dZ = Z - Z_iso, r, phi, rattler_fraction, sliding_fraction, dispersity (sqrt(3) std/mean of the
     radii), z_size_corr (correlation of radius and contact count over load-bearing particles),
     Z_size (radius-weighted mean contact count), f_min (fraction of load-bearing particles with the
-    minimum contact count: 2 frictional, 3 frictionless), fabric_anisotropy, force_anisotropy
+    minimum contact count: 2 frictional, 3 frictionless), psi6 and psi6_local (bond-orientational
+    order of the load-bearing contacts, global ``|<psi6_i>|`` and mean ``|psi6_i|``:
+    :func:`microhom.structural_sums.bond_order`), fabric_anisotropy, force_anisotropy
     (2 (F1 - F2) of the force-weighted fabric), p_over_kn (pressure over mean kn), fn_cv (normal
     force coefficient of variation).
     """
-    from microhom.structural_sums import network_statistics, rattlers
+    from microhom.structural_sums import bond_order, network_statistics, rattlers
     st = network_statistics(net)
+    bo = bond_order(net, 6)
     rat, active = rattlers(net)
     n = net.n_particles
     counts = (np.bincount(net.pairs[active, 0], minlength=n) + np.bincount(net.pairs[active, 1], minlength=n))
@@ -302,7 +324,7 @@ def network_features(net) -> dict:
                dispersity=float(np.sqrt(3) * R.std() / R.mean()), z_size_corr=zsc,
                Z_size=float(np.sum(c * rk) / np.sum(rk)) if len(c) else 0.0,
                f_min=float(np.mean(c == (2 if fric else 3))) if len(c) else 0.0,
-               fabric_anisotropy=float(2 * (w[1] - w[0])))
+               fabric_anisotropy=float(2 * (w[1] - w[0])), psi6=bo.psi, psi6_local=bo.psi_local)
     if net.fn is not None and active.any():
         fn = net.fn[active]
         Ff = np.einsum("c,ci,cj->ij", fn, nrm, nrm) / np.sum(fn)
@@ -353,13 +375,35 @@ def _measured(row, cache, kt_ratios):
     path = Path(cache) / f"{row.key}.v{MEASURE_VERSION}.csv"
     if path.exists():
         return pd.read_csv(path, keep_default_na=False, na_values=[""])
-    net, meta = build_network(row, cache)
-    df = pd.DataFrame(measure_network(net, row, kt_ratios))
-    df["build_s"] = meta.get("build_s", np.nan)
+    old = [Path(cache) / f"{row.key}.v{v}.csv" for v in FEATURES_ONLY_SINCE]
+    old = [p for p in old if p.exists()]
+    if old and (Path(cache) / f"{row.key}.npz").exists():
+        df = _refresh_features(pd.read_csv(old[-1], keep_default_na=False, na_values=[""]), row, cache)
+    else:
+        net, meta = build_network(row, cache)
+        df = pd.DataFrame(measure_network(net, row, kt_ratios))
+        df["build_s"] = meta.get("build_s", np.nan)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".csv")
     os.close(fd)
     df.to_csv(tmp, index=False)
     os.replace(tmp, path)
+    return df
+
+
+def _refresh_features(df, row, cache):
+    """An older measurement (``FEATURES_ONLY_SINCE``) brought to the current one: the statistics
+    of :func:`network_features` recomputed on the cached network at each kt/kn, the exact moduli
+    kept (they do not depend on the statistics)."""
+    net, _ = build_network(row, cache)
+    if row.protocol == "pack_frictionless":
+        net = net.with_stiffness(sliding=False)
+    df = df.copy()
+    notes = df["note"].fillna("").astype(str) if "note" in df else pd.Series([""] * len(df))
+    for i, kr in enumerate(df.kt_over_kn.to_numpy()):
+        if notes.iloc[i].startswith("statistics:"):
+            continue
+        for k, v in network_features(net.with_stiffness(kt=kr * np.asarray(net.kn))).items():
+            df.loc[i, k] = v
     return df
 
 

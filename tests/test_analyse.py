@@ -123,7 +123,8 @@ def test_hierarchy_and_closure_sections(packing_npz):
     cl = predict_closure(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=c["kt_over_kn"],
                          dispersity=c["dispersity"], kn=float(np.mean(net.kn)),
                          sliding_fraction=c["sliding_fraction"], rattler_fraction=st.rattler_fraction,
-                         size_coordination=c["size_coordination"], p_over_kn=c["p_over_kn"])
+                         size_coordination=c["size_coordination"], p_over_kn=c["p_over_kn"],
+                         psi6_local=c["psi6_local"])
     assert c["K"] == pytest.approx(float(cl.K), rel=1e-12) and c["error_G"] == pytest.approx(float(cl.error_G))
     q = run(path, "--no-hierarchy", "--json")
     assert json.loads(q.stdout)["hierarchy"] == {"error": "not computed"}

@@ -19,7 +19,7 @@ def _args(df):
     return dict(nc=df.Z.to_numpy(), r=df.r.to_numpy(), phi=df.phi.to_numpy(), kt_over_kn=df.kt_over_kn.to_numpy(),
                 dispersity=df.dispersity.to_numpy(), sliding_fraction=df.sliding_fraction.to_numpy(),
                 size_coordination=(df.Z_size - df.Z).to_numpy(), rattler_fraction=df.rattler_fraction.to_numpy(),
-                p_over_kn=df.p_over_kn.to_numpy())
+                p_over_kn=df.p_over_kn.to_numpy(), psi6_local=df.psi6_local.to_numpy())
 
 
 def test_isostatic_point_from_constraint_counting():
@@ -42,6 +42,10 @@ def test_limits_of_the_form():
     iG, iK = FEATURES_G.index("log dZ"), FEATURES_K.index("log dZ")
     assert abs(COEF_G[iG]) < 0.2 and abs(COEF_G[iG] + COEF_G[FEATURES_G.index("frictionless * log dZ")]) < 0.2
     assert COEF_K[iK] < 0 and COEF_K[iK] + COEF_K[FEATURES_K.index("frictionless * log dZ")] < 0
+    # with log kt/kn * log dZ the exponent depends on kt/kn: small over the data's kt/kn 0.05-1
+    c_lk = COEF_G[FEATURES_G.index("log kt/kn * log dZ")] if "log kt/kn * log dZ" in FEATURES_G else 0.0
+    for kt in (0.05, 0.2, 1.0):
+        assert abs(COEF_G[iG] + c_lk * np.log(kt)) < 0.3
     for kt in (0.0, 0.2, 1.0):
         ziso = float(isostatic_point(kt))
         dz = np.array([1e-7, 1e-6])
@@ -62,12 +66,13 @@ def test_network_statistics_input_equals_explicit():
     st = NetworkStatistics(n_particles=10, n_contacts=20, n_rattlers=0, rattler_fraction=0.0, nc_all=4.2,
                            r_all=0.05, rho_all=0.7, nc=4.3, r=0.045, rho=0.7, phi=0.86, nbar_phi=5.0,
                            diameter=1.0, sliding_fraction=0.02)
-    a = predict_closure(st, kt_over_kn=0.5, dispersity=0.2, size_coordination=0.03, p_over_kn=1e-3)
+    a = predict_closure(st, kt_over_kn=0.5, dispersity=0.2, size_coordination=0.03, p_over_kn=1e-3, psi6_local=0.6)
     b = predict_closure(nc=4.3, r=0.045, phi=0.86, kt_over_kn=0.5, dispersity=0.2, sliding_fraction=0.02,
-                        size_coordination=0.03, p_over_kn=1e-3)
+                        size_coordination=0.03, p_over_kn=1e-3, psi6_local=0.6)
     assert float(a.G) == float(b.G) and float(a.error_K) == float(b.error_K) and bool(a.valid)
     c = predict_closure(st, kt_over_kn=0.5, dispersity=0.2)
     assert "size_coordination not given" in str(c.reason) and "p_over_kn not given" in str(c.reason)
+    assert "psi6_local not given" in str(c.reason) and int(c.flags) & 32
     with pytest.raises(ValueError, match="^r must not"):
         predict_closure(st, r=0.1)
 
@@ -84,6 +89,25 @@ def test_corpus_is_what_the_issue_asks(corpus):
     assert (SUMMARY.kt_over_kn == 0).any() and (SUMMARY.kt_over_kn == 1).any()
     assert SUMMARY.dispersity.max() >= 0.45 and SUMMARY.dispersity.min() <= 0.05
     assert corpus.groupby("protocol").seed.nunique().min() >= 2
+    # identical frictional disks at low pressure (the main study's packings), two protocols
+    mono = corpus[(corpus.dispersity < 0.05) & (corpus.p_over_kn < 2e-3)]
+    assert set(mono.protocol) >= {"pack_study", "pack_frictional"} and mono.seed.nunique() >= 3
+
+
+def test_leave_one_protocol_out_targets(corpus):
+    """Issue 25's targets per held-out protocol, as docs/results/closure.md section 4 states them:
+    valid predictions within 5 % rms (K) and 10 % rms (G) for every protocol but the LAMMPS one,
+    whose K is the documented failure (7.7 % rms, too stiff at small kt/kn); and the stated error
+    covers at least 90 % of each protocol's valid cases."""
+    from studies.closure_fit import calibrate, lopo, lopo_table
+    lo = lopo(corpus)
+    q, inside = calibrate(lo)
+    tab = lopo_table(lo, q, inside).set_index("protocol")
+    assert (tab.rms_G <= 0.10).all(), tab.rms_G
+    assert (tab.drop(index="lammps_prep").rms_K <= 0.05).all(), tab.rms_K
+    assert 0.05 < tab.loc["lammps_prep", "rms_K"] <= 0.08
+    assert (tab.inside_K >= 0.9).all() and (tab.inside_G >= 0.9).all()
+    assert (tab.valid >= 0.9 * tab.cases).all()
 
 
 def test_stored_model_is_the_fit_of_the_committed_corpus(corpus):
@@ -126,7 +150,7 @@ def test_flags():
     p = predict_closure(nc=np.array([3.02, 4.3, 4.3, 3.8, 4.3, 6.0]), r=np.array([0.05, 0.04, 0.04, 0.04, 0.04, 0.0]),
                         phi=np.array([0.84, 0.86, 0.86, 0.84, 0.86, 0.9069]),
                         kt_over_kn=np.array([0.5, 0.5, 0.0, 0.0, 1e-3, 1.0]), dispersity=np.array([0.2, 0.2, 0.2, 0.2, 0.2, 0.0]),
-                        size_coordination=0.03, rattler_fraction=0.02, p_over_kn=1e-3)
+                        size_coordination=0.03, rattler_fraction=0.02, p_over_kn=1e-3, psi6_local=0.6)
     assert list(p.valid) == [False, True, True, False, False, False]
     assert "isostatic" in p.reason[0] and "isostatic" in p.reason[3]    # frictionless below Z = 4
     assert "outside the data" in p.reason[4]                           # kt/kn far below the corpus
@@ -137,7 +161,7 @@ def test_flags():
 
 
 def test_error_grows_away_from_the_data():
-    kw = dict(phi=0.85, kt_over_kn=0.5, dispersity=0.2, size_coordination=0.03, p_over_kn=1e-3)
+    kw = dict(phi=0.85, kt_over_kn=0.5, dispersity=0.2, size_coordination=0.03, p_over_kn=1e-3, psi6_local=0.6)
     p = predict_closure(nc=np.linspace(3.6, 5.5, 20), r=0.04, **kw)
     q = predict_closure(nc=4.4, r=np.linspace(0.03, 0.2, 20), **kw)
     assert q.rel_error_G[-1] > 2 * q.rel_error_G[0] and not q.valid[-1]
@@ -150,7 +174,8 @@ def test_error_grows_away_from_the_data():
                                           (dict(sliding_fraction=1.0), "sliding_fraction"),
                                           (dict(rattler_fraction=-0.1), "rattler_fraction"),
                                           (dict(p_over_kn=0.0), "p_over_kn"),
-                                          (dict(size_coordination=np.inf), "size_coordination")])
+                                          (dict(size_coordination=np.inf), "size_coordination"),
+                                          (dict(psi6_local=1.5), "psi6_local")])
 def test_bad_input(kwargs, name):
     args = dict(nc=4.0, r=0.05)
     args.update(kwargs)
@@ -203,16 +228,74 @@ def test_minimise_protocol_is_a_force_balanced_energy_minimum(tmp_path):
     assert x["dispersity"] == pytest.approx(np.sqrt(3) * 0.1 / 0.6, rel=1e-12)   # radii 0.5, 0.7
 
 
-def test_identical_frictional_disks_below_the_corpus_pressure_are_flagged():
-    """The main study's packings (identical disks, mu_prep 0.05, p/kn = 1e-4; measured Z 4.05,
-    r 0.066, phi 0.852, rattlers 5.5 %) are outside the corpus: its frictional identical disks are
-    at p/kn = 1e-2 only. There the closure gave K 15-17 % too stiff against a stated ~11 %, so it
-    must not be valid; the same statistics as a polydisperse packing, or at p/kn = 1e-2, are not
-    flagged for it."""
-    kw = dict(nc=4.047, r=0.066, phi=0.8524, kt_over_kn=1.0, rattler_fraction=0.055,
-              sliding_fraction=0.0)
-    mono = predict_closure(dispersity=0.0, p_over_kn=1e-4, **kw)
-    assert not bool(mono.valid) and int(mono.flags) & 32 and "identical disks" in str(mono.reason)
-    assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-2, **kw).flags) & 32
-    assert not int(predict_closure(dispersity=0.2, size_coordination=0.03, p_over_kn=1e-4, **kw).flags) & 32
-    assert not int(predict_closure(dispersity=0.0, p_over_kn=1e-4, **{**kw, "kt_over_kn": 0.0}).flags) & 32
+def test_main_study_packings_predicted_with_their_protocol_left_out(corpus):
+    """The main study's packings (pack_study at mu_prep = 0.05, p/kn = 1e-4: identical disks, its
+    damping protocol; the same packings as python -m studies.kuhn's seeds 1-3) predicted by the
+    closure fitted without that protocol: valid (flag 32 now only says psi6_local is missing),
+    within 10 % (K) and 20 % (G) at every kt/kn and within the stated error in >= 90 % of the
+    cases. Before the corpus held them and psi6_local, K came out 15-17 % too stiff."""
+    from studies.closure_fit import calibrate, lopo, scale
+    lo = lopo(corpus)
+    q, inside = calibrate(lo)
+    keys = corpus[(corpus.protocol == "pack_study") & (corpus.knob_mu_prep == 0.05)
+                  & (corpus.knob_p_over_kn == 1e-4)].key.unique()
+    assert len(keys) == 3
+    m = lo.key.isin(keys)
+    assert inside[m].all()
+    assert np.abs(lo.err_K[m]).max() < 0.10 and np.abs(lo.err_G[m]).max() < 0.20
+    for mod in ("K", "G"):
+        cover = np.mean(np.abs(lo[f"err_{mod}"][m]) <= q[mod] * scale(lo[m], mod))
+        assert cover >= 0.9, (mod, cover)
+    # the stored closure, measured inputs given: valid on them
+    p = predict_closure(**_args(corpus[corpus.key.isin(keys)]))
+    assert p.valid.all()
+
+
+def test_bond_order_exact_lattices_and_delaunay():
+    """psi_m of the load-bearing contacts (microhom.structural_sums.bond_order), exact cases: a
+    triangular lattice gives psi6 = 1 and psi4 = 0, a square lattice psi6 = 0 and psi4 = 1 (global
+    and local), in any orientation (the global modulus and the local one are rotation invariant);
+    second method: on the triangular lattice the contacts are the Delaunay neighbours, so the
+    contact psi6 equals dem.analysis.measure.hexatic_order's; bad m is refused."""
+    from dem.analysis.measure import hexatic_order
+    from microhom.lattices import square, triangular
+    from microhom.structural_sums import bond_order
+    for angle in (0.0, 0.37):
+        tri, sq = triangular(6, 6, kt=1.0, angle=angle), square(5, 5, kt=1.0, angle=angle)
+        for net, m, want in ((tri, 6, 1.0), (tri, 4, 0.0), (sq, 6, 0.0), (sq, 4, 1.0)):
+            b = bond_order(net, m)
+            assert b.psi == pytest.approx(want, abs=1e-12) and b.psi_local == pytest.approx(want, abs=1e-12)
+            assert b.n_particles == net.n_particles
+        hx = hexatic_order(tri)
+        assert bond_order(tri).psi == pytest.approx(hx.psi6, abs=1e-9)
+    # amorphous: a corpus packing of the committed summary is not needed; random bond angles give
+    # |<psi6>| ~ N^-1/2 and <|psi6_i|> ~ z^-1/2 (the mean modulus of a random walk of z unit steps)
+    rng = np.random.default_rng(0)
+    from microhom.network import ContactNetwork
+    n = 4000
+    pairs = np.stack([np.arange(n), (np.arange(n) + 1) % n], 1)
+    th = rng.uniform(0, 2 * np.pi, n)
+    pos = rng.uniform(0, 100, (n, 2))
+    net = ContactNetwork(positions=pos, radii=np.full(n, 0.5), cell=np.eye(2) * 100, pairs=pairs,
+                         branch=np.stack([np.cos(th), np.sin(th)], 1), kn=np.ones(n), kt=np.ones(n),
+                         sliding=np.zeros(n, bool))
+    b = bond_order(net, 6)
+    assert b.psi < 4 / np.sqrt(n)
+    # two independent unit steps: E|e^{ia} + e^{ib}| / 2 = 2/pi
+    assert b.psi_local == pytest.approx(2 / np.pi, abs=0.02)
+    with pytest.raises(ValueError, match="m must be an integer >= 1"):
+        bond_order(net, 0)
+
+
+def test_pack_study_rows_are_the_main_study_packings():
+    """The corpus's pack_study protocol at mu_prep 0.05, p/kn 1e-4 is the packing protocol
+    studies.cases builds the main study's packings with (same PackingProtocol, field by field)."""
+    from dem.engine.packing import PackingProtocol
+    from studies.cases import DEFAULTS, PROTOCOL
+    from studies.corpus import _row, packing_protocol
+    for seed in (1, 2, 3):
+        row = _row("pack_study", 1000, seed, p_over_kn=1e-4, mu_prep=0.05, dispersity=0.0)
+        main = PackingProtocol(n=DEFAULTS["n"], p_over_kn=DEFAULTS["p_over_kn"], kn=1.0,
+                               kt_over_kn=DEFAULTS["kt_over_kn"], mu=DEFAULTS["mu"], mu_prep=DEFAULTS["mu_prep"],
+                               dispersity=DEFAULTS["dispersity"], seed=seed, **PROTOCOL)
+        assert packing_protocol(row) == main

@@ -241,7 +241,7 @@ def test_closure_flags_overlap_inflated_phi():
     predict_from_network flags the same overlap-inflated phi: now flagged (bit 16), with the
     moduli computed as for phi <= 1 (the mean field scales with phi)."""
     from microhom.closure import predict_closure
-    kw = dict(kt_over_kn=1.0, p_over_kn=1e-3, dispersity=0.2, size_coordination=0.03)
+    kw = dict(kt_over_kn=1.0, p_over_kn=1e-3, dispersity=0.2, size_coordination=0.03, psi6_local=0.6)
     p = predict_closure(nc=4.1, r=0.05, phi=1.008, **kw)
     q = predict_closure(nc=4.1, r=0.05, phi=0.9, **kw)
     assert not bool(p.valid) and int(p.flags) & 16 and "phi above 1" in str(p.reason)

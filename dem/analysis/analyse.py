@@ -234,6 +234,9 @@ class ClosureInputs(Result):
         Size-coordination correlation [-].
     p_over_kn : float or None
         Love-Weber pressure over kn [-]; None when not positive (then not passed to the closure).
+    psi6_local : float or None
+        Mean local bond order ``<|psi6_i|>`` of the load-bearing contacts
+        (:func:`microhom.structural_sums.bond_order`) [-]; None when there are none.
     """
 
     nc: float
@@ -246,6 +249,7 @@ class ClosureInputs(Result):
     rattler_fraction: float
     size_coordination: float
     p_over_kn: float | None = None
+    psi6_local: float | None = None
 
 
 @dataclass(frozen=True)
