@@ -1,6 +1,6 @@
 """What the statistics cannot determine: near twins of the corpus (issue 25, item 3).
 
-    python -m studies.closure_twins [--out DIR] [--radius D]
+    python -m studies.closure_twins [--out DIR] [--radius D] [--quick]
 
 Two packings made by *different* protocols whose closure statistics are nearly equal ("twins")
 must get nearly the same prediction from *any* closure that is a smooth function of those
@@ -21,7 +21,7 @@ Data: the committed corpus summary ``studies/closure_corpus.csv`` (rows of
 :func:`studies.closure_fit.usable`), so the study needs no packing. Pairs of the same protocol
 (other seeds or knobs) give the baseline: the sample-to-sample scatter at N = 1000.
 
-Outputs under ``--out`` (default ``out/closure``): ``twins.csv``/``.md`` (every cross-protocol pair
+Outputs under ``--out`` (default ``out/closure_twins``; ``--quick``: the tables only, no figure): ``twins.csv``/``.md`` (every cross-protocol pair
 within ``--radius`` and each row's nearest twin), ``twins_summary.csv``/``.md`` (by distance bin),
 ``closure_twins.png`` (|log G1/G2| and |log K1/K2| against the feature distance, with the stored
 closure's stated error).
@@ -205,7 +205,8 @@ def plot(pr: pd.DataFrame, radius: float, path: Path):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="out/closure")
+    ap.add_argument("--out", default="out/closure_twins")
+    ap.add_argument("--quick", action="store_true", help="the tables only (no figure)")
     ap.add_argument("--radius", type=float, default=1.0, help="twin radius in standardised feature units (> 0)")
     args = ap.parse_args(argv)
     out = cli_out_dir(args.out, cache=False)
@@ -225,7 +226,8 @@ def main(argv=None):
                 "predicted ratio is removed.")
     write_table(res.by_kt, out, "twins_by_kt", f"Pairs within feature distance {args.radius:g}, per kt/kn")
     write_table(tw[cols], out, "twins", f"Cross-protocol twins (feature distance < {args.radius:g})")
-    plot(res.pairs, args.radius, out / "closure_twins.png")
+    if not args.quick:
+        plot(res.pairs, args.radius, out / "closure_twins.png")
     print(f"written {out}")
     return res
 

@@ -61,3 +61,11 @@ def test_corpus_twins_summary_has_both_kinds():
     assert res.n_twins == int((res.pairs.cross & (res.pairs.d < 1.0)).sum()) > 0
     assert {"cross-protocol", "same protocol"} <= set(res.summary.kind)
     assert np.isfinite(res.bound_G) and res.bound_G == pytest.approx(np.expm1(np.log1p(res.max_ratio_G) / 2))
+
+
+def test_main_quick_writes_the_tables(tmp_path, capsys):
+    from studies import closure_twins
+    res = closure_twins.main(["--quick", "--out", str(tmp_path)])
+    assert (tmp_path / "twins_summary.csv").exists() and (tmp_path / "twins_by_kt.md").exists()
+    assert not (tmp_path / "closure_twins.png").exists()
+    assert "cross-protocol" in capsys.readouterr().out and res.n_twins > 0
