@@ -139,3 +139,16 @@ def test_closure_on_heldout_files_keeps_its_error_statement():
     assert (dem.dispersity > 0.5007).all() and (dem.flags_closure[dem.kt_over_kn > 0] == 1).all()
     fr = dem[dem.kt_over_kn > 0]
     assert (fr.inside_K & fr.inside_G).all()
+
+
+def test_heldout_hierarchy_brackets_the_exact_moduli():
+    """``heldout(..., hierarchy=True)``: the relaxation hierarchy's rigorous interval holds the
+    exact K and G (a second method for the exact values on these files); NaN at kt = 0."""
+    from studies.closure_fit import heldout
+    files = [p for p in JAXMD if p.name.endswith(("Lp-4.0_0.csv", "Lp-1.0_0.csv"))]
+    df = heldout(files, kt_ratios=(0.0, 1.0), hierarchy=True)
+    fr = df[df.kt_over_kn > 0]
+    assert len(fr) == 2 and df[df.kt_over_kn == 0].hier_G.isna().all()
+    for m in ("K", "G"):
+        assert (fr[f"hier_{m}_lower"] <= fr[m] * (1 + 1e-9)).all() and (fr[m] <= fr[f"hier_{m}_upper"] * (1 + 1e-9)).all()
+        assert ((fr[f"hier_{m}_upper"] - fr[f"hier_{m}_lower"]) / fr[m] < 0.02).all()
