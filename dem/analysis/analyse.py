@@ -49,9 +49,10 @@ from ..io.lammps_run import read_run
 from .measure import Coordination, coordination, stress
 from .stiffness import StiffnessResult, stiffness
 
-__all__ = ["load_network", "analyse", "analyse_file", "format_table", "flatten", "FORMATS",
-           "AnalysisResult", "SectionError", "SectionWarnings", "FileInfo", "NetworkSummary",
-           "StressResult", "TheoryResult", "ClosureInputs", "Comparison", "NOT_JAMMED"]
+__all__ = ["load_network", "analyse", "analyse_file", "AnalysisOptions", "OptionError",
+           "format_table", "flatten", "FORMATS", "AnalysisResult", "SectionError",
+           "SectionWarnings", "FileInfo", "NetworkSummary", "StressResult", "TheoryResult",
+           "ClosureInputs", "Comparison", "NOT_JAMMED"]
 
 #: the reason given for every statistic of a network without a contact between non-rattlers
 NOT_JAMMED = ("not jammed: every particle is a rattler (no contact left once particles with fewer "
@@ -761,43 +762,205 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
                           warnings=SectionWarnings(**w), notes=tuple(notes))
 
 
-def analyse_file(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_convention=None,
-                 branch_length="distance", alpha=None, prestress=False, min_contacts=None, frame=-1,
-                 radius=None, exact=True, hierarchy=True, spin_arm=None,
-                 hierarchy_tol=DEFAULT_TOL, rho_neighbours="near") -> AnalysisResult:
-    """:func:`load_network` then :func:`analyse`; the result's ``file`` (:class:`FileInfo`) says
-    what was read and how long it took, its notes start with the assumptions made while reading.
+class OptionError(ValueError):
+    """An :class:`AnalysisOptions` field outside its allowed range: ``name`` (the field),
+    ``allowed`` (the range, as text) and ``value``. The command line names its option instead
+    (``--hierarchy-tol`` for ``hierarchy_tol``)."""
+
+    def __init__(self, name, allowed, value):
+        self.name, self.allowed, self.value = name, allowed, value
+        super().__init__(f"{name} must be {allowed}, got {value!r}")
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _finite_real(v) -> bool:
+    return _real(v) and math.isfinite(v)
+
+
+def _flag(v) -> bool:
+    return isinstance(v, (bool, np.bool_))
+
+
+def _integer(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+#: the check of each option: (allowed range as text, test of a value that is not None); the
+#: fields that may be None say so in their text
+_OPTION_RULES = {
+    "format": ("None or one of " + ", ".join(FORMATS), lambda v: v in FORMATS),
+    "kn": ("finite and > 0", lambda v: _finite_real(v) and v > 0),
+    "kt": ("finite and >= 0", lambda v: _finite_real(v) and v >= 0),
+    "kt_ratio": ("finite and >= 0", lambda v: _finite_real(v) and v >= 0),
+    "kn_convention": ("None, 'standard' or 'oval'", lambda v: v in ("standard", "oval")),
+    "branch_length": ("'distance' or 'radii'", lambda v: v in ("distance", "radii")),
+    "alpha": ("in [0, 2]", lambda v: _real(v) and 0 <= v <= 2),
+    "prestress": ("True or False", _flag),
+    "min_contacts": ("an integer >= 1", lambda v: _integer(v) and v >= 1),
+    "frame": ("an integer (0 the first frame, -1 the last)", _integer),
+    "radius": ("finite and > 0", lambda v: _finite_real(v) and v > 0),
+    "exact": ("True or False", _flag),
+    "hierarchy": ("True or False", _flag),
+    "spin_arm": ("None, 'contact' or 'radius'", lambda v: v in ("contact", "radius")),
+    "hierarchy_tol": ("a relative width in (0, 1)", lambda v: _real(v) and 0 < v < 1),
+    "rho_neighbours": ("'near' or 'contacts'", lambda v: v in ("near", "contacts")),
+}
+#: the options that may be None (meaning: from the file, or the documented default)
+_OPTIONAL = ("format", "kn", "kt", "kt_ratio", "kn_convention", "alpha", "min_contacts", "radius",
+             "spin_arm")
+
+
+@dataclass(frozen=True)
+class AnalysisOptions(Result):
+    """How :func:`analyse_file` reads and analyses a file: frozen, validated when made.
+
+    A value outside its range raises :class:`OptionError` (a ``ValueError``) naming the field and
+    its range; ``python -m dem analyse`` builds one from its options (``--kt-ratio`` is
+    ``kt_ratio``; its ``--frame`` counts from 1, this ``frame`` from 0). Variants:
+    ``options.replace(kn=2.0)``; ``as_dict()`` records them.
+
+    Attributes
+    ----------
+    format : str or None
+        One of ``FORMATS``; None: from the name/extension (a folder: ``"lammps-run"``).
+    kn : float or None
+        Normal contact stiffness [N/m] (force per unit overlap) for files without a contact law,
+        > 0; None: 1 (moduli in units of kn, said in the notes).
+    kt : float or None
+        Tangential stiffness [N/m], >= 0; None: ``kt = kn`` (said in the notes) unless
+        ``kt_ratio`` is given.
+    kt_ratio : float or None
+        ``kt = kt_ratio * kn``, >= 0 (LAMMPS ``gran/hooke/history``'s default is 2/7); not with
+        ``kt``.
+    kn_convention : str or None
+        ``"oval"``: ``kn`` is OVAL's, which multiplies half the overlap (the network gets kn/2);
+        None or ``"standard"``: force per unit overlap (:meth:`dem.io.Configuration.network`).
+    branch_length : str
+        ``"distance"`` (centre distance, default) or ``"radii"`` (direction kept, length
+        ``r_i + r_j``: the paper's ``|c| = D``).
+    alpha : float or None
+        Alignment width of the model-rho prediction (eq. 54), in [0, 2]; None: ``2 (1 - 1/Nbar)``.
+    prestress : bool
+        Exact stiffness and hierarchy with the pre-stress terms (the file's normal forces, else
+        ``kn * overlap``).
+    min_contacts : int or None
+        Rattler threshold, >= 1; None: 2 with friction, 3 without.
+    frame : int
+        Frame of a LAMMPS dump, 0-based, negative from the end (default -1, the last).
+    radius : float or None
+        Constant radius [m] for LAMMPS dumps without a radius or diameter column, > 0.
+    exact : bool
+        Compute the exact stiffness (one sparse factorisation).
+    hierarchy : bool
+        Compute the relaxation hierarchy (:mod:`microhom.hierarchy`).
+    spin_arm : str or None
+        Spin kinematics of the exact stiffness, ``"contact"`` or ``"radius"``; None: matched to
+        the file's code (:func:`analyse_file`).
+    hierarchy_tol : float
+        Target relative width of the hierarchy's interval, in (0, 1); default
+        :data:`microhom.hierarchy.DEFAULT_TOL`.
+    rho_neighbours : str
+        Neighbourhood of the measured rho, ``"near"`` (the paper's Nbar near neighbours, eq. 39)
+        or ``"contacts"``.
+    """
+
+    format: str | None = None
+    kn: float | None = None
+    kt: float | None = None
+    kt_ratio: float | None = None
+    kn_convention: str | None = None
+    branch_length: str = "distance"
+    alpha: float | None = None
+    prestress: bool = False
+    min_contacts: int | None = None
+    frame: int = -1
+    radius: float | None = None
+    exact: bool = True
+    hierarchy: bool = True
+    spin_arm: str | None = None
+    hierarchy_tol: float = DEFAULT_TOL
+    rho_neighbours: str = "near"
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None and f.name in _OPTIONAL:
+                continue
+            allowed, ok = _OPTION_RULES[f.name]
+            if v is None or not ok(v):
+                raise OptionError(f.name, allowed, v)
+        if self.kt is not None and self.kt_ratio is not None:
+            raise OptionError("kt_ratio", "None when kt is given (kt or kt_ratio, not both)",
+                              self.kt_ratio)
+
+    @classmethod
+    def names(cls) -> tuple:
+        """The option names, in order."""
+        return tuple(f.name for f in fields(cls))
+
+    def replace(self, **changes) -> "AnalysisOptions":
+        """A copy with ``changes`` (validated again); a TypeError names an unknown option."""
+        unknown = sorted(set(changes) - set(self.names()))
+        if unknown:
+            raise TypeError(f"unknown analysis option {unknown[0]!r}; the options are "
+                            f"{', '.join(self.names())}")
+        return replace(self, **changes)
+
+
+def analyse_file(path, options=None, **overrides) -> AnalysisResult:
+    """:func:`load_network` then :func:`analyse` of the file (or LAMMPS run folder) ``path``, with
+    the :class:`AnalysisOptions` ``options`` (None: the defaults) and any of its fields given as
+    keywords (``analyse_file(path, kn=2.0, format="oval")``, or ``analyse_file(path, opts,
+    hierarchy=False)``: the keywords replace the options' values). The result's ``file``
+    (:class:`FileInfo`) says what was read and how long it took, its notes start with the
+    assumptions made while reading.
 
     ``spin_arm=None`` (default) matches the exact stiffness's spin kinematics to the file's code:
     ``"radius"`` for LAMMPS files and run folders (``gran/*`` turns spins about the radius),
     ``"contact"`` otherwise (the kinematics of the theory and of the hierarchy, whose bounds hold
     for it; ``dem.engine.packing`` files too, although the engine's default law turns spins about the
     radius); the notes say which was used. Give ``"contact"`` or ``"radius"`` to choose."""
+    o = _analysis_options(options, overrides)
     t0 = time.perf_counter()
-    net, info = load_network(path, format, kn=kn, kt=kt, kt_ratio=kt_ratio,
-                             kn_convention=kn_convention, branch_length=branch_length,
-                             frame=frame, radius=radius)
+    net, info = load_network(path, o.format, kn=o.kn, kt=o.kt, kt_ratio=o.kt_ratio,
+                             kn_convention=o.kn_convention, branch_length=o.branch_length,
+                             frame=o.frame, radius=o.radius)
     t1 = time.perf_counter()
     file_arm = info["spin_arm"]
+    spin_arm = o.spin_arm
     if spin_arm is None:
         spin_arm = file_arm
         why = "matched to the file's code" if file_arm == "radius" else "the exact solver's default"
     else:
         why = "as asked" + ("" if spin_arm == file_arm else f"; the file's code uses {file_arm!r}")
     notes = list(info["notes"])
-    if exact:
+    if o.exact:
         notes.append(
             f"spin arms of the exact stiffness: {spin_arm!r} ({why}; "
             + ("the radius r_i, as LAMMPS gran/*" if spin_arm == "radius" else
                "the distance to the contact point |c| r_i/(r_i + r_j)")
             + "; --spin-arm contact|radius chooses; the theory and the hierarchy use contact arms)")
-    res = analyse(net, alpha=alpha, prestress=prestress, min_contacts=min_contacts, exact=exact,
-                  hierarchy=hierarchy, spin_arm=spin_arm, hierarchy_tol=hierarchy_tol,
-                  rho_neighbours=rho_neighbours)
+    res = analyse(net, alpha=o.alpha, prestress=o.prestress, min_contacts=o.min_contacts,
+                  exact=o.exact, hierarchy=o.hierarchy, spin_arm=spin_arm,
+                  hierarchy_tol=o.hierarchy_tol, rho_neighbours=o.rho_neighbours)
     file = FileInfo(source=info["source"], format=info["format"], forces=info["forces"],
                     kn=info["kn"], kt=info["kt"], branch_length=info["branch_length"],
                     spin_arm=spin_arm, read_s=t1 - t0, analyse_s=time.perf_counter() - t1)
     return replace(res, file=file, notes=tuple(notes) + res.notes)
+
+
+def _analysis_options(options, overrides) -> AnalysisOptions:
+    """The options of :func:`analyse_file`: ``options`` (None: the defaults) with ``overrides``."""
+    if options is None:
+        options = AnalysisOptions()
+    elif not isinstance(options, AnalysisOptions):
+        hint = (f"; give the format as format={options!r}" if isinstance(options, str) else "")
+        raise TypeError(f"analyse_file's second argument is an AnalysisOptions or None, got "
+                        f"{type(options).__name__}{hint}")
+    return options.replace(**overrides) if overrides else options
 
 
 def flatten(res) -> dict:

@@ -96,41 +96,32 @@ def add_parser(sub):
     return a
 
 
-def _check(args):
-    for name in ("kn", "kt", "kt_ratio", "alpha", "radius"):
-        v = getattr(args, name)
-        opt = "--" + name.replace("_", "-")
-        if v is None:
-            continue
-        if name == "alpha":
-            if not 0 <= v <= 2:
-                raise ValueError(f"{opt} must be in [0, 2], got {v!r}")
-        elif not (v == v and abs(v) != float("inf")) or v < 0 or (v == 0 and name in ("kn", "radius")):
-            rng = "> 0" if name in ("kn", "radius") else ">= 0"
-            raise ValueError(f"{opt} must be finite and {rng}, got {v!r}")
-    if args.min_contacts is not None and args.min_contacts < 1:
-        raise ValueError(f"--min-contacts must be an integer >= 1, got {args.min_contacts}")
-    tol = args.hierarchy_tol
-    if not (tol == tol and 0 < tol < 1):
-        raise ValueError(f"--hierarchy-tol must be a relative width in (0, 1), got {tol!r}")
+def _options(args) -> "dan.AnalysisOptions":
+    """The :class:`dem.analysis.analyse.AnalysisOptions` of parsed ``args`` (checked there: a bad
+    value raises a ValueError naming the command-line option and its range)."""
+    frame = args.frame - 1 if args.frame > 0 else args.frame
+    try:
+        options = dan.AnalysisOptions(
+            format=args.format, kn=args.kn, kt=args.kt, kt_ratio=args.kt_ratio,
+            kn_convention=args.kn_convention, branch_length=args.branch_length, alpha=args.alpha,
+            prestress=args.prestress, min_contacts=args.min_contacts, frame=frame,
+            radius=args.radius, exact=not args.no_exact, hierarchy=not args.no_hierarchy,
+            spin_arm=args.spin_arm, hierarchy_tol=args.hierarchy_tol,
+            rho_neighbours=args.rho_neighbours)
+    except dan.OptionError as exc:
+        opt = "--" + exc.name.replace("_", "-")
+        raise ValueError(f"{opt} must be {exc.allowed}, got {exc.value!r}") from None
     if args.frame == 0:
         raise ValueError("--frame counts from 1 (first) or from -1 (last); 0 is not a frame")
+    return options
 
 
 def run(args, stdout) -> int:
     """Run ``analyse`` for parsed ``args``, printing to ``stdout``; errors propagate (the caller
     turns them into one line and an exit code)."""
-    _check(args)
-    frame = args.frame - 1 if args.frame > 0 else args.frame
+    options = _options(args)
     try:
-        res = dan.analyse_file(args.file, args.format, kn=args.kn, kt=args.kt,
-                               kt_ratio=args.kt_ratio, kn_convention=args.kn_convention,
-                               branch_length=args.branch_length, alpha=args.alpha,
-                               prestress=args.prestress, min_contacts=args.min_contacts,
-                               frame=frame, radius=args.radius, exact=not args.no_exact,
-                               hierarchy=not args.no_hierarchy, spin_arm=args.spin_arm,
-                               hierarchy_tol=args.hierarchy_tol,
-                               rho_neighbours=args.rho_neighbours)
+        res = dan.analyse_file(args.file, options)
     except IndexError as exc:
         n = getattr(exc, "n_frames", None)
         if n is None:

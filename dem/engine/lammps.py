@@ -50,6 +50,7 @@ import subprocess
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -158,6 +159,23 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     Returns the dict of the values written (``kn``, ``kt``, ``mu``, ``p_target``, ``dt``, ...,
     and ``protocol``, its ``as_dict()``).
     """
+    _check_knobs(protocol, dimension, max_steps=max_steps, drag=drag,
+                 drag_compaction=drag_compaction, jam_z=jam_z, skin=skin, dt=dt)
+    p = protocol
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    law = LinearFriction(kn=p.kn, kt=p.kt, mu=p.mu_prep)
+    gas = _start_2d(p, law, dt) if dimension == 2 else _start_3d(p, law, dt)
+    _write_gas(folder / "gas.data", p, gas, dimension)
+    prm = _parameters(p, gas, dimension, max_steps=max_steps, drag=drag,
+                      drag_compaction=drag_compaction, jam_z=jam_z, skin=skin)
+    (folder / INPUT_NAME).write_text(_input_text(prm))
+    return prm
+
+
+def _check_knobs(protocol, dimension, **knobs):
+    """The checks of :func:`write_inputs`' arguments: a protocol LAMMPS can run, the dimension, and
+    each knob in its range (a ValueError naming it and the range)."""
     if not isinstance(protocol, PackingProtocol):
         raise TypeError(f"write_inputs takes a dem.engine.packing.PackingProtocol, got "
                         f"{type(protocol).__name__}")
@@ -167,6 +185,8 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     if protocol.growth_dispersity > 0:
         raise ValueError(f"growth_dispersity must be 0 for the LAMMPS writer (no LAMMPS "
                          f"counterpart of the grow/restore phases), got {protocol.growth_dispersity}")
+    max_steps, drag, drag_compaction = knobs["max_steps"], knobs["drag"], knobs["drag_compaction"]
+    jam_z, skin, dt = knobs["jam_z"], knobs["skin"], knobs["dt"]
     for name, val, allowed, ok in (
             ("max_steps", max_steps, "an integer >= 1", int(max_steps) == max_steps >= 1),
             ("drag", drag, ">= 0", drag >= 0), ("drag_compaction", drag_compaction, ">= 0",
@@ -176,29 +196,63 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
             ("dt", dt, "None or > 0 [s]", dt is None or dt > 0)):
         if not ok or (val is not None and not math.isfinite(val)):
             raise ValueError(f"{name} must be {allowed}, got {val!r}")
-    p = protocol
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    law = LinearFriction(kn=p.kn, kt=p.kt, mu=p.mu_prep)
-    if dimension == 2:
-        st = random_gas(p, spins=True)
-        x, r, h, rho = st.x, st.radius, st.h, float(st.rho)
-        if dt is None:
-            dt = p.dt_over_dtcrit * critical_dt(st, law)
-        m1 = float(rho * math.pi * p.radius ** 2)
-        solid = float(np.pi * np.sum(r ** 2))
-        p_target = p.p_target
-    else:
-        x, r, L = _gas_3d(p)
-        h = np.diag([L, L, L])
-        rho = 1.0 / (4.0 / 3.0 * np.pi * p.radius ** 3) if p.rho is None else float(p.rho)
-        mass = rho * 4.0 / 3.0 * np.pi * r ** 3
-        if dt is None:
-            dt = p.dt_over_dtcrit * float(np.min(np.sqrt(
-                mass / (_possible_contacts_3d(r) * law.dt_stiffness()))))
-        m1 = float(rho * 4.0 / 3.0 * math.pi * p.radius ** 3)
-        solid = float(4.0 / 3.0 * np.pi * np.sum(r ** 3))
-        p_target = p.p_over_kn * p.kn / (2.0 * p.radius)
+
+
+class _Gas(NamedTuple):
+    """The starting gas of a deck and the numbers derived from it (SI, or the caller's units)."""
+    x: np.ndarray          #: (N, d) positions [m]
+    r: np.ndarray          #: (N,) radii [m]
+    h: np.ndarray          #: (d, d) periodic cell, columns = cell vectors [m]
+    rho: float             #: density [kg/m^2] (2D) or [kg/m^3] (3D)
+    dt: float              #: time step [s]
+    m1: float              #: mass of a particle of the mean radius [kg]
+    solid: float           #: area (2D) or volume (3D) of the particles [m^2] or [m^3]
+    p_target: float        #: target pressure [N/m] (2D) or [Pa] (3D)
+
+
+def _start_2d(p, law, dt) -> _Gas:
+    """The disks' gas: :func:`dem.engine.packing.random_gas` of ``p``; the time step
+    ``dt_over_dtcrit`` times :func:`dem.engine.integrate.critical_dt` unless ``dt`` is given."""
+    st = random_gas(p, spins=True)
+    x, r, h, rho = st.x, st.radius, st.h, float(st.rho)
+    if dt is None:
+        dt = p.dt_over_dtcrit * critical_dt(st, law)
+    m1 = float(rho * math.pi * p.radius ** 2)
+    solid = float(np.pi * np.sum(r ** 2))
+    return _Gas(x, r, h, rho, dt, m1, solid, p.p_target)
+
+
+def _start_3d(p, law, dt) -> _Gas:
+    """The spheres' gas: :func:`_gas_3d`; the time step ``dt_over_dtcrit`` times
+    ``min_i sqrt(m_i / K_i)`` (``K_i``: :func:`_possible_contacts_3d` times
+    ``law.dt_stiffness()``) unless ``dt`` is given; the target pressure ``p_over_kn kn / D``."""
+    x, r, L = _gas_3d(p)
+    h = np.diag([L, L, L])
+    rho = 1.0 / (4.0 / 3.0 * np.pi * p.radius ** 3) if p.rho is None else float(p.rho)
+    mass = rho * 4.0 / 3.0 * np.pi * r ** 3
+    if dt is None:
+        dt = p.dt_over_dtcrit * float(np.min(np.sqrt(
+            mass / (_possible_contacts_3d(r) * law.dt_stiffness()))))
+    m1 = float(rho * 4.0 / 3.0 * math.pi * p.radius ** 3)
+    solid = float(4.0 / 3.0 * np.pi * np.sum(r ** 3))
+    p_target = p.p_over_kn * p.kn / (2.0 * p.radius)
+    return _Gas(x, r, h, rho, dt, m1, solid, p_target)
+
+
+def _write_gas(path, p, gas, dimension):
+    """The gas as the LAMMPS data file ``path`` (``atom_style sphere``, ids 1..N, no velocities)."""
+    n = len(gas.r)
+    cfg = io.Configuration(positions=gas.x, radii=gas.r, cell=gas.h, ids=np.arange(1, n + 1),
+                           fields={"density": np.full(n, gas.rho)})
+    maker = ("dem.engine.packing.random_gas" if dimension == 2 else "dem.engine.lammps._gas_3d")
+    io.write_lammps_data(path, cfg, velocities=False,
+                         title=f"random gas: {maker}(n={p.n}, seed={p.seed}, phi0={p.phi0})")
+
+
+def _parameters(p, gas, dimension, *, max_steps, drag, drag_compaction, jam_z, skin) -> dict:
+    """The values the deck is written from (:func:`write_inputs`' return value): the protocol's,
+    the gas's, and the derived contact dashpot ``gamma_n``, drags, servo rate cap and ``<l^2>``."""
+    dt, m1, r = gas.dt, gas.m1, gas.r
     gn = 0.0
     if p.restitution is not None:
         gn = 2.0 * damping_ratio(p.restitution) * math.sqrt(p.kn / (0.5 * m1))
@@ -207,25 +261,17 @@ def write_inputs(folder, protocol, *, max_steps=2_000_000, drag=0.1, drag_compac
     # isotropic stiffness K = sum_c kn |l_c|^2 / (d V) of dem.engine.cell.PressureServo is then
     # kn Nc <l^2> / (d V) (overlaps neglected: a relative error ~ p/kn)
     l2 = float(2.0 * np.mean(r ** 2) + 2.0 * np.mean(r) ** 2)
-
-    n = len(r)
-    cfg = io.Configuration(positions=x, radii=r, cell=h, ids=np.arange(1, n + 1),
-                           fields={"density": np.full(n, rho)})
-    gas = ("dem.engine.packing.random_gas" if dimension == 2 else "dem.engine.lammps._gas_3d")
-    io.write_lammps_data(folder / "gas.data", cfg, velocities=False,
-                         title=f"random gas: {gas}(n={p.n}, seed={p.seed}, phi0={p.phi0})")
-    prm = dict(n=p.n, dimension=int(dimension), p_target=p_target, kn=p.kn, kt=p.kt, mu=p.mu,
-               mu_prep=p.mu_prep, radius=p.radius, dispersity=p.dispersity, rho=rho, seed=p.seed,
-               phi0=p.phi0, dt=float(dt), drag=float(drag), drag_compaction=float(drag_compaction),
-               gamma_drag=drag * math.sqrt(p.kn * m1),
-               gamma_compaction=drag_compaction * math.sqrt(p.kn * m1),
-               gamma_n=gn, skin=skin, rate=p.max_strain_per_step / dt, alpha=p.alpha, l2=l2,
-               jam_unbalanced=p.jam_unbalanced, jam_p=p.jam_p, jam_z=float(jam_z),
-               tol_p=p.tol_p, tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke,
-               max_steps=int(max_steps), check_every=p.check_every,
-               disk_area=solid, m1=m1, protocol=p.as_dict())
-    (folder / INPUT_NAME).write_text(_input_text(prm))
-    return prm
+    return dict(n=p.n, dimension=int(dimension), p_target=gas.p_target, kn=p.kn, kt=p.kt,
+                mu=p.mu, mu_prep=p.mu_prep, radius=p.radius, dispersity=p.dispersity,
+                rho=gas.rho, seed=p.seed, phi0=p.phi0, dt=float(dt), drag=float(drag),
+                drag_compaction=float(drag_compaction),
+                gamma_drag=drag * math.sqrt(p.kn * m1),
+                gamma_compaction=drag_compaction * math.sqrt(p.kn * m1),
+                gamma_n=gn, skin=skin, rate=p.max_strain_per_step / dt, alpha=p.alpha, l2=l2,
+                jam_unbalanced=p.jam_unbalanced, jam_p=p.jam_p, jam_z=float(jam_z),
+                tol_p=p.tol_p, tol_unbalanced=p.tol_unbalanced, tol_ke=p.tol_ke,
+                max_steps=int(max_steps), check_every=p.check_every,
+                disk_area=gas.solid, m1=m1, protocol=p.as_dict())
 
 
 def _drag_fix(drag, p) -> str:
@@ -261,25 +307,41 @@ def _dim_lines(d, p) -> dict:
             "yz=$(yz:%.17g)")
 
 
+_REPORT = ("steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) Zc=$(v_Zc:%.5f) "
+           "pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) "
+           "ke_rel=$(v_kerel:%.3e)")
+
+
 def _input_text(p) -> str:
-    N = _num
+    """The input script of the parameters ``p`` (:func:`_parameters`): its blocks in the order
+    LAMMPS reads them, separated by a blank line."""
     d = int(p.get("dimension", 2))
     D = _dim_lines(d, p)
-    fric_switch = p["mu"] != p["mu_prep"]
-    report = ("steps=$(step) converged=$(v_conv) phi=$(v_phi:%.6f) Z=$(v_Z:%.5f) Zc=$(v_Zc:%.5f) "
-              "pressure=$(c_pv:%.10g) rel_p_err=$(v_perr:%.3e) unbalanced=$(v_unb:%.3e) ke_rel=$(v_kerel:%.3e)")
     relen = "\n".join(f"variable        l{a}0 equal $(l{a})" for a in D["axes"])
-    dl = "\n".join(f"variable        dl{a} equal l{a}*exp(v_edot*{N(p['dt'])})-v_l{a}0"
-                   for a in D["axes"])
-    vl = "\n".join(f"variable        vl{a} equal v_edot*l{a}" for a in D["axes"])
-    deform = " ".join(f"{a} variable v_dl{a} v_vl{a}" for a in D["axes"])
-    lines = f"""\
+    blocks = [_header_text(p, d, D), _setup_text(p, d, D), _contact_law_text(p, D),
+              _measurements_text(p, D), _servo_text(p, d, D, relen),
+              _compaction_text(p), _equilibrium_text(p, relen)]
+    if p["mu"] != p["mu_prep"]:
+        blocks.append(_friction_switch_text(p, relen))
+    blocks.append(_final_text(p, D))
+    return "\n".join(blocks)
+
+
+def _header_text(p, d, D) -> str:
+    """Comment lines: how to run the deck, the units, the main parameters, the protocol."""
+    return f"""\
 # LAMMPS input written by dem.engine.lammps.write_inputs: the dem.engine.packing protocol (docs/scale_out.md).
 #   lmp -in {INPUT_NAME}            or   mpirun -np K lmp -in {INPUT_NAME}
 # Units: the caller's consistent set ('units lj' does no conversion); {D['units']}.
 # N={p['n']} p_target={p['p_target']!r} kn={p['kn']!r} kt={p['kt']!r} mu_prep={p['mu_prep']!r} mu={p['mu']!r} seed={p['seed']}{'' if d == 2 else ' dimension=3'}
 # protocol {json.dumps(p['protocol'])}
+"""
 
+
+def _setup_text(p, d, D) -> str:
+    """Initialization (units, dimension, atom style, periodic boundaries) and the atoms (the gas
+    file, their density)."""
+    return f"""\
 units           lj
 dimension       {d}
 atom_style      sphere
@@ -288,7 +350,14 @@ comm_modify     vel yes
 newton          on
 read_data       gas.data
 set             group all {D['density']}
+"""
 
+
+def _contact_law_text(p, D) -> str:
+    """The pair style (contact law at ``mu_prep``), the neighbour list, the integrator and the
+    time step."""
+    N = _num
+    return f"""\
 # ---- contact law: linear kn (force per overlap, = dem's kn), tangential spring kt with history,
 #      Coulomb mu (mu_prep first); contact dashpot gamma_n (0 unless restitution was given) ----
 pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {N(p['gamma_n'])} {N(p['mu_prep'])} 1
@@ -297,7 +366,14 @@ neighbor        {N(p['skin'])} bin
 neigh_modify    delay 0 every 1 check yes
 {D['nve']}
 timestep        {N(p['dt'])}
+"""
 
+
+def _measurements_text(p, D) -> str:
+    """The computes and variables of the stop criteria (pressure, contacts, unbalanced force,
+    kinetic energy) and the thermo output."""
+    N = _num
+    return f"""\
 # ---- measurements: pressure without kinetic term (virial only: contact forces), contacts,
 #      unbalanced force, kinetic energy of the disks in contact ----
 compute         pv all pressure NULL virial
@@ -326,7 +402,17 @@ variable        jammed equal (v_perr<{N(p['jam_p'])})*(v_unb<{N(p['jam_unbalance
 thermo_style    custom step atoms v_phi v_Z v_Zc c_pv v_perr v_unb v_kerel cpu
 thermo_modify   norm no flush yes
 thermo          {max(10000, 10 * p['check_every'])}
+"""
 
+
+def _servo_text(p, d, D, relen) -> str:
+    """The pressure servo: the strain rate variables and ``fix deform`` on every axis."""
+    N = _num
+    dl = "\n".join(f"variable        dl{a} equal l{a}*exp(v_edot*{N(p['dt'])})-v_l{a}0"
+                   for a in D["axes"])
+    vl = "\n".join(f"variable        vl{a} equal v_edot*l{a}" for a in D["axes"])
+    deform = " ".join(f"{a} variable v_dl{a} v_vl{a}" for a in D["axes"])
+    return f"""\
 # ---- pressure servo (dem.engine.cell.PressureServo): isotropic true strain rate
 #      edot = -alpha (p_t - p) / (K dt), K = kn Nc <l^2> / ({D['KV']}) the affine stiffness, capped at
 #      +-max_strain_per_step/dt (the cap is the rate while there are no contacts). fix deform
@@ -341,41 +427,58 @@ variable        edot equal (v_eraw<{N(-p['rate'])})*{N(-p['rate'])}+(v_eraw>{N(p
 {relen}
 fix             ptally all ave/time 1 1 1 c_pv
 fix             servo all deform 1 {deform} remap x
+"""
 
+
+def _halted_run(p, k, condition, phase) -> str:
+    """A run of at most ``max_steps`` ended by ``fix halt`` on ``condition`` (checked every
+    ``check_every`` steps), then a report line ``PACK_PHASE name=<phase> ...``."""
+    return f"""\
+fix             h{k} all halt {p['check_every']} {condition} > 0.5 error continue
+run             {p['max_steps']}
+unfix           h{k}
+run             0 post no
+print           "PACK_PHASE name={phase} {_REPORT}"
+"""
+
+
+def _compaction_text(p) -> str:
+    """Phase 1: the servo from the gas at the light drag until the packing has jammed."""
+    return f"""\
 # ---- 1. compaction (dem: phase 'compact'): servo from the gas (overlaps pushed apart, the cell
 #      may grow first) with a light drag, until the packing has jammed ----
 {_drag_fix(p['drag_compaction'], p)}
-fix             h1 all halt {p['check_every']} v_jammed > 0.5 error continue
-run             {p['max_steps']}
-unfix           h1
-run             0 post no
-print           "PACK_PHASE name=compact {report}"
+""" + _halted_run(p, 1, "v_jammed", "compact")
 
+
+def _equilibrium_text(p, relen) -> str:
+    """Phase 2: equilibrium at ``mu_prep`` with the equilibrium drag, spins zeroed."""
+    return f"""\
 # ---- 2. equilibrium at mu_prep with the equilibrium drag; stop criteria (dem: phase 'prep') ----
 unfix           drag
 {_drag_fix(p['drag'], p)}
 set             group all omega 0.0 0.0 0.0
 {relen}
-fix             h2 all halt {p['check_every']} v_conv > 0.5 error continue
-run             {p['max_steps']}
-unfix           h2
-run             0 post no
-print           "PACK_PHASE name=prep {report}"
-"""
-    if fric_switch:
-        lines += f"""
+""" + _halted_run(p, 2, "v_conv", "prep")
+
+
+def _friction_switch_text(p, relen) -> str:
+    """Phase 3 (when ``mu != mu_prep``): the pair style at the test friction ``mu`` (the contacts'
+    shear history kept), equilibrium again."""
+    N = _num
+    return f"""\
 # ---- 3. switch to the test friction mu and equilibrate again (pair history is kept) ----
 pair_style      gran/hooke/history {N(p['kn'])} {N(p['kt'])} {N(p['gamma_n'])} {N(p['gamma_n'])} {N(p['mu'])} 1
 pair_coeff      * *
 set             group all omega 0.0 0.0 0.0
 {relen}
-fix             h3 all halt {p['check_every']} v_conv > 0.5 error continue
-run             {p['max_steps']}
-unfix           h3
-run             0 post no
-print           "PACK_PHASE name=test {report}"
-"""
-    lines += f"""
+""" + _halted_run(p, 3, "v_conv", "test")
+
+
+def _final_text(p, D) -> str:
+    """The final state: servo and drag off, velocities zeroed, the per-atom and per-contact dumps,
+    the result line ``PACK_RESULT ...`` and the data file."""
+    return f"""\
 variable        convf equal $(v_conv)
 unfix           servo
 unfix           ptally
@@ -399,7 +502,6 @@ undump          d2
 print           "PACK_RESULT N=$(atoms) steps=$(step) converged=${{convf}} phi=$(v_phi:%.17g) Z=$(v_Z:%.17g) pressure=$(c_pv:%.17g) {D['pres']} unbalanced=$(v_unb:%.6e) {D['box']}"
 write_data      final.data nocoeff
 """
-    return lines
 
 
 def run_lammps(folder, *, np=1, lmp="lmp", mpirun="mpirun", input_name=INPUT_NAME, timeout=None,

@@ -149,12 +149,59 @@ def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Co
     data = open_bytes(path)
     lines = data.split(b"\n")
     meta = {"title": lines[0].decode("utf-8", "replace").strip()} if lines else {}
+    k, natoms, lo_hi, tilt, gen = _data_header(lines, path, meta)
+    if natoms is None:
+        raise FormatError(path, None, "atoms", "header has no 'N atoms' line (not a LAMMPS data "
+                          "file?)")
+    if natoms < 0:
+        raise FormatError(path, None, "atoms", f"negative atom count {natoms}")
+    require_particles(natoms, path)
+    cell, origin = _data_box(lo_hi, tilt, gen, path, meta)
+    sections = _data_sections(lines, k)
+    arr, block, first, ncol = _data_atoms(lines, sections, natoms, path)
+
+    def line_of_row(r):
+        return row_line(block, first, r, comment="#")
+
+    ids = arr[:, 0].astype(np.int64)
+    _check_unique(ids, path, line_of_row)
+    dim = _dimension(dimension, arr[:, 6], periodic, path)
+    meta["dimension"] = dim
+    if dim == 2:
+        cell, origin = cell[:2, :2].copy(), origin[:2].copy()
+    pos = arr[:, 4:4 + dim].copy()
+    fields = {"density": arr[:, 3].copy()}
+    if ncol == 10:
+        for m, c in enumerate(_IMAGE_COLS[:dim]):
+            fields[c] = arr[:, 7 + m].astype(np.int64)
+            if unwrap:
+                pos += fields[c][:, None] * cell[:, m]
+    velocities = None
+    if "Velocities" in sections:
+        velocities = _data_velocities(lines, sections["Velocities"], ids, dim, fields, path)
+    if not periodic:
+        _check_inside(pos, cell, origin, tuple(range(dim)), path, line_of_row)
+        meta["box"] = cell.tolist()
+    meta["sections"] = sorted(sections)
+    return build(path, positions=pos, radii=0.5 * arr[:, 2], cell=cell if periodic else None,
+                         origin=origin, ids=ids, types=arr[:, 1].astype(np.int64),
+                         velocities=velocities, fields=fields, meta=meta, source=path,
+                         source_format="lammps-data")
+
+
+def _data_header(lines, path, meta):
+    """Parse the header of a data file (the lines before the first section keyword).
+
+    Returns ``(k, natoms, lo_hi, tilt, gen)``: the index of the first section line, the ``N atoms``
+    count (None if absent), ``{"x": (lo, hi), ...}`` from the ``xlo xhi`` / ``ylo yhi`` /
+    ``zlo zhi`` lines, the ``xy xz yz`` tilts, and the general triclinic ``avec bvec cvec`` /
+    ``abc origin`` vectors by name. Other count lines (``N atom types``, ...) go to
+    ``meta['header']``; a line that is neither raises :class:`~dem.io.FormatError`."""
     natoms = None
     lo_hi = {}
     tilt = (0.0, 0.0, 0.0)
     gen = {}
     k = 1
-    # header
     while k < len(lines):
         text = lines[k].decode("utf-8", "replace").split("#", 1)[0].strip()
         if not text:
@@ -183,12 +230,13 @@ def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Co
                 raise FormatError(path, lineno, None,
                                   f"unknown header line or section {show(text, 60)}") from None
         k += 1
-    if natoms is None:
-        raise FormatError(path, None, "atoms", "header has no 'N atoms' line (not a LAMMPS data "
-                          "file?)")
-    if natoms < 0:
-        raise FormatError(path, None, "atoms", f"negative atom count {natoms}")
-    require_particles(natoms, path)
+    return k, natoms, lo_hi, tilt, gen
+
+
+def _data_box(lo_hi, tilt, gen, path, meta):
+    """(3, 3) cell (columns = cell vectors) and (3,) origin of a data file's header: the general
+    triclinic vectors when given, else the restricted box ``[[lx, xy, xz], [0, ly, yz],
+    [0, 0, lz]]`` (a 2D file without ``zlo zhi`` gets z in [-0.5, 0.5])."""
     if gen:
         missing = {"avec", "bvec", "origin"} - set(gen)
         if missing:
@@ -212,8 +260,12 @@ def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Co
         origin = np.array([xlo, ylo, zlo])
         meta["tilt"] = list(tilt)
     meta["zlo_zhi"] = list(lo_hi.get("z", (-0.5, 0.5)))
+    return cell, origin
 
-    # sections
+
+def _data_sections(lines, k):
+    """The sections from line index ``k`` on: {name: (first line index, end index, style)},
+    ``style`` the comment after the keyword (``Atoms # sphere``) or None."""
     sections = {}
     current, start, style = None, None, None
     for j in range(k, len(lines) + 1):
@@ -224,6 +276,14 @@ def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Co
                 sections[current] = (start, j, style)
             current, start = name, j + 1
             style = text.split("#", 1)[1].strip() if "#" in text else None
+    return sections
+
+
+def _data_atoms(lines, sections, natoms, path):
+    """The ``Atoms`` section (``atom_style sphere``: ``id type diameter density x y z [ix iy iz]``).
+
+    Returns ``(arr, block, first, ncol)``: the (natoms, ncol) table, the section's bytes, the
+    1-based line number of its first line and the column count (7, or 10 with image flags)."""
     if "Atoms" not in sections:
         raise FormatError(path, None, "Atoms", "no Atoms section")
     a0, a1, style = sections["Atoms"]
@@ -246,52 +306,34 @@ def read_lammps_data(path, *, periodic=True, unwrap=False, dimension=None) -> Co
     cols = _SPHERE_COLS + (_IMAGE_COLS if ncol == 10 else ())
     arr = parse_table(block, cols, path, first, nrows=natoms, comment="#")
     check_positive(arr[:, 2], "diameter", path, block, first, comment="#")
+    return arr, block, first, ncol
 
-    def line_of_row(r):
-        return row_line(block, first, r, comment="#")
 
-    ids = arr[:, 0].astype(np.int64)
-    _check_unique(ids, path, line_of_row)
-    dim = _dimension(dimension, arr[:, 6], periodic, path)
-    meta["dimension"] = dim
-    if dim == 2:
-        cell, origin = cell[:2, :2].copy(), origin[:2].copy()
-    pos = arr[:, 4:4 + dim].copy()
-    fields = {"density": arr[:, 3].copy()}
-    if ncol == 10:
-        for m, c in enumerate(_IMAGE_COLS[:dim]):
-            fields[c] = arr[:, 7 + m].astype(np.int64)
-            if unwrap:
-                pos += fields[c][:, None] * cell[:, m]
-    velocities = None
-    if "Velocities" in sections:
-        v0, v1, _ = sections["Velocities"]
-        vblock = b"\n".join(lines[v0:v1])
-        vcols = ("id", "vx", "vy", "vz", "wx", "wy", "wz")
-        varr = parse_table(vblock, vcols, path, v0 + 1, nrows=natoms, comment="#")
-        order = np.argsort(ids)
-        where = np.searchsorted(ids, varr[:, 0].astype(np.int64), sorter=order)
-        where = np.clip(where, 0, natoms - 1)
-        idx = order[where]
-        badv = np.flatnonzero(ids[idx] != varr[:, 0].astype(np.int64))
-        if badv.size:
-            raise FormatError(path, row_line(vblock, v0 + 1, int(badv[0]), "#"), "id",
-                              "velocity for an atom id not in the Atoms section")
-        velocities = np.empty((natoms, dim))
-        velocities[idx] = varr[:, 1:1 + dim]
-        for m, c in enumerate(("omegax", "omegay", "omegaz")):
-            if dim == 3 or c == "omegaz":
-                w = np.empty(natoms)
-                w[idx] = varr[:, 4 + m]
-                fields[c] = w
-    if not periodic:
-        _check_inside(pos, cell, origin, tuple(range(dim)), path, line_of_row)
-        meta["box"] = cell.tolist()
-    meta["sections"] = sorted(sections)
-    return build(path, positions=pos, radii=0.5 * arr[:, 2], cell=cell if periodic else None,
-                         origin=origin, ids=ids, types=arr[:, 1].astype(np.int64),
-                         velocities=velocities, fields=fields, meta=meta, source=path,
-                         source_format="lammps-data")
+def _data_velocities(lines, section, ids, dim, fields, path):
+    """The ``Velocities`` section (``id vx vy vz wx wy wz``) in the order of the atoms ``ids``:
+    returns the (N, dim) velocities and puts the angular velocities in ``fields`` (``omegaz``;
+    3D: ``omegax``, ``omegay``, ``omegaz``)."""
+    natoms = len(ids)
+    v0, v1, _ = section
+    vblock = b"\n".join(lines[v0:v1])
+    vcols = ("id", "vx", "vy", "vz", "wx", "wy", "wz")
+    varr = parse_table(vblock, vcols, path, v0 + 1, nrows=natoms, comment="#")
+    order = np.argsort(ids)
+    where = np.searchsorted(ids, varr[:, 0].astype(np.int64), sorter=order)
+    where = np.clip(where, 0, natoms - 1)
+    idx = order[where]
+    badv = np.flatnonzero(ids[idx] != varr[:, 0].astype(np.int64))
+    if badv.size:
+        raise FormatError(path, row_line(vblock, v0 + 1, int(badv[0]), "#"), "id",
+                          "velocity for an atom id not in the Atoms section")
+    velocities = np.empty((natoms, dim))
+    velocities[idx] = varr[:, 1:1 + dim]
+    for m, c in enumerate(("omegax", "omegay", "omegaz")):
+        if dim == 3 or c == "omegaz":
+            w = np.empty(natoms)
+            w[idx] = varr[:, 4 + m]
+            fields[c] = w
+    return velocities
 
 
 def _check_unique(ids, path, line_of_row):
@@ -398,9 +440,64 @@ def _frame_offsets(data: bytes):
 
 
 def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=None):
+    """One frame, ``data[start:end]``, of a text dump as a :class:`~dem.io.Configuration` (the
+    reading of :func:`read_lammps_dump`; ``frame_index`` is 0-based)."""
+    meta = {"frame": frame_index}
+    natoms, box, columns, pos, lineno = _dump_header(data, start, end, path, meta)
+    if natoms is None:
+        raise FormatError(path, lineno, "NUMBER OF ATOMS", "missing before 'ITEM: ATOMS'")
+    if natoms < 0:
+        raise FormatError(path, lineno, "NUMBER OF ATOMS", f"negative atom count {natoms}")
+    require_particles(natoms, path)
+    if box is None:
+        raise FormatError(path, lineno, "BOX BOUNDS", "missing before 'ITEM: ATOMS'")
+    cell, origin, pbc = _dump_box(box, path, meta)
+    if len(set(columns)) != len(columns):
+        raise FormatError(path, lineno - 1, "ATOMS", "duplicate column names")
+    block = data[pos:end]
+    first = lineno
+    arr = parse_table(block, tuple(columns), path, first, nrows=natoms)
+    col = {c: k for k, c in enumerate(columns)}
+    rad = _dump_radii(arr, col, natoms, radius, path, block, first)
+    xy, cell, origin, (xn, yn, zn), unwrapped = _dump_positions(arr, col, cell, origin, pbc,
+                                                                dimension, path, first, meta)
+    dim = xy.shape[1]
+    names = (xn, yn, zn)[:dim]
+    fields = _dump_fields(arr, col, (xn, yn, zn), dim)
+
+    def line_of_row(r):
+        return row_line(block, first, r)
+
+    ids = arr[:, col["id"]].astype(np.int64) if "id" in col else None
+    if ids is not None:
+        _check_unique(ids, path, line_of_row)
+    nonper = [d for d in range(dim) if not pbc[d]]
+    if nonper and not unwrapped:
+        _check_inside(xy, cell, origin, nonper, path, line_of_row, names=names)
+    periodic = all(pbc[:dim])
+    if not periodic:
+        meta["box"] = cell.tolist()
+        if any(pbc[:dim]):
+            warnings.warn(f"{path}: box periodic in one direction only ({meta['boundary']}); the "
+                          "configuration is returned without a periodic cell", stacklevel=3)
+    vn, fn = ("vx", "vy", "vz")[:dim], ("fx", "fy", "fz")[:dim]
+    vel = arr[:, [col[c] for c in vn]] if all(c in col for c in vn) else None
+    frc = arr[:, [col[c] for c in fn]] if all(c in col for c in fn) else None
+    return build(path, positions=xy, radii=rad, cell=cell if periodic else None, origin=origin,
+                         ids=ids, types=arr[:, col["type"]].astype(np.int64) if "type" in col
+                         else None, velocities=vel, forces=frc, fields=fields, meta=meta,
+                         source=path, source_format="lammps-dump")
+
+
+def _dump_header(data, start, end, path, meta):
+    """The ``ITEM:`` lines of a frame up to ``ITEM: ATOMS``.
+
+    Fills ``meta`` (``timestep``, ``time``, ``units``, unknown items under ``items``) and returns
+    ``(natoms, box, columns, pos, lineno)``: the ``NUMBER OF ATOMS`` (None if absent), the
+    ``BOX BOUNDS`` words and its three rows as ``(tokens, line number)`` (None if absent), the
+    ``ATOMS`` column names, and the byte offset and 1-based line number of the first atom line."""
     lineno = data.count(b"\n", 0, start) + 1
     pos = start
-    meta = {"frame": frame_index}
     natoms = None
     box = None
     columns = None
@@ -447,21 +544,12 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=Non
             columns = item.split()[1:]
         else:
             meta.setdefault("items", {})[item] = next_line()[0]
-    if natoms is None:
-        raise FormatError(path, lineno, "NUMBER OF ATOMS", "missing before 'ITEM: ATOMS'")
-    if natoms < 0:
-        raise FormatError(path, lineno, "NUMBER OF ATOMS", f"negative atom count {natoms}")
-    require_particles(natoms, path)
-    if box is None:
-        raise FormatError(path, lineno, "BOX BOUNDS", "missing before 'ITEM: ATOMS'")
-    cell, origin, pbc = _dump_box(box, path, meta)
-    if len(set(columns)) != len(columns):
-        raise FormatError(path, lineno - 1, "ATOMS", "duplicate column names")
-    block = data[pos:end]
-    first = lineno
-    arr = parse_table(block, tuple(columns), path, first, nrows=natoms)
-    col = {c: k for k, c in enumerate(columns)}
+    return natoms, box, columns, pos, lineno
 
+
+def _dump_radii(arr, col, natoms, radius, path, block, first):
+    """(N,) radii from the ``radius`` column, else half the ``diameter`` column, else the constant
+    ``radius`` given by the caller."""
     if "radius" in col:
         rad = arr[:, col["radius"]].copy()
         check_positive(rad, "radius", path, block, first)
@@ -474,6 +562,15 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=Non
         raise FormatError(path, first - 1, "ATOMS",
                           "no 'radius' or 'diameter' column (give a constant radius: radius= in "
                           "Python, --radius on the command line)")
+    return rad
+
+
+def _dump_positions(arr, col, cell, origin, pbc, dimension, path, first, meta):
+    """Positions from the first column set found of ``x y [z]``, ``xu yu [zu]``, ``xs ys [zs]``,
+    ``xsu ysu [zsu]`` (scaled ones mapped through the box), and the dimension (``meta``).
+
+    Returns ``(positions (N, d), cell (d, d), origin (d,), (xn, yn, zn), unwrapped)``: the box cut
+    to the dimension, the names of the columns used and whether they are unwrapped."""
     for xn, yn, zn, scaled, unwrapped in _POSITION_SETS:
         if xn in col and yn in col:
             xy = arr[:, [col[xn], col[yn]]]
@@ -492,7 +589,13 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=Non
             xy = origin[:2] + xy @ cell[:2, :2].T
         cell, origin = cell[:2, :2].copy(), origin[:2].copy()
     meta["coordinates"] = xn[:-1] if len(xn) > 1 else "x"
-    names = (xn, yn, zn)[:dim]
+    return xy, cell, origin, (xn, yn, zn), unwrapped
+
+
+def _dump_fields(arr, col, position_cols, dim):
+    """The columns that are not id, type, radius, position, velocity or force, by name (image
+    flags ``ix iy iz`` as integers; in 2D the z columns are dropped)."""
+    xn, yn, zn = position_cols
     used = {"id", "type", "radius", "diameter", xn, yn, "vx", "vy", "fx", "fy"}
     if dim == 3:
         used |= {zn, "vz", "fz"}
@@ -501,29 +604,7 @@ def _parse_dump_frame(data, start, end, path, radius, frame_index, dimension=Non
     for c in ("ix", "iy", "iz"):
         if c in fields:
             fields[c] = fields[c].astype(np.int64)
-
-    def line_of_row(r):
-        return row_line(block, first, r)
-
-    ids = arr[:, col["id"]].astype(np.int64) if "id" in col else None
-    if ids is not None:
-        _check_unique(ids, path, line_of_row)
-    nonper = [d for d in range(dim) if not pbc[d]]
-    if nonper and not unwrapped:
-        _check_inside(xy, cell, origin, nonper, path, line_of_row, names=names)
-    periodic = all(pbc[:dim])
-    if not periodic:
-        meta["box"] = cell.tolist()
-        if any(pbc[:dim]):
-            warnings.warn(f"{path}: box periodic in one direction only ({meta['boundary']}); the "
-                          "configuration is returned without a periodic cell", stacklevel=3)
-    vn, fn = ("vx", "vy", "vz")[:dim], ("fx", "fy", "fz")[:dim]
-    vel = arr[:, [col[c] for c in vn]] if all(c in col for c in vn) else None
-    frc = arr[:, [col[c] for c in fn]] if all(c in col for c in fn) else None
-    return build(path, positions=xy, radii=rad, cell=cell if periodic else None, origin=origin,
-                         ids=ids, types=arr[:, col["type"]].astype(np.int64) if "type" in col
-                         else None, velocities=vel, forces=frc, fields=fields, meta=meta,
-                         source=path, source_format="lammps-dump")
+    return fields
 
 
 def _dump_box(box, path, meta):
