@@ -58,18 +58,17 @@ __all__ = ["RigidityResult", "pebble_game", "rigidity_matrix", "numerical_floppy
 # ---- the pebble game (numba) ---------------------------------------------------------------------
 @numba.njit(cache=True)
 def _search(w, p1, p2, free, outdeg, outv, oute, outs, seen, st, parent_v, parent_s, stack, vis, nvis):
-    """Depth-first search from ``w`` along the pebble directions for a free pebble held by a vertex
+    """Breadth-first search from ``w`` along the pebble directions for a free pebble held by a vertex
     other than ``p1``, ``p2`` (pinned; they can be passed through). On success the path is reversed
     and the pebble moves to ``w``; on failure ``vis[:nvis[0]]`` lists the vertices reached."""
     seen[w] = st
-    top = 0
-    stack[0] = w
     vis[0] = w
     nv = 1
+    head = 0
     found = -1
-    while top >= 0 and found < 0:
-        x = stack[top]
-        top -= 1
+    while head < nv and found < 0:   # breadth first: the nearest free pebble
+        x = vis[head]
+        head += 1
         for s in range(outdeg[x]):
             y = outv[x, s]
             if seen[y] == st:
@@ -82,8 +81,6 @@ def _search(w, p1, p2, free, outdeg, outv, oute, outs, seen, st, parent_v, paren
             if free[y] > 0 and y != p1 and y != p2:
                 found = y
                 break
-            top += 1
-            stack[top] = y
     nvis[0] = nv
     if found < 0:
         return False

@@ -12,6 +12,8 @@ sliding contacts one (``pack_frictionless`` packings with no contact sliding, as
 * ``rigid_largest``: fraction of the particles in the largest rigid cluster;
 * ``rigid_redundant``: redundant (overconstrained) bars per particle;
 * ``rigid_floppy``: floppy modes per particle;
+* ``rigid_maxwell``: the control without the game, Maxwell's global count
+  ``(n_constraints - n_dof + n_trivial) / N`` (= ``rigid_redundant - rigid_floppy`` exactly);
 * ``rigid_n_floppy``: the count, compared with ``n_floppy`` of the exact solver
   (``dem.analysis.stiffness``: zero modes of the reduced Hessian, a second method).
 
@@ -31,7 +33,7 @@ from microhom.rigidity import pebble_game
 from studies.common import cli_out_dir, write_table
 
 #: the candidate columns this module adds to the corpus summary
-RIGIDITY_COLUMNS = ("rigid_largest", "rigid_redundant", "rigid_floppy")
+RIGIDITY_COLUMNS = ("rigid_largest", "rigid_redundant", "rigid_floppy", "rigid_maxwell")
 
 
 def _state(net, protocol, kt_over_kn):
@@ -59,6 +61,7 @@ def rigidity_columns(df: pd.DataFrame, cache) -> pd.DataFrame:
             r = res[kt > 0]
             out.append(dict(key=key, kt_over_kn=kt, rigid_largest=r.largest_cluster_fraction,
                             rigid_redundant=r.redundant_density, rigid_floppy=r.floppy_density,
+                            rigid_maxwell=(r.n_constraints - r.n_dof + r.n_trivial) / r.n_particles,
                             rigid_n_floppy=r.n_floppy, rigid_n_clusters=r.n_clusters))
     cols = pd.DataFrame(out, columns=["key", "kt_over_kn", *RIGIDITY_COLUMNS, "rigid_n_floppy", "rigid_n_clusters"])
     drop = [c for c in cols.columns if c in df.columns and c not in ("key", "kt_over_kn")]
@@ -70,6 +73,37 @@ def check_against_exact(df: pd.DataFrame) -> pd.DataFrame:
     m = df[df.n_floppy.notna() & df.rigid_n_floppy.notna()].copy()
     m["agree"] = m.n_floppy.astype(int) == m.rigid_n_floppy.astype(int)
     return m
+
+
+def plot(df, path):
+    """Largest rigid cluster against Z - Z_iso (every corpus row: the rigidity transition), and the
+    redundant bars per particle against Maxwell's count (the game's excess is the floppy modes)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.3))
+    prots = sorted(df.protocol.unique())
+    for p, m in zip(prots, "osD^v<>"):
+        for fr, col in ((False, "k"), (True, "tab:orange")):
+            g = df[(df.protocol == p) & ((df.kt_over_kn > 0) == fr)]
+            lab = f"{p}, {'kt > 0' if fr else 'kt = 0'}"
+            ax[0].scatter(g.dZ, g.rigid_largest, marker=m, s=14, facecolors="none" if not fr else col,
+                          edgecolors=col, label=lab)
+            ax[1].scatter(g.rigid_maxwell, g.rigid_redundant, marker=m, s=14, facecolors="none" if not fr else col,
+                          edgecolors=col)
+    ax[0].axvline(0, color="0.6", lw=0.8)
+    ax[0].set_xlim(-0.8, 2.1)   # rows whose every particle is a rattler (Z = 0) are off the left edge
+    ax[0].set_xlabel("Z - Z_iso (Z_iso = 4 at kt = 0, 6 / (2 - s) at kt > 0)")
+    ax[0].set_ylabel("largest rigid cluster / N")
+    ax[0].legend(fontsize=6, ncol=2, loc="center")
+    lim = [min(df.rigid_maxwell.min(), 0), df.rigid_redundant.max() * 1.05]
+    ax[1].plot(lim, lim, "k-", lw=0.6)
+    ax[1].set_xlabel("Maxwell count (constraints - dof + trivial) / N")
+    ax[1].set_ylabel("redundant bars / N (pebble game)")
+    ax[1].set_title("above the diagonal: floppy modes", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def bench(cache, n_big=100_000):
@@ -123,6 +157,7 @@ def main(argv=None):
     df.to_csv(out / "closure_rigidity.csv", index=False)
     write_table(chk[["key", "kt_over_kn", "n_floppy", "rigid_n_floppy", "agree"]], out, "rigidity_check",
                 "Pebble game against the exact solver's floppy modes")
+    plot(df, out / "closure_rigidity.png")
     if args.bench:
         bench(args.cache)
     return df
