@@ -248,3 +248,71 @@ def test_result_and_bad_input():
     empty = from_pairs(np.array([[0.0, 0.0], [3.0, 0.0]]), 0.5, None, np.zeros((0, 2), int), kn=1.0, kt=0.0)
     e = pebble_game(empty)
     assert (e.n_floppy, e.n_redundant, e.largest_cluster, e.n_trivial) == (0, 0, 0, 0)
+
+
+def _unwrapped(net, members, contacts):
+    """Positions of ``members`` unwrapped along ``contacts`` (the cluster's), and whether the
+    cluster wraps around the torus (a member reached at two different images)."""
+    x = {int(members[0]): net.positions[members[0]]}
+    wraps, changed = False, True
+    while changed:
+        changed = False
+        for k in contacts:
+            a, b = (int(v) for v in net.pairs[k])
+            for p, q, sign in ((a, b, 1.0), (b, a, -1.0)):
+                if p in x:
+                    y = x[p] + sign * net.branch[k]
+                    if q not in x:
+                        x[q], changed = y, True
+                    elif not np.allclose(x[q], y):
+                        wraps = True
+    return np.array([x[int(m)] for m in members]), wraps
+
+
+def _rigid_on_torus(net, members, contacts, body, Z, col):
+    pos, wraps = _unwrapped(net, members, contacts)
+    cols, triv = [], []
+    for p, (x, y) in zip(members, pos):
+        cols += [col[2 * p], col[2 * p + 1]] + ([col[2 * net.n_particles + p]] if body[p] else [])
+        rot = [[-y], [x]] + ([[1]] if body[p] else [])
+        t = [[1, 0], [0, 1]] + ([[0, 0]] if body[p] else [])
+        triv += [tt + ([] if wraps else rr) for tt, rr in zip(t, rot)]
+    T = np.array(triv, float)
+    Zs = Z[cols]
+    P = Zs - T @ np.linalg.lstsq(T, Zs, rcond=None)[0]
+    return np.abs(P).max() < 1e-8
+
+
+@pytest.mark.parametrize("kt", [0.0, 1.0])
+def test_clusters_on_the_torus(kt):
+    """Periodic frames: each cluster moves rigidly in every zero mode (only translations if it
+    wraps around the torus, a rotation too otherwise), and no neighbour moves with it. Frictional
+    frames with a gear (counts off the rank) are skipped; the rest are checked."""
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(25):
+        net = _random_network(rng, True, kt=kt)
+        r = pebble_game(net, min_contacts=0)
+        if (r.n_floppy, r.n_redundant) != numerical_floppy_modes(net, min_contacts=0):
+            continue
+        R, _ = rigidity_matrix(net, min_contacts=0)
+        u, s, vt = np.linalg.svd(R.toarray())
+        Z = vt[int((s > 1e-9 * s[0]).sum()):].T
+        lb = np.bincount(net.pairs.ravel(), minlength=net.n_particles) > 0
+        body = np.zeros(net.n_particles, bool)
+        body[net.pairs[net.effective_kt > 0].ravel()] = True
+        col = np.full(3 * net.n_particles, -1)
+        t = np.flatnonzero(lb)
+        col[2 * t], col[2 * t + 1] = 2 * np.arange(t.size), 2 * np.arange(t.size) + 1
+        col[2 * net.n_particles + np.flatnonzero(body)] = 2 * t.size + np.arange(body.sum())
+        for c in range(len(r.cluster_sizes)):
+            ks = np.flatnonzero(r.contact_cluster == c)
+            if ks.size == 0:
+                continue
+            members = np.unique(net.pairs[ks])
+            assert _rigid_on_torus(net, members, ks, body, Z, col)
+            for k in np.flatnonzero(np.isin(net.pairs, members).sum(axis=1) == 1)[:4]:
+                w = int(np.setdiff1d(net.pairs[k], members)[0])
+                assert not _rigid_on_torus(net, np.append(members, w), np.append(ks, k), body, Z, col)
+        checked += 1
+    assert checked >= 20
