@@ -14,6 +14,7 @@ Modules, in the order a reader meets them:
 - :mod:`microhom.laws`: normal contact laws (force and stiffness from the overlap);
 - :mod:`microhom.kinematics`: per-contact kinematics and the assembled Hessian;
 - :mod:`microhom.structural_sums`, :mod:`microhom.neighbourhood`: the statistics the theory needs;
+- :mod:`microhom.rigidity`: floppy modes, redundant constraints and rigid clusters (pebble game);
 - :mod:`microhom.moduli`: the predictions; :mod:`microhom.tensors`: tensor conversions;
 - :mod:`microhom.symbolic`, :mod:`microhom.derivations`, :mod:`microhom.printed`: the derivations
   and the seed paper's printed figures they are checked against;

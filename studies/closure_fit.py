@@ -33,6 +33,7 @@ from scipy.optimize import least_squares
 
 from microhom import closure
 from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, features, predict_closure
+from studies.closure_rigidity import RIGIDITY_COLUMNS, rigidity_columns
 from studies.common import cli_out_dir, out_dir, write_table
 
 SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
@@ -43,7 +44,7 @@ COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob
            "flags"]
 #: candidate statistics tried on top of the base features (item 2 of issue 25)
 CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
-              "sliding_fraction", "psi6")
+              "sliding_fraction", "psi6") + RIGIDITY_COLUMNS
 #: the closure before the corpus held identical disks at low pressure and psi6 (for the table)
 PREVIOUS_K = ("1", "frictionless", "log kt/kn", "(log kt/kn)^2", "log dZ", "frictionless * log dZ",
               "rattler fraction", "log10 p/kn")
@@ -193,6 +194,8 @@ def candidates(df):
                  "log kt/kn * log dZ"):
         trials.append((f"core + {name}", (), core + (name,), core + ("log kt/kn * tanh(Z - 4)", name)))
     for c in CANDIDATES:
+        if c not in df or df[c].isna().any():   # the pebble-game columns need the cached packings
+            continue
         trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
     for name, extra, nK, nG in trials:
         lo = lopo(df, extra, nK, nG)
@@ -392,7 +395,7 @@ def main(argv=None):
     else:
         from studies.corpus import load_corpus
         raw = load_corpus(args.cache, build=not args.no_build, verbose=False)
-        raw = raw[[c for c in COLUMNS if c in raw.columns]]
+        raw = rigidity_columns(raw[[c for c in COLUMNS if c in raw.columns]], args.cache)
         raw.to_csv(out / "corpus.csv", index=False)
     df = usable(raw)
     print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
