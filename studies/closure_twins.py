@@ -43,8 +43,10 @@ from studies.common import cli_out_dir, write_table
 __all__ = ["TWIN_FEATURES", "TwinsResult", "standardised", "pairs", "summary", "twins", "main"]
 
 #: the packing statistics the closure sees (besides kt/kn, which twins share exactly): log of
-#: Z - Z_iso, phi (in the mean field), dispersity, r, size-coordination, rattler fraction, log10 p/kn
-TWIN_FEATURES = ("log_dZ", "phi", "dispersity", "r", "Z_size_minus_Z", "rattler_fraction", "log_p_over_kn")
+#: Z - Z_iso, phi (in the mean field), dispersity, r, size-coordination, rattler fraction, log10 p/kn,
+#: and the mean local bond order psi6_local (a feature of K since the refit)
+TWIN_FEATURES = ("log_dZ", "phi", "dispersity", "r", "Z_size_minus_Z", "rattler_fraction", "log_p_over_kn",
+                 "psi6_local")
 #: distance bins of the summary (standardised feature units)
 BINS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, np.inf)
 
@@ -97,7 +99,8 @@ def _closure(df):
                            kt_over_kn=df.kt_over_kn.to_numpy(), dispersity=df.dispersity.to_numpy(),
                            sliding_fraction=df.sliding_fraction.to_numpy(),
                            size_coordination=df.Z_size_minus_Z.to_numpy(),
-                           rattler_fraction=df.rattler_fraction.to_numpy(), p_over_kn=df.p_over_kn.to_numpy())
+                           rattler_fraction=df.rattler_fraction.to_numpy(), p_over_kn=df.p_over_kn.to_numpy(),
+                           psi6_local=df.psi6_local.to_numpy())
 
 
 def pairs(df: pd.DataFrame) -> pd.DataFrame:

@@ -15,7 +15,8 @@ def _errors(df):
     p = predict_closure(nc=df.Z.to_numpy(), r=df.r.to_numpy(), phi=df.phi.to_numpy(),
                         kt_over_kn=df.kt_over_kn.to_numpy(), dispersity=df.dispersity.to_numpy(),
                         sliding_fraction=df.sliding_fraction.to_numpy(), size_coordination=(df.Z_size - df.Z).to_numpy(),
-                        rattler_fraction=df.rattler_fraction.to_numpy(), p_over_kn=df.p_over_kn.to_numpy())
+                        rattler_fraction=df.rattler_fraction.to_numpy(), p_over_kn=df.p_over_kn.to_numpy(),
+                        psi6_local=df.psi6_local.to_numpy())
     return np.log(p.G) - np.log(df.G.to_numpy())
 
 
