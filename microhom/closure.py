@@ -145,6 +145,10 @@ H_MEAN = {'K': 0.0247748, 'G': 0.0247748}   # mean leverage of the corpus
 H_MAX = {'K': 1.01966, 'G': 1.00086}   # 3 x the largest leverage of the corpus: beyond, flagged
 RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8042, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163], 'psi6_local': [0.477, 0.9734]}   # the box of the corpus (usable rows)
 DZ_MIN = 0.05
+#: fewest particles of the corpus's packings (N = 1000 and 4000): below it flagged (bit 64). At
+#: N = 64 the packing-to-packing scatter of G is 2-6 times that at N = 1000 and a few excess
+#: contacts decide G near the isostatic point (docs/results/closure.md, section 5)
+N_MIN = 1000
 # -------------------------------------------------------------------------------------------------
 #: psi6_local assumed when not given (flagged, bit 32): the median of the corpus's usable rows
 PSI6_LOCAL_DEFAULT = 0.62
@@ -163,6 +167,8 @@ _REASONS = (
     (16, "phi above 1 (overlaps inflate it): outside the data; the moduli scale with phi"),
     (32, "psi6_local not given (the mean local bond order of the load-bearing contacts: it changes K by "
          "up to ~15 % on the corpus, most for identical disks, which partly order)"),
+    (64, "fewer particles than the corpus's packings (n_particles < N_MIN = 1000): the scatter of small "
+         "packings exceeds the stated error"),
 )
 
 
@@ -230,7 +236,7 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
     :class:`microhom.network.ContactNetwork`: Z, r, phi, the sliding and rattler fractions
     (:func:`microhom.structural_sums.network_statistics`), the dispersity, the size-coordination,
     psi6_local (:func:`microhom.structural_sums.bond_order`; absent without load-bearing
-    particles) and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of
+    particles), the number of particles and p/kn (Love-Weber pressure of the normal forces ``fn``; without forces, of
     linear contacts ``kn * overlap``; absent if not positive); kt/kn the mean tangent stiffness of
     the non-sliding contacts over the mean kn unless given; kn the mean kn [N/m] unless given."""
     from .structural_sums import bond_order, network_statistics
@@ -241,7 +247,8 @@ def closure_inputs(network, kt_over_kn=None, kn=None) -> dict:
         kt_over_kn = float(np.mean(network.kt[stuck]) / kn_mean) if stuck.any() else 0.0
     out = dict(nc=st.nc, r=st.r, phi=st.phi, kt_over_kn=float(kt_over_kn), dispersity=dispersity(network),
                kn=kn_mean if kn is None else float(kn), sliding_fraction=st.sliding_fraction,
-               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network))
+               rattler_fraction=st.rattler_fraction, size_coordination=size_coordination(network),
+               n_particles=int(network.n_particles))
     q6 = bond_order(network, 6).psi_local
     if np.isfinite(q6):
         out["psi6_local"] = float(q6)
@@ -326,7 +333,7 @@ def _leverage(X, cov):
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
                     size_coordination=None, rattler_fraction=None, p_over_kn=None, psi6_local=None,
-                    model=None) -> ClosurePrediction:
+                    n_particles=None, model=None) -> ClosurePrediction:
     """Moduli from statistics (all arguments broadcast together).
 
     Parameters
@@ -364,6 +371,13 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         (:func:`microhom.structural_sums.bond_order`; ~0.5 for polydisperse, 0.6-0.7 for
         amorphous identical disks, -> 1 for a crystal). Not given: ``PSI6_LOCAL_DEFAULT`` and the
         prediction is flagged (bit 32).
+    n_particles : array_like, optional
+        Number of particles of the packing (rattlers included), >= 1. Below ``N_MIN`` (1000, the
+        corpus's smallest packings) the prediction is flagged (bit 64): on 64-disk packings the
+        closure's G was off by up to 17 % against a stated 12 % at kt/kn 0.5-1, and by 48-190 %
+        at kt = 0 three or four contacts above the isostatic point. Not given: a packing of at
+        least ``N_MIN`` particles is assumed (the statistics-only use: a continuum model or an
+        experiment); :func:`closure_inputs` measures it.
     model : dict, optional
         Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
         ``h_mean``, ``h_max``; used by the refit study).
@@ -412,6 +426,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         raise ValueError(f"size_coordination must be finite; got {zs!r}")
     missing_p = p_over_kn is None
     pk = _check("p_over_kn", 1e-3 if missing_p else p_over_kn, 0.0, lo_open=True)
+    nN = _check("n_particles", N_MIN if n_particles is None else n_particles, 1.0)
     missing_q6 = psi6_local is None
     q6 = _check("psi6_local", PSI6_LOCAL_DEFAULT if missing_q6 else psi6_local, 0.0, 1.0)
     XK, dz = features(nc, kr, d, r, s, zs, xr, pk, q6, names=FEATURES_K)
@@ -438,9 +453,11 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
              | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)
              | np.where(phi > 1.0, 16, 0)
-             | (32 if missing_q6 else 0)).astype(np.int8)
-    flags = np.broadcast_to(flags, K.shape)
-    return ClosurePrediction(K=K, G=G, K_mf=np.broadcast_to(K_mf, K.shape), G_mf=np.broadcast_to(G_mf, K.shape),
-                             error_K=eK * np.abs(K), error_G=eG * np.abs(G), rel_error_K=eK, rel_error_G=eG,
-                             leverage_K=hK, leverage_G=hG, dz=np.broadcast_to(dz, K.shape),
+             | (32 if missing_q6 else 0) | np.where(nN < N_MIN, 64, 0)).astype(np.int8)
+    shape = np.broadcast_shapes(K.shape, nN.shape)   # n_particles only flags: it may broadcast wider
+    flags = np.broadcast_to(flags, shape)
+    b = lambda x: np.broadcast_to(x, shape)  # noqa: E731
+    return ClosurePrediction(K=b(K), G=b(G), K_mf=b(K_mf), G_mf=b(G_mf),
+                             error_K=b(eK * np.abs(K)), error_G=b(eG * np.abs(G)), rel_error_K=b(eK), rel_error_G=b(eG),
+                             leverage_K=b(hK), leverage_G=b(hG), dz=b(dz),
                              valid=flags == 0, flags=flags)

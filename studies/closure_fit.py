@@ -349,7 +349,7 @@ def heldout(paths, kt_ratios=HELDOUT_KT, hierarchy=False) -> pd.DataFrame:
                         size_coordination=np.where(ok, df.Z_size - df.Z, 0.0),
                         rattler_fraction=np.where(ok, df.rattler_fraction, 0.0),
                         p_over_kn=np.where(ok & (df.p_over_kn > 0), df.p_over_kn, 1e-3),
-                        psi6_local=np.where(ok, df.psi6_local, 0.6))
+                        psi6_local=np.where(ok, df.psi6_local, 0.6), n_particles=df.n.to_numpy())
     df["closure_K"], df["closure_G"] = p.K, p.G
     df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
     df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G

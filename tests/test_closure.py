@@ -299,3 +299,22 @@ def test_pack_study_rows_are_the_main_study_packings():
                                kt_over_kn=DEFAULTS["kt_over_kn"], mu=DEFAULTS["mu"], mu_prep=DEFAULTS["mu_prep"],
                                dispersity=DEFAULTS["dispersity"], seed=seed, **PROTOCOL)
         assert packing_protocol(row) == main
+
+
+def test_small_packings_are_flagged():
+    """Bit 64: fewer particles than the corpus's smallest packings (N_MIN = 1000). Not given, a
+    large packing is assumed; measured from a network by closure_inputs."""
+    from microhom.closure import N_MIN
+    kw = dict(nc=4.3, r=0.04, phi=0.85, kt_over_kn=0.5, dispersity=0.2, size_coordination=0.05,
+              rattler_fraction=0.05, p_over_kn=1e-3, psi6_local=0.6)
+    base = predict_closure(**kw)
+    assert base.valid and not (int(base.flags) & 64)
+    small = predict_closure(**kw, n_particles=64)
+    assert not small.valid and int(small.flags) == 64
+    assert "n_particles" in small.reason
+    big = predict_closure(**kw, n_particles=N_MIN)
+    assert big.valid and float(big.G) == float(base.G)
+    v = predict_closure(**kw, n_particles=np.array([64, 999, 1000, 4000]))
+    assert v.valid.tolist() == [False, False, True, True]
+    with pytest.raises(ValueError, match="n_particles"):
+        predict_closure(**kw, n_particles=0)

@@ -119,30 +119,18 @@ def test_jaxmd_elastic_constants_second_method(path):
     assert C[1, 0] - C[0, 1] == pytest.approx(sxx - syy, abs=1e-9)   # the non-symmetric -s_ij d_kl term
 
 
-#: the held-out predictions that are valid but outside their stated error (docs/results/closure.md
-#: section 5), with the relative error of G measured with the refitted closure and its stated
-#: error: jax-md's 64-disk packings, G biased low at kt/kn 0.5 and 1 (N is not a statistic of the
-#: closure). Any other overclaim fails, and so does one of these growing by more than 0.5 points.
-KNOWN_OVERCLAIMS = {("jaxmd_2d_N64_Lp-4.0_2.csv", 0.5): (-0.130, 0.119),
-                    ("jaxmd_2d_N64_Lp-4.0_4.csv", 0.5): (-0.143, 0.115),
-                    ("jaxmd_2d_N64_Lp-4.0_9.csv", 0.5): (-0.169, 0.116),
-                    ("jaxmd_2d_N64_Lp-4.0_9.csv", 1.0): (-0.157, 0.125)}
-
-
 def test_closure_on_heldout_files_keeps_its_error_statement():
     from microhom.closure import RANGES, predict_closure
     from studies.closure_fit import heldout
     files = [DATA / n for n in sorted(DEMPLA_PUBLISHED)] + [p for p in JAXMD if "Lp-4.0" in p.name]
     df = heldout(files, kt_ratios=(0.0, 0.2, 0.5, 1.0))
     assert len(df) == 4 * len(files) and df.K.notna().all()
-    valid = df[df.valid]
-    assert len(valid) >= 20
-    # no valid prediction outside its stated error, except the documented ones, none worse than documented
-    over = df[df.overclaim]
-    assert set(zip(over.file, over.kt_over_kn)) <= set(KNOWN_OVERCLAIMS)
-    for f, k, eK, sK, eG, sG in zip(over.file, over.kt_over_kn, over.err_K, over.stated_K, over.err_G, over.stated_G):
-        err_G, _ = KNOWN_OVERCLAIMS[(f, k)]
-        assert abs(eK) <= sK and abs(eG) <= abs(err_G) + 0.005
+    # no valid prediction outside its stated error
+    assert not df.overclaim.any(), df[df.overclaim][["file", "kt_over_kn", "err_K", "stated_K", "err_G", "stated_G"]]
+    # the 64-disk packings are smaller than the corpus's: every prediction flagged (bit 64), among
+    # them the four that were valid and outside their stated error before (closure.md, section 5)
+    jax = df[df.file.str.startswith("jaxmd")]
+    assert len(jax) and ((jax.flags_closure & 64) == 64).all() and not jax.valid.any()
     # DEMPLA's disks are outside the corpus only by their dispersity (0.5125 > the box's edge):
     # every other input is inside the box and the leverage ordinary, so the same inputs with the
     # dispersity at the box's edge are valid, and at kt > 0 the error is inside the statement

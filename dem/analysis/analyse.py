@@ -238,6 +238,8 @@ class ClosureInputs(Result):
     psi6_local : float or None
         Mean local bond order ``<|psi6_i|>`` of the load-bearing contacts
         (:func:`microhom.structural_sums.bond_order`) [-]; None when there are none.
+    n_particles : int or None
+        Number of particles, rattlers included (below 1000 the closure flags its prediction).
     """
 
     nc: float
@@ -251,6 +253,7 @@ class ClosureInputs(Result):
     size_coordination: float
     p_over_kn: float | None = None
     psi6_local: float | None = None
+    n_particles: int | None = None
 
 
 @dataclass(frozen=True)
