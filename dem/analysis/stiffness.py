@@ -211,7 +211,8 @@ def _normalise(network, prestress):
     if network.n_contacts == 0:
         return network, 1.0, flags
     kn = network.kn
-    s = float(2.0 ** np.round(np.log2(kn.max())))
+    with np.errstate(over="ignore"):   # an inf scale is refused just below, with the reason
+        s = float(2.0 ** np.round(np.log2(kn.max())))
     if not np.isfinite(s) or s == 0:
         raise ValueError(f"kn must be in (0, 2^1023.5 = 1.27e308] N/m so that its power-of-two "
                          f"scale exists; got max kn = {float(kn.max()):.6g} (rescale the "
