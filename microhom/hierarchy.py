@@ -171,6 +171,9 @@ class HierarchyResult(Result):
         (particle-block Jacobi ``M``: order k = the relaxation k contact shells carry).
     preconditioner_time : float
         Wall time of the preconditioner's setup [s] (included in ``solve_time``).
+    n_factor_steps : int
+        CG steps (included in ``order``) preconditioned by the certificate's factorisation of
+        ``H - s M`` past ``max_order`` (``factor_steps``); 0 when the multilevel CG met ``tol``.
     n_soft_modes : int
         Soft modes deflated (``soft_modes`` > 0): their span augments every order's space.
     certified : bool
@@ -226,6 +229,7 @@ class HierarchyResult(Result):
     preconditioner: str = "block"
     preconditioner_time: float = 0.0
     n_soft_modes: int = 0
+    n_factor_steps: int = 0
     certified: bool = False
     calibrated: bool = False
     kt_over_kn: float = float("nan")
@@ -312,24 +316,36 @@ def block_preconditioner(asm: Assembly):
     return M, Minv, Minv_sqrt, n_bad
 
 
-def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False):
+def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False,
+                         return_factor=False):
     """Smallest non-zero eigenvalue of the pencil ``(H, M)`` (floppy modes excluded), computed
     exactly by a dense eigen-decomposition of ``M^-1/2 H M^-1/2`` when ``ndof <= dense_max``.
 
     Returns (lam, n_zero, n_negative): ``lam`` reduced by a round-off margin
     (``1e3 * eps * ndof * lam_max``) so that it is a certified lower bound; None if the system is
     too large, or if the margin swallows it. ``n_negative`` > 0 means ``H`` is indefinite.
-    With ``return_max``, (lam, lam_max + margin, n_zero, n_negative).
+    With ``return_max``, (lam, lam_max + margin, n_zero, n_negative). With ``return_factor`` one
+    more item: the factorisation of ``H - s M`` at the certified shift of the sparse path (a
+    :class:`microhom.factor.Factor`; the caller releases it), None on the dense path or when not
+    certified.
     """
+    out = _spectral_lower_bound(asm, Minv_sqrt, dense_max, return_factor)
+    fac = out[-1]
+    out = out[:-1] if return_max else (out[0], out[2], out[3])
+    return out + (fac,) if return_factor else out
+
+
+def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
+    """(lam, lam_max, n_zero, n_negative, factor or None) of :func:`spectral_lower_bound`."""
     n = asm.ndof
     if n == 0:
-        return (None, None, 0, 0) if return_max else (None, 0, 0)
+        return None, None, 0, 0, None
     if n > dense_max:
         # above the dense limit: certified by Sylvester's law of inertia (microhom.spectral),
         # up to CERTIFIED_MAX_DOF unknowns (1e5 particles); two or three sparse factorisations
         from microhom import spectral
         from microhom.factor import FactorisationError, MemoryGuardError
-        none = (None, None, 0, 0) if return_max else (None, 0, 0)
+        none = (None, None, 0, 0, None)
         if n > spectral.CERTIFIED_MAX_DOF:
             return none
         M, _, S, n_bad = block_preconditioner(asm)
@@ -338,14 +354,17 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
         S = S if Minv_sqrt is None else Minv_sqrt
         psd = asm.Kgs is None                     # no pre-stress: H = B^T K B >= 0
         try:
-            b = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None)
+            b, fac = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None,
+                                              keep_factor=True)
         except (FactorisationError, MemoryGuardError, ValueError):
             return none
+        if fac is not None and not keep:
+            fac.release()
+            fac = None
         hi = b.upper if b.upper is not None else None
         if psd:   # H <= 2M without pre-stress (docs/theory.md section 9)
             hi = 2.0 + b.margin if hi is None else min(hi, 2.0 + b.margin)
-        out = b.lower, b.n_zero, b.n_negative
-        return (out[0], hi, out[1], out[2]) if return_max else out
+        return b.lower, hi, b.n_zero, b.n_negative, fac
     S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
@@ -356,8 +375,7 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     margin = 1e3 * np.finfo(float).eps * n * lmax
     hi = float(lam.max()) + margin
     lo = float(pos.min()) - margin if pos.size else -1.0
-    out = (lo if lo > 0 else None), int(zero.sum()), int(neg.sum())
-    return (out[0], hi, out[1], out[2]) if return_max else out
+    return (lo if lo > 0 else None), hi, int(zero.sum()), int(neg.sum()), None
 
 
 def lowest_modes(asm: Assembly, M=None, P=None, *, Minv=None, k: int = 6, maxiter: int = 40,
@@ -447,6 +465,7 @@ class _BlockPCG:
         self.B = B
         self.X = np.zeros_like(B)
         self.R = B.copy()
+        self.Rt = self.R
         z0 = Minv @ self.R
         zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
@@ -501,11 +520,14 @@ class _BlockPCG:
         P, HP = _tall(P, T), _tall(HP, T)
         alpha = P.T @ self.R
         self.X += _tall(P, alpha)
+        # the bounds use the true residual B - H X (one product with 3 columns): the recursive one
+        # drifts by round-off once it is small, and the lower bound must be that of X itself
+        self.Rt = self.B - self.H @ self.X
         if self.true_residual:
-            self.R = self.B - self.H @ self.X             # no drift: Rk is the energy of X itself
+            self.R = self.Rt                              # no drift in the iteration either
         else:
             self.R -= _tall(HP, alpha)
-        R = self.B.T @ self.X + self.X.T @ self.R        # 2 B^T X - X^T H X  (H X = B - R)
+        R = self.B.T @ self.X + self.X.T @ self.Rt       # 2 B^T X - X^T H X  (H X = B - Rt)
         self.Rk = 0.5 * (R + R.T)
         return P, HP
 
@@ -742,13 +764,20 @@ class _Run:
     min_contacts: object = None
     limit: int | None = None         # memory limit [bytes] (max_memory or available), None: unknown
     planned: int = 0                 # predicted peak without the dense bound [bytes]
+    factor: object = None            # factor of H - s M at the certified shift (sparse certificate)
+    factor_steps: int = 4            # at most this many CG steps preconditioned by it
+    n_factor_steps: int = 0          # taken
+    max_order: int = 16
+    certify_max_order: int = 200
+    rigorous_met: bool = False
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
                          max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto",
-                         max_memory=None) -> HierarchyResult:
+                         max_memory=None, certify_max_order: int = 200,
+                         factor_steps: int = 4) -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -785,7 +814,21 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Target relative width of the interval of K and of G, in (0, 1). The iteration stops at
         the first order where both meet it, or at ``max_order``; the result says which.
     max_order : int
-        Maximum number of CG steps (Gauss points), 1..10000; order k uses 2k moments.
+        Maximum number of CG steps (Gauss points) with the chosen preconditioner, 1..10000; order
+        k uses 2k moments. Without a certified spectral bound the iteration stops here (or earlier,
+        where the calibrated extrapolation meets ``tol``). With one, only the rigorous interval
+        stops it (issue 22): past ``max_order`` it goes on with ``factor_steps`` or
+        ``certify_max_order``, and ``reasons`` says when even that cap was not enough.
+    certify_max_order : int
+        Cap on the CG steps when a certified bound is available but no factorisation is (dense,
+        user or companion bound), 1..10000 (values below ``max_order`` act as ``max_order``).
+        The basis is fully re-orthogonalised past ``max_order`` only while it fits in memory.
+    factor_steps : int
+        Steps past ``max_order`` preconditioned by the sparse certificate's factorisation of
+        ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
+        releases the factorisation at once and continues with the multilevel CG instead. The
+        spectrum of the preconditioned ``H`` is then 1 up to the few eigenvalues near ``s``, so
+        one or two steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
     spectral_bound : {"auto", "none"} or float
         "auto" (exact dense bound if ``ndof <= dense_max``, else none), "none", or a
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
@@ -830,7 +873,12 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     t0 = time.perf_counter()
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
                                      preconditioner, max_memory)
-    run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts)
+    for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
+            raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
+    run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
+               max_order=int(max_order), certify_max_order=int(certify_max_order),
+               factor_steps=int(factor_steps))
     full = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory)
     _setup(run, min_contacts)
     t_asm = time.perf_counter() - t0
@@ -949,10 +997,16 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
     elif spectral_bound == "auto" and 0 < asm.ndof <= dense_max and not _dense_fits(run, asm.ndof):
         pass
     elif spectral_bound == "auto" and asm.ndof:
-        run.lam, run.lam_hi, _, n_neg = spectral_lower_bound(asm, run.Msq, dense_max=dense_max,
-                                                             return_max=True)
+        run.lam, run.lam_hi, _, n_neg, run.factor = spectral_lower_bound(
+            asm, run.Msq, dense_max=dense_max, return_max=True, return_factor=True)
+        if run.factor is not None and run.factor_steps == 0:
+            run.factor.release()
+            run.factor = None
         run.src = "dense" if run.lam is not None else "none"
         run.unstable = n_neg > 0
+        if n_neg and run.factor is not None:
+            run.factor.release()
+            run.factor = None
         if n_neg:
             run.reasons.append(f"unstable: negative curvature, the pencil (H, M) has {n_neg} negative "
                                "eigenvalue(s) (dense check: H indefinite); the bounds are void")
@@ -1061,7 +1115,14 @@ def _calibration(run, preconditioner, soft):
 
 
 def _cg_step(run, max_order, full, preconditioner):
-    """Block PCG, one order per step, until the stopping rule is met (``_met``) or max_order."""
+    """Block PCG, one order per step, until the stopping rule is met or the cap.
+
+    With a certified lower bound (``run.lam`` or the companion ``run.lam_n``) only the rigorous
+    interval stops the iteration (issue 22): the multilevel CG runs up to ``max_order`` steps; if
+    the interval is still wider than ``tol``, up to ``factor_steps`` more steps preconditioned by
+    the certificate's factorisation of ``H - s M`` (when the sparse certificate made one), else the
+    multilevel CG continues up to ``certify_max_order``. Without one, the calibrated extrapolation
+    may stop it as before (``_met``)."""
     asm = run.asm
     B = -asm.F if asm.ndof else np.zeros((0, _n_mandel(asm.net.dim)))
     run.Cs, run.lowers = [run.C0], [None]
@@ -1084,8 +1145,14 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
+    rigorous = run.lam is not None or run.lam_n is not None
+    cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
+    if rigorous and run.factor is None:
+        cap = max(int(max_order), int(run.certify_max_order))
     order = 0
-    for order in range(1, int(max_order) + 1):
+    for order in range(1, cap + 1):
+        if order > max_order:
+            _continue_certifying(run, cg, full)
         cg.step()
         if cg.unstable:
             run.unstable = True
@@ -1094,12 +1161,39 @@ def _cg_step(run, max_order, full, preconditioner):
         C = _tensor(run.C_aff, cg.Rk, run.area, run.corr)
         run.Cs.append(C)
         run.lowers.append(_best_lower(run, C, cg))
-        if _met(C, run.best_low, run.tol, run.Cs, run.calibrated, run.prestress):
+        if _met(C, run.best_low, run.tol, run.Cs, run.calibrated and not rigorous, run.prestress):
             run.converged = True
             break
         if cg.done:
             break
+    if not run.converged and rigorous and not run.unstable:
+        # the rigorous interval did not meet tol: the calibrated extrapolation still may (as before)
+        run.converged = _met(run.Cs[-1], None, run.tol, run.Cs, run.calibrated, run.prestress)
+    if run.factor is not None:
+        run.factor.release()
+        run.factor = None
     run.order, run.n_floppy, run.n_soft = order, cg.n_floppy, cg.n_deflated
+
+
+def _continue_certifying(run, cg, full):
+    """Past ``max_order`` with a certified bound: switch the preconditioner to the certificate's
+    factorisation (``PH`` then has its spectrum at 1 up to the few eigenvalues near the shift),
+    or keep the multilevel one; the true residual drives the iteration from here (each step then
+    minimises the energy exactly along its block, so the upper bounds stay monotone whatever the
+    conjugation), and the full basis is kept only while it fits in memory."""
+    cg.true_residual = True
+    cg.R = cg.Rt
+    if run.factor is not None:
+        if run.n_factor_steps == 0:
+            fac, n = run.factor, cg.H.shape[0]
+            cg.Minv = sla.LinearOperator((n, n), matvec=fac.solve, matmat=fac.solve, dtype=float)
+            cg.Z = cg.Minv @ cg.R          # this step's block already from the factorisation
+            cg.P = cg.Z
+        run.n_factor_steps += 1
+    elif full and run.limit is not None:
+        cols = sum(c[2] for c in cg._chunks) + 3 * cg.B.shape[1]
+        if 16 * cg.H.shape[0] * cols + run.planned > run.limit:
+            cg.full = False
 
 
 def _estimates(run, KG, KGl):
@@ -1176,6 +1270,13 @@ def _verdict(run, ests, C_upper):
         width = "rigorous interval" if run.lowers[-1] is not None else "no rigorous lower bound"
         reasons.append(f"tolerance {tol:g} not met after {run.order} step(s) ({2 * run.order} moments; "
                        f"{width}): returned the best interval")
+    if not certified and run.best_low is not None and not run.trivial:
+        lam = run.lam if run.lam is not None else run.lam_n
+        cap = (f"{run.max_order} multilevel + {run.n_factor_steps} factorised step(s)" if run.n_factor_steps
+               else f"the cap of {max(run.max_order, run.certify_max_order)} step(s)")
+        reasons.append(f"rigorous interval wider than tol after {cap}: the residual term "
+                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates (soft modes "
+                       "of the pencil); raise max_order or certify_max_order")
     return certified, jammed, floppy, negative
 
 
@@ -1205,7 +1306,7 @@ def _finish(run, preconditioner, t_asm, t_solve):
         n_particles=network.n_particles, n_contacts=asm.net.n_contacts, prestress=bool(run.prestress),
         assembly_time=t_asm, solve_time=t_solve, bound_time=run.t_bound,
         preconditioner=preconditioner if not run.trivial else "none", preconditioner_time=run.t_prec,
-        n_soft_modes=int(run.n_soft), certified=bool(certified), calibrated=bool(run.calibrated),
+        n_soft_modes=int(run.n_soft), n_factor_steps=int(run.n_factor_steps), certified=bool(certified), calibrated=bool(run.calibrated),
         kt_over_kn=float(run.kt_over_kn), jammed=bool(jammed), floppy=bool(floppy), negative=bool(negative))
 
 
@@ -1220,8 +1321,8 @@ def _lower(C, cg, Minv, lam, lam_hi, area):
     """
     if C is None or cg is None:
         return None
-    Z = Minv @ cg.R
-    m0 = cg.R.T @ Z
+    Z = Minv @ cg.Rt                 # the true residual B - H X of the iterate
+    m0 = cg.Rt.T @ Z
     m0 = 0.5 * (m0 + m0.T)
     if lam_hi is None or not np.isfinite(lam_hi):
         return C - m0 / (lam * area)
