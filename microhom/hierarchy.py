@@ -68,9 +68,10 @@ _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy d
 _CHUNK = 48          # columns per storage chunk of the re-orthogonalisation basis
 SOFT_MODES_AUTO_MAX = 20_000   # soft_modes="auto": search 3 soft modes up to this many unknowns
 _FAST_RATIO = 0.3     # increment ratios below this: geometric convergence, geometric tail (k >= 4)
-_ZERO_EIG = 1e-9      # pencil eigenvalues below this fraction of the largest are floppy modes
+_ZERO_EIG_MIN = 1e-12  # dense bound: pencil eigenvalues below max(round-off margin, this fraction of the
+                       # largest) are floppy modes (the sparse certificate's zero threshold is 1e-12 too)
 _TRUST_RATIO = 1e-4   # dense (H, M) bound trusted down to min(kt/kn, kn/kt) = this (its soft cluster
-                      # sits near 0.02 x the ratio, 1e3 x above _ZERO_EIG here)
+                      # sits near 0.02 x the ratio, 1e3 x above the dense zero threshold of 1e-9 used when this was measured)
 
 
 # ---- result types ----------------------------------------------------------------------------
@@ -369,10 +370,13 @@ def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
     lmax = float(np.abs(lam).max()) if lam.size else 0.0
-    zero = np.abs(lam) <= _ZERO_EIG * lmax
+    margin = 1e3 * np.finfo(float).eps * n * lmax
+    # zero = within the round-off margin: an eigenvalue above it is certified non-zero, however
+    # small (a fixed 1e-9 lmax threshold took a near-mechanism at 8e-10 lmax for a floppy mode and
+    # returned a "lower bound" 2e5 times its eigenvalue: docs/theory.md section 9, issue 22)
+    zero = np.abs(lam) <= max(margin, _ZERO_EIG_MIN * lmax)
     neg = (lam < 0) & ~zero
     pos = lam[(lam > 0) & ~zero]
-    margin = 1e3 * np.finfo(float).eps * n * lmax
     hi = float(lam.max()) + margin
     lo = float(pos.min()) - margin if pos.size else -1.0
     return (lo if lo > 0 else None), hi, int(zero.sum()), int(neg.sum()), None
@@ -466,6 +470,7 @@ class _BlockPCG:
         self.X = np.zeros_like(B)
         self.R = B.copy()
         self.Rt = self.R
+        self.Habs, self.m_row, self.E = None, 0, None
         z0 = Minv @ self.R
         zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
@@ -769,11 +774,11 @@ class _Run:
     n_factor_steps: int = 0          # taken
     max_order: int = 16
     certify_max_order: int = 200
-    rigorous_met: bool = False
+    margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
-                         max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
+                         max_order: int = 16, spectral_bound="auto", dense_max: int = 1000,
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
@@ -830,11 +835,15 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         spectrum of the preconditioned ``H`` is then 1 up to the few eigenvalues near ``s``, so
         one or two steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
     spectral_bound : {"auto", "none"} or float
-        "auto" (exact dense bound if ``ndof <= dense_max``, else none), "none", or a
+        "auto" (exact dense bound if ``ndof <= dense_max``, else the sparse certificate by
+        Sylvester's inertia, ``microhom.spectral.certified_bound``, up to
+        ``microhom.spectral.CERTIFIED_MAX_DOF`` unknowns; none above), "none", or a
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
         responsibility).
     dense_max : int
-        Largest number of unknowns for the dense spectral bound.
+        Largest number of unknowns for the dense spectral bound (default 1000: at 2922 unknowns
+        the dense eigen-solve took 31 s against 0.8 s for the sparse certificate under load 16,
+        docs/results/hierarchy.md, section 7).
     min_contacts : int, optional
         Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
     reorthogonalize : bool or "auto"
@@ -852,9 +861,11 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         estimate always use ``M``.
     soft_modes : int or "auto"
         Number of lowest modes of the pencil (H, M) to search per preconditioner (:func:`lowest_modes`,
-        LOBPCG; 0..50), or "auto" (default): 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for
-        1000-8000 unknowns), 0 above (then the extrapolation is not calibrated: ``reasons`` says
-        so). A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
+        LOBPCG; 0..50), or "auto" (default): none when the automatic spectral bound of (H, M) is
+        certified (its inertia proves stability and only the rigorous interval stops CG; if that
+        interval misses ``tol`` the extrapolation is then not calibrated and ``reasons`` says so),
+        else 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for 1000-8000 unknowns), 0 above
+        (then the extrapolation is not calibrated: ``reasons`` says so). A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
         result is flagged ``unstable`` with the eigenvalue (finding none is not a proof of
         stability). The soft modes found are deflated: the CG space is augmented with them, so that
         a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
@@ -1024,8 +1035,10 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
             if run.lam_n is not None:
                 run.src = "companion" if run.lam is None else "dense+companion"
         if run.lam is None and run.lam_n is None and asm.ndof > dense_max:
-            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "
-                               "pass spectral_bound=): the lower bounds are not available")
+            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max} and "
+                               "the sparse certificate failed or the system is above its limit "
+                               "microhom.spectral.CERTIFIED_MAX_DOF; pass spectral_bound=): the lower bounds are "
+                               "not available")
     run.t_bound += time.perf_counter() - tb
 
 
@@ -1071,8 +1084,9 @@ def _companion_bound(run, dense_max):
     stick = kt > 0
     if not run.far_ratio:
         return                                            # ratios near 1: (H, M) is well conditioned
-    if run.asm.ndof > dense_max:
-        return            # spectral_lower_bound certifies dense systems only (for now): no twin
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    if run.asm.ndof > CERTIFIED_MAX_DOF:
+        return            # spectral_lower_bound certifies no larger system: no twin
     kmin = np.where(stick, np.minimum(kn, kt), kn)
     twin = net.with_stiffness(kn=kmin, kt=np.where(stick, kmin, 0.0))
     asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False)
@@ -1087,6 +1101,11 @@ def _companion_bound(run, dense_max):
 def _soft_mode_step(run, soft_modes):
     """LOBPCG soft modes (deflated later) and the instability proof; returns the number searched."""
     asm = run.asm
+    if soft_modes == "auto" and run.lam is not None and run.src != "user":
+        # the certificate of (H, M) already counted the negative eigenvalues (a proof of stability,
+        # which LOBPCG is not) and only its rigorous interval stops CG: the search (half the time to
+        # a certified interval at N = 3000, docs/results/hierarchy.md section 7) would buy nothing
+        return 0
     if soft_modes == "auto":
         soft_modes = 3 if asm.ndof <= SOFT_MODES_AUTO_MAX else 0
         if not soft_modes and asm.ndof:
@@ -1125,7 +1144,7 @@ def _cg_step(run, max_order, full, preconditioner):
     may stop it as before (``_met``)."""
     asm = run.asm
     B = -asm.F if asm.ndof else np.zeros((0, _n_mandel(asm.net.dim)))
-    run.Cs, run.lowers = [run.C0], [None]
+    run.Cs, run.lowers, run.margins = [run.C0], [None], [0.0]
     scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
     run.trivial = asm.ndof == 0 or float(np.abs(B).max(initial=0.0)) <= 1e-13 * scale_F
     if run.trivial:
@@ -1160,8 +1179,10 @@ def _cg_step(run, max_order, full, preconditioner):
             break
         C = _tensor(run.C_aff, cg.Rk, run.area, run.corr)
         run.Cs.append(C)
+        run.margins.append(_roundoff(cg) / run.area)
         run.lowers.append(_best_lower(run, C, cg))
-        if _met(C, run.best_low, run.tol, run.Cs, run.calibrated and not rigorous, run.prestress):
+        C_up = C + run.margins[-1] * np.eye(C.shape[0])
+        if _met(C_up, run.best_low, run.tol, run.Cs, run.calibrated and not rigorous, run.prestress):
             run.converged = True
             break
         if cg.done:
@@ -1201,7 +1222,8 @@ def _estimates(run, KG, KGl):
     ests = []
     for m in range(2):
         seq = KG[:, m]
-        up = float(seq[-1])
+        mI = run.margins[-1] * np.eye(run.C0.shape[0])
+        up = float(seq[-1]) + float(_iso(mI)[m])          # + the round-off margin of the energy
         lo = None if run.best_low is None else float(run.best_low[m])   # every order's bound holds
         if lo is not None and not run.prestress:
             lo = max(lo, 0.0)       # without pre-stress C = min of an energy >= 0: K, G >= 0
@@ -1275,8 +1297,8 @@ def _verdict(run, ests, C_upper):
         cap = (f"{run.max_order} multilevel + {run.n_factor_steps} factorised step(s)" if run.n_factor_steps
                else f"the cap of {max(run.max_order, run.certify_max_order)} step(s)")
         reasons.append(f"rigorous interval wider than tol after {cap}: the residual term "
-                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates (soft modes "
-                       "of the pencil); raise max_order or certify_max_order")
+                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates; raise "
+                       "max_order, certify_max_order or factor_steps")
     return certified, jammed, floppy, negative
 
 
@@ -1291,13 +1313,14 @@ def _finish(run, preconditioner, t_asm, t_solve):
     KG = np.array([_iso(C) for C in Cs])
     KGl = np.array([_iso(L) if L is not None else (np.nan, np.nan) for L in run.lowers])
     ests = _estimates(run, KG, KGl)
-    certified, jammed, floppy, negative = _verdict(run, ests, Cs[-1])
+    C_up = Cs[-1] + run.margins[-1] * np.eye(Cs[-1].shape[0])
+    certified, jammed, floppy, negative = _verdict(run, ests, C_up)
     C_fo = run.C_fo
     Ka_all, Ga_all = _iso(run.C_aff_all)
     asm, network = run.asm, run.network
     return HierarchyResult(
         K=ests[0], G=ests[1], K_orders=KG[:, 0], G_orders=KG[:, 1], K_lower_orders=KGl[:, 0],
-        G_lower_orders=KGl[:, 1], C_orders=C_orders, C_upper=Cs[-1], C_lower=run.lowers[-1],
+        G_lower_orders=KGl[:, 1], C_orders=C_orders, C_upper=C_up, C_lower=run.lowers[-1],
         K_first_order=_iso(C_fo)[0], G_first_order=_iso(C_fo)[1], C_first_order=C_fo,
         K_affine_all=Ka_all, G_affine_all=Ga_all, order=int(run.order), n_moments=2 * int(run.order),
         tol=run.tol, converged=bool(run.converged), spectral_bound=run.lam, spectral_bound_source=run.src,
@@ -1321,14 +1344,45 @@ def _lower(C, cg, Minv, lam, lam_hi, area):
     """
     if C is None or cg is None:
         return None
-    Z = Minv @ cg.Rt                 # the true residual B - H X of the iterate
+    Z = Minv @ cg.Rt                 # the computed residual fl(B - H X) of the iterate
     m0 = cg.Rt.T @ Z
     m0 = 0.5 * (m0 + m0.T)
     if lam_hi is None or not np.isfinite(lam_hi):
-        return C - m0 / (lam * area)
-    m1 = Z.T @ (cg.H @ Z)
-    m1 = 0.5 * (m1 + m1.T)
-    return C - ((lam + lam_hi) * m0 - m1) / (lam * lam_hi * area)
+        T = m0 / lam
+    else:
+        m1 = Z.T @ (cg.H @ Z)
+        m1 = 0.5 * (m1 + m1.T)
+        T = ((lam + lam_hi) * m0 - m1) / (lam * lam_hi)
+    E = getattr(cg, "E", None)
+    if E is not None:
+        # the exact residual is r_hat + e with |e| <= E entrywise: (r_hat + e)^T H^+ (r_hat + e) <=
+        # (1 + t) r_hat^T H^+ r_hat + (1 + 1/t) e^T H^+ e, and e^T H^+ e <= E^T |M^-1| E / lam
+        e2 = float(np.einsum("ij,ij->", E, abs(Minv) @ E)) / lam
+        tr = max(float(np.trace(T)), 1e-300)
+        t = np.sqrt(e2 / tr) if e2 > 0 else 0.0
+        T = (1 + t) * T + ((1 + 1 / t) * e2 if t > 0 else 0.0) * np.eye(T.shape[0])
+    return C - T / area
+
+
+def _roundoff(cg):
+    """A-priori floating-point margin ``s`` of the energy ``2 B^T X - X^T H X`` evaluated as
+    ``B^T X + X^T fl(B - H X)`` [unit of R]: the computed 3 x 3 tensor is within ``s I`` of the exact
+    energy of the computed ``X`` in the Loewner order (Gershgorin on the entrywise bounds). Each
+    entry errs by at most ``g_n (|B|^T |X| + |X|^T |r|) + g_m |X|^T (|B| + |H| |X|)`` with
+    ``g_m = (m + 1) u`` for the residual (``m`` non-zeros per row of ``H``) and ``g_n = sqrt(n) u``
+    for the dot products over the ``n`` unknowns (the usual estimate, as for the certificate's
+    margin, docs/stiffness.md). Also stores ``cg.E`` (ndof, s), the entrywise bound of the
+    residual's error ``g_m (|B| + |H| |X|)``, for the lower bound."""
+    u = np.finfo(float).eps
+    if cg.Habs is None:
+        cg.Habs = abs(cg.H)
+        cg.m_row = int(np.diff(cg.Habs.indptr).max(initial=0))
+    n = cg.H.shape[0]
+    aX, aB = np.abs(cg.X), np.abs(cg.B)
+    cg.E = (cg.m_row + 1) * u * (aB + cg.Habs @ aX)
+    D = np.sqrt(n) * u * (aB.T @ aX + aX.T @ np.abs(cg.Rt)) + aX.T @ cg.E
+    D = np.maximum(D, D.T)
+    return float(D.sum(axis=1).max(initial=0.0))
 
 
 def _best_lower(run, C, cg):
@@ -1342,6 +1396,7 @@ def _best_lower(run, C, cg):
         cands.append(_lower(C, cg, run.Ninv, run.lam_n, None, run.area))
     if not cands:
         return None
+    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     L = max(cands, key=lambda L: sum(_iso(L)))
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)
