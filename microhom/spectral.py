@@ -153,6 +153,29 @@ def gershgorin_upper(H, Minv_sqrt):
     return r * (1.0 + 1e3 * _U * max(A.shape[0], 1))
 
 
+def _check_pencil(H, M, eps, rel_gap, backend):
+    """Argument checks of :func:`certified_bound`; returns (H, M) as CSR."""
+    H = sp.csr_matrix(H)
+    M = sp.csr_matrix(M)
+    n = H.shape[0]
+    if H.shape != (n, n) or M.shape != (n, n):
+        raise ValueError(f"H and M must be square of the same shape, got {H.shape} and {M.shape}")
+    for name, X in (("H", H), ("M", M)):
+        scale = float(abs(X).max()) if X.nnz else 0.0
+        if X.nnz and not np.isfinite(scale):
+            raise ValueError(f"{name} must be finite")
+        if X.nnz and float(abs(X - X.T).max()) > 1e-12 * scale:
+            raise ValueError(f"{name} must be symmetric (|{name} - {name}^T| <= 1e-12 max|{name}|)")
+    if not (0 < eps <= 1e-3):
+        raise ValueError(f"eps must be in (0, 1e-3], got {eps!r}")
+    if not (0 < rel_gap <= 0.5):
+        raise ValueError(f"rel_gap must be in (0, 0.5], got {rel_gap!r}")
+    if backend == "cholmod":
+        raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
+                         "LL^T only)")
+    return H, M
+
+
 def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
                     Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4, keep_factor=False):
     """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
@@ -172,24 +195,8 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
 
     Cost: two numeric factorisations (three when not ``psd``) and a few tens of solves."""
     t0 = time.perf_counter()
-    H = sp.csr_matrix(H)
-    M = sp.csr_matrix(M)
+    H, M = _check_pencil(H, M, eps, rel_gap, backend)
     n = H.shape[0]
-    if H.shape != (n, n) or M.shape != (n, n):
-        raise ValueError(f"H and M must be square of the same shape, got {H.shape} and {M.shape}")
-    for name, X in (("H", H), ("M", M)):
-        scale = float(abs(X).max()) if X.nnz else 0.0
-        if X.nnz and not np.isfinite(scale):
-            raise ValueError(f"{name} must be finite")
-        if X.nnz and float(abs(X - X.T).max()) > 1e-12 * scale:
-            raise ValueError(f"{name} must be symmetric (|{name} - {name}^T| <= 1e-12 max|{name}|)")
-    if not (0 < eps <= 1e-3):
-        raise ValueError(f"eps must be in (0, 1e-3], got {eps!r}")
-    if not (0 < rel_gap <= 0.5):
-        raise ValueError(f"rel_gap must be in (0, 0.5], got {rel_gap!r}")
-    if backend == "cholmod":
-        raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
-                         "LL^T only)")
     nf = 0
     fm = factor(M, backend=backend, max_memory=max_memory)
     try:
