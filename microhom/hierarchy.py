@@ -150,7 +150,8 @@ class HierarchyResult(Result):
         Certified lower bound of the non-zero spectrum of ``M^-1 H`` used for the lower bounds
         [unit of kn], or None.
     spectral_bound_source : str
-        ``"dense"``, ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
+        ``"dense"`` (the certified bound of (H, M): a dense eigen-decomposition up to ``dense_max``
+        unknowns, Sylvester's inertia above), ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
         docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None),
         ``"dense+companion"`` (both; each order keeps the better lower bound) or ``"none"``.
     reasons : tuple of str
