@@ -23,8 +23,12 @@ semi-definite, ``R_k`` increases with k in the Loewner order and ``R_k <= R``, s
 ``C``) is a rigorous **upper** bound, monotone in k. A rigorous **lower** bound needs a certified
 lower bound ``lam`` of the non-zero spectrum of the pencil ``(H, M)``:
 ``R - R_k <= Res_k^T M^-1 Res_k / lam`` (``Res_k = -F - H X_k``, the residual). ``lam`` is
-computed exactly (dense eigen-decomposition) for small systems, may be passed by the user, or is
-unavailable (then ``lower`` is None and the reason is stated). Far from kt = kn the pencil has a
+computed exactly (dense eigen-decomposition) for small systems, certified by Sylvester's inertia
+(``microhom.spectral``) up to ``CERTIFIED_MAX_DOF`` unknowns, may be passed by the user, or is
+unavailable (then ``lower`` is None and the reason is stated). With a certified ``lam`` only the
+rigorous interval (with its round-off margins) stops CG, and steps preconditioned by the
+certificate's factorisation of ``H - s M`` close it where the soft modes hold the multilevel CG
+back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"). Far from kt = kn the pencil has a
 cluster near ``min(kt/kn, kn/kt)`` (rolling without sliding, or the spins) and a *companion* bound
 replaces it: the pencil of the same network at ``min(kn, kt)`` in both directions
 (``_companion_bound``; docs/theory.md, section 9, "Stiffness ratios far from 1"). An extrapolated
