@@ -1149,6 +1149,9 @@ def _cg_step(run, max_order, full, preconditioner):
         run.lowers[0] = run.C0.copy()
         run.best_low = np.array(_iso(run.C0))
         run.converged = True
+        if run.factor is not None:
+            run.factor.release()
+            run.factor = None
         return
     P = run.Minv
     if preconditioner == "amg":
