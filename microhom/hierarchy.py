@@ -830,7 +830,9 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
         releases the factorisation at once and continues with the multilevel CG instead. The
         spectrum of the preconditioned ``H`` is then 1 up to the few eigenvalues near ``s``, so
-        one or two steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
+        1-3 steps meet ``tol`` where the multilevel CG plateaus on the soft modes (the cheapest
+        certified interval at 1e5 disks: ``max_order=1, preconditioner="block"``, 1.7-2.2 times
+        the exact solve's CPU, docs/results/hierarchy.md section 7).
     spectral_bound : {"auto", "none"} or float
         "auto" (exact dense bound if ``ndof <= dense_max``, else the sparse certificate by
         Sylvester's inertia, ``microhom.spectral.certified_bound``, up to

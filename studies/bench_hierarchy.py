@@ -227,8 +227,10 @@ def speed(args):
 
 
 #: certify variants: the default; the multilevel CG alone (up to certify_max_order = 200 steps);
-#: 2 multilevel steps then the certificate's factorisation
-VARIANTS = {"default": {}, "multilevel": {"factor_steps": 0}, "fast": {"max_order": 2}}
+#: 2 multilevel steps then the certificate's factorisation; one block-Jacobi step (no multilevel
+#: setup) then the factorisation
+VARIANTS = {"default": {}, "multilevel": {"factor_steps": 0}, "fast": {"max_order": 2},
+            "lean": {"max_order": 1, "preconditioner": "block"}}
 
 
 def _timed(f):
