@@ -23,8 +23,12 @@ semi-definite, ``R_k`` increases with k in the Loewner order and ``R_k <= R``, s
 ``C``) is a rigorous **upper** bound, monotone in k. A rigorous **lower** bound needs a certified
 lower bound ``lam`` of the non-zero spectrum of the pencil ``(H, M)``:
 ``R - R_k <= Res_k^T M^-1 Res_k / lam`` (``Res_k = -F - H X_k``, the residual). ``lam`` is
-computed exactly (dense eigen-decomposition) for small systems, may be passed by the user, or is
-unavailable (then ``lower`` is None and the reason is stated). Far from kt = kn the pencil has a
+computed exactly (dense eigen-decomposition) for small systems, certified by Sylvester's inertia
+(``microhom.spectral``) up to ``CERTIFIED_MAX_DOF`` unknowns, may be passed by the user, or is
+unavailable (then ``lower`` is None and the reason is stated). With a certified ``lam`` only the
+rigorous interval (with its round-off margins) stops CG, and steps preconditioned by the
+certificate's factorisation of ``H - s M`` close it where the soft modes hold the multilevel CG
+back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"). Far from kt = kn the pencil has a
 cluster near ``min(kt/kn, kn/kt)`` (rolling without sliding, or the spins) and a *companion* bound
 replaces it: the pencil of the same network at ``min(kn, kt)`` in both directions
 (``_companion_bound``; docs/theory.md, section 9, "Stiffness ratios far from 1"). An extrapolated
@@ -68,9 +72,10 @@ _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy d
 _CHUNK = 48          # columns per storage chunk of the re-orthogonalisation basis
 SOFT_MODES_AUTO_MAX = 20_000   # soft_modes="auto": search 3 soft modes up to this many unknowns
 _FAST_RATIO = 0.3     # increment ratios below this: geometric convergence, geometric tail (k >= 4)
-_ZERO_EIG = 1e-9      # pencil eigenvalues below this fraction of the largest are floppy modes
+_ZERO_EIG_MIN = 1e-12  # dense bound: pencil eigenvalues below max(round-off margin, this fraction of the
+                       # largest) are floppy modes (the sparse certificate's zero threshold is 1e-12 too)
 _TRUST_RATIO = 1e-4   # dense (H, M) bound trusted down to min(kt/kn, kn/kt) = this (its soft cluster
-                      # sits near 0.02 x the ratio, 1e3 x above _ZERO_EIG here)
+                      # sits near 0.02 x the ratio, 1e3 x above the dense zero threshold of 1e-9 used when this was measured)
 
 
 # ---- result types ----------------------------------------------------------------------------
@@ -149,7 +154,8 @@ class HierarchyResult(Result):
         Certified lower bound of the non-zero spectrum of ``M^-1 H`` used for the lower bounds
         [unit of kn], or None.
     spectral_bound_source : str
-        ``"dense"``, ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
+        ``"dense"`` (the certified bound of (H, M): a dense eigen-decomposition up to ``dense_max``
+        unknowns, Sylvester's inertia above), ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
         docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None),
         ``"dense+companion"`` (both; each order keeps the better lower bound) or ``"none"``.
     reasons : tuple of str
@@ -171,6 +177,9 @@ class HierarchyResult(Result):
         (particle-block Jacobi ``M``: order k = the relaxation k contact shells carry).
     preconditioner_time : float
         Wall time of the preconditioner's setup [s] (included in ``solve_time``).
+    n_factor_steps : int
+        CG steps (included in ``order``) preconditioned by the certificate's factorisation of
+        ``H - s M`` past ``max_order`` (``factor_steps``); 0 when the multilevel CG met ``tol``.
     n_soft_modes : int
         Soft modes deflated (``soft_modes`` > 0): their span augments every order's space.
     certified : bool
@@ -226,6 +235,7 @@ class HierarchyResult(Result):
     preconditioner: str = "block"
     preconditioner_time: float = 0.0
     n_soft_modes: int = 0
+    n_factor_steps: int = 0
     certified: bool = False
     calibrated: bool = False
     kt_over_kn: float = float("nan")
@@ -312,24 +322,36 @@ def block_preconditioner(asm: Assembly):
     return M, Minv, Minv_sqrt, n_bad
 
 
-def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False):
+def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False,
+                         return_factor=False):
     """Smallest non-zero eigenvalue of the pencil ``(H, M)`` (floppy modes excluded), computed
     exactly by a dense eigen-decomposition of ``M^-1/2 H M^-1/2`` when ``ndof <= dense_max``.
 
     Returns (lam, n_zero, n_negative): ``lam`` reduced by a round-off margin
     (``1e3 * eps * ndof * lam_max``) so that it is a certified lower bound; None if the system is
     too large, or if the margin swallows it. ``n_negative`` > 0 means ``H`` is indefinite.
-    With ``return_max``, (lam, lam_max + margin, n_zero, n_negative).
+    With ``return_max``, (lam, lam_max + margin, n_zero, n_negative). With ``return_factor`` one
+    more item: the factorisation of ``H - s M`` at the certified shift of the sparse path (a
+    :class:`microhom.factor.Factor`; the caller releases it), None on the dense path or when not
+    certified.
     """
+    out = _spectral_lower_bound(asm, Minv_sqrt, dense_max, return_factor)
+    fac = out[-1]
+    out = out[:-1] if return_max else (out[0], out[2], out[3])
+    return out + (fac,) if return_factor else out
+
+
+def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
+    """(lam, lam_max, n_zero, n_negative, factor or None) of :func:`spectral_lower_bound`."""
     n = asm.ndof
     if n == 0:
-        return (None, None, 0, 0) if return_max else (None, 0, 0)
+        return None, None, 0, 0, None
     if n > dense_max:
         # above the dense limit: certified by Sylvester's law of inertia (microhom.spectral),
         # up to CERTIFIED_MAX_DOF unknowns (1e5 particles); two or three sparse factorisations
         from microhom import spectral
         from microhom.factor import FactorisationError, MemoryGuardError
-        none = (None, None, 0, 0) if return_max else (None, 0, 0)
+        none = (None, None, 0, 0, None)
         if n > spectral.CERTIFIED_MAX_DOF:
             return none
         M, _, S, n_bad = block_preconditioner(asm)
@@ -338,26 +360,31 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
         S = S if Minv_sqrt is None else Minv_sqrt
         psd = asm.Kgs is None                     # no pre-stress: H = B^T K B >= 0
         try:
-            b = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None)
+            b, fac = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None,
+                                              keep_factor=True)
         except (FactorisationError, MemoryGuardError, ValueError):
             return none
+        if fac is not None and not keep:
+            fac.release()
+            fac = None
         hi = b.upper if b.upper is not None else None
         if psd:   # H <= 2M without pre-stress (docs/theory.md section 9)
             hi = 2.0 + b.margin if hi is None else min(hi, 2.0 + b.margin)
-        out = b.lower, b.n_zero, b.n_negative
-        return (out[0], hi, out[1], out[2]) if return_max else out
+        return b.lower, hi, b.n_zero, b.n_negative, fac
     S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
     lmax = float(np.abs(lam).max()) if lam.size else 0.0
-    zero = np.abs(lam) <= _ZERO_EIG * lmax
+    margin = 1e3 * np.finfo(float).eps * n * lmax
+    # zero = within the round-off margin: an eigenvalue above it is certified non-zero, however
+    # small (a fixed 1e-9 lmax threshold took a near-mechanism at 8e-10 lmax for a floppy mode and
+    # returned a "lower bound" 2e5 times its eigenvalue: docs/theory.md section 9, issue 22)
+    zero = np.abs(lam) <= max(margin, _ZERO_EIG_MIN * lmax)
     neg = (lam < 0) & ~zero
     pos = lam[(lam > 0) & ~zero]
-    margin = 1e3 * np.finfo(float).eps * n * lmax
     hi = float(lam.max()) + margin
     lo = float(pos.min()) - margin if pos.size else -1.0
-    out = (lo if lo > 0 else None), int(zero.sum()), int(neg.sum())
-    return (out[0], hi, out[1], out[2]) if return_max else out
+    return (lo if lo > 0 else None), hi, int(zero.sum()), int(neg.sum()), None
 
 
 def lowest_modes(asm: Assembly, M=None, P=None, *, Minv=None, k: int = 6, maxiter: int = 40,
@@ -447,6 +474,8 @@ class _BlockPCG:
         self.B = B
         self.X = np.zeros_like(B)
         self.R = B.copy()
+        self.Rt = self.R
+        self.Habs, self.m_row, self.E = None, 0, None
         z0 = Minv @ self.R
         zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
@@ -501,11 +530,14 @@ class _BlockPCG:
         P, HP = _tall(P, T), _tall(HP, T)
         alpha = P.T @ self.R
         self.X += _tall(P, alpha)
+        # the bounds use the true residual B - H X (one product with 3 columns): the recursive one
+        # drifts by round-off once it is small, and the lower bound must be that of X itself
+        self.Rt = self.B - self.H @ self.X
         if self.true_residual:
-            self.R = self.B - self.H @ self.X             # no drift: Rk is the energy of X itself
+            self.R = self.Rt                              # no drift in the iteration either
         else:
             self.R -= _tall(HP, alpha)
-        R = self.B.T @ self.X + self.X.T @ self.R        # 2 B^T X - X^T H X  (H X = B - R)
+        R = self.B.T @ self.X + self.X.T @ self.Rt       # 2 B^T X - X^T H X  (H X = B - Rt)
         self.Rk = 0.5 * (R + R.T)
         return P, HP
 
@@ -742,13 +774,20 @@ class _Run:
     min_contacts: object = None
     limit: int | None = None         # memory limit [bytes] (max_memory or available), None: unknown
     planned: int = 0                 # predicted peak without the dense bound [bytes]
+    factor: object = None            # factor of H - s M at the certified shift (sparse certificate)
+    factor_steps: int = 4            # at most this many CG steps preconditioned by it
+    n_factor_steps: int = 0          # taken
+    max_order: int = 16
+    certify_max_order: int = 200
+    margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
-                         max_order: int = 16, spectral_bound="auto", dense_max: int = 3000,
+                         max_order: int = 16, spectral_bound="auto", dense_max: int = 1000,
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto",
-                         max_memory=None) -> HierarchyResult:
+                         max_memory=None, certify_max_order: int = 200,
+                         factor_steps: int = 4) -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -758,20 +797,12 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     why in ``reasons``. Outside the calibrated regime the estimate is the rigorous interval itself
     (midpoint, half-width; ``upper`` and an infinite error without a spectral bound).
 
-    Why the extrapolation is not trusted at kt/kn far from 1 (issue 22): the spectrum of the pencil
-    ``(H, M)`` splits into two clusters. At kt >> kn, ``M`` is dominated by the tangential springs
-    and the motions that slip no contact (rolling without sliding: about ``3N - N_c``, N of them at
-    Z = 4) cost only kn, so they form a cluster near kn/kt, far below the rest; at kt << kn the spins
-    form the soft cluster near kt/kn. CG resolves the stiff cluster first: its increments fall fast
-    and geometrically for a few steps, the geometric tail rule took that for convergence and
-    stated an error of 1e-6 while the soft cluster still carried most of the shear relaxation
-    (G = 0.80 against the exact 0.45 at kt/kn = 1e8). The multilevel near-null space (translations,
-    rotation, spin) does not contain the rolling motions either, so the V-cycle does not remove the
-    cluster. The bounds stayed rigorous (the upper bound is an upper bound at every step); the
-    stopping rule and the validity did not. Now the stopping rule uses the extrapolation only in
-    the calibrated regime, and CG run to the rigorous tolerance reaches the exact value at every
-    ratio from 1e-6 to 1e9 (docs/theory.md, section 9, "Stiffness ratios far from 1";
-    docs/results/hierarchy.md, section 6).
+    Far from kt = kn the spectrum of ``(H, M)`` splits into two clusters and CG resolves the stiff
+    one first, so the extrapolation is trusted only where it was calibrated; CG run to the rigorous
+    tolerance reaches the exact value at every ratio from 1e-6 to 1e9 (docs/theory.md, section 9,
+    "Stiffness ratios far from 1"; docs/results/hierarchy.md, section 6). With a certified spectral
+    bound only the rigorous interval stops CG (issue 22; docs/theory.md, section 9, "Certified
+    intervals that meet the tolerance").
 
     Parameters
     ----------
@@ -785,13 +816,33 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Target relative width of the interval of K and of G, in (0, 1). The iteration stops at
         the first order where both meet it, or at ``max_order``; the result says which.
     max_order : int
-        Maximum number of CG steps (Gauss points), 1..10000; order k uses 2k moments.
+        Maximum number of CG steps (Gauss points) with the chosen preconditioner, 1..10000; order
+        k uses 2k moments. Without a certified spectral bound the iteration stops here (or earlier,
+        where the calibrated extrapolation meets ``tol``). With one, only the rigorous interval
+        stops it (issue 22): past ``max_order`` it goes on with ``factor_steps`` or
+        ``certify_max_order``, and ``reasons`` says when even that cap was not enough.
+    certify_max_order : int
+        Cap on the CG steps when a certified bound is available but no factorisation is (dense,
+        user or companion bound), 1..10000 (values below ``max_order`` act as ``max_order``).
+        The basis is fully re-orthogonalised past ``max_order`` only while it fits in memory.
+    factor_steps : int
+        Steps past ``max_order`` preconditioned by the sparse certificate's factorisation of
+        ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
+        releases the factorisation at once and continues with the multilevel CG instead. The
+        spectrum of the preconditioned ``H`` is then 1 up to the few eigenvalues near ``s``, so
+        1-3 steps meet ``tol`` where the multilevel CG plateaus on the soft modes (the cheapest
+        certified interval at 1e5 disks: ``max_order=1, preconditioner="block"``, 1.7-2.2 times
+        the exact solve's CPU, docs/results/hierarchy.md section 7).
     spectral_bound : {"auto", "none"} or float
-        "auto" (exact dense bound if ``ndof <= dense_max``, else none), "none", or a
+        "auto" (exact dense bound if ``ndof <= dense_max``, else the sparse certificate by
+        Sylvester's inertia, ``microhom.spectral.certified_bound``, up to
+        ``microhom.spectral.CERTIFIED_MAX_DOF`` unknowns; none above), "none", or a
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
         responsibility).
     dense_max : int
-        Largest number of unknowns for the dense spectral bound.
+        Largest number of unknowns for the dense spectral bound (default 1000: at 2922 unknowns
+        the dense eigen-solve took 31 s against 0.8 s for the sparse certificate under load 16,
+        docs/results/hierarchy.md, section 7).
     min_contacts : int, optional
         Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
     reorthogonalize : bool or "auto"
@@ -809,9 +860,11 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         estimate always use ``M``.
     soft_modes : int or "auto"
         Number of lowest modes of the pencil (H, M) to search per preconditioner (:func:`lowest_modes`,
-        LOBPCG; 0..50), or "auto" (default): 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for
-        1000-8000 unknowns), 0 above (then the extrapolation is not calibrated: ``reasons`` says
-        so). A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
+        LOBPCG; 0..50), or "auto" (default): none when the automatic spectral bound of (H, M) is
+        certified (its inertia proves stability and only the rigorous interval stops CG; if that
+        interval misses ``tol`` the extrapolation is then not calibrated and ``reasons`` says so),
+        else 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for 1000-8000 unknowns), 0 above
+        (then the extrapolation is not calibrated: ``reasons`` says so). A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
         result is flagged ``unstable`` with the eigenvalue (finding none is not a proof of
         stability). The soft modes found are deflated: the CG space is augmented with them, so that
         a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
@@ -830,7 +883,12 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     t0 = time.perf_counter()
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
                                      preconditioner, max_memory)
-    run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts)
+    for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
+            raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
+    run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
+               max_order=int(max_order), certify_max_order=int(certify_max_order),
+               factor_steps=int(factor_steps))
     full = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory)
     _setup(run, min_contacts)
     t_asm = time.perf_counter() - t0
@@ -949,10 +1007,16 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
     elif spectral_bound == "auto" and 0 < asm.ndof <= dense_max and not _dense_fits(run, asm.ndof):
         pass
     elif spectral_bound == "auto" and asm.ndof:
-        run.lam, run.lam_hi, _, n_neg = spectral_lower_bound(asm, run.Msq, dense_max=dense_max,
-                                                             return_max=True)
+        run.lam, run.lam_hi, _, n_neg, run.factor = spectral_lower_bound(
+            asm, run.Msq, dense_max=dense_max, return_max=True, return_factor=True)
+        if run.factor is not None and run.factor_steps == 0:
+            run.factor.release()
+            run.factor = None
         run.src = "dense" if run.lam is not None else "none"
         run.unstable = n_neg > 0
+        if n_neg and run.factor is not None:
+            run.factor.release()
+            run.factor = None
         if n_neg:
             run.reasons.append(f"unstable: negative curvature, the pencil (H, M) has {n_neg} negative "
                                "eigenvalue(s) (dense check: H indefinite); the bounds are void")
@@ -970,8 +1034,10 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
             if run.lam_n is not None:
                 run.src = "companion" if run.lam is None else "dense+companion"
         if run.lam is None and run.lam_n is None and asm.ndof > dense_max:
-            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max}; "
-                               "pass spectral_bound=): the lower bounds are not available")
+            run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max} and "
+                               "the sparse certificate failed or the system is above its limit "
+                               "microhom.spectral.CERTIFIED_MAX_DOF; pass spectral_bound=): the lower bounds are "
+                               "not available")
     run.t_bound += time.perf_counter() - tb
 
 
@@ -1017,8 +1083,9 @@ def _companion_bound(run, dense_max):
     stick = kt > 0
     if not run.far_ratio:
         return                                            # ratios near 1: (H, M) is well conditioned
-    if run.asm.ndof > dense_max:
-        return            # spectral_lower_bound certifies dense systems only (for now): no twin
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    if run.asm.ndof > CERTIFIED_MAX_DOF:
+        return            # spectral_lower_bound certifies no larger system: no twin
     kmin = np.where(stick, np.minimum(kn, kt), kn)
     twin = net.with_stiffness(kn=kmin, kt=np.where(stick, kmin, 0.0))
     asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False)
@@ -1033,6 +1100,11 @@ def _companion_bound(run, dense_max):
 def _soft_mode_step(run, soft_modes):
     """LOBPCG soft modes (deflated later) and the instability proof; returns the number searched."""
     asm = run.asm
+    if soft_modes == "auto" and run.lam is not None and run.src != "user":
+        # the certificate of (H, M) already counted the negative eigenvalues (a proof of stability,
+        # which LOBPCG is not) and only its rigorous interval stops CG: the search (half the time to
+        # a certified interval at N = 3000, docs/results/hierarchy.md section 7) would buy nothing
+        return 0
     if soft_modes == "auto":
         soft_modes = 3 if asm.ndof <= SOFT_MODES_AUTO_MAX else 0
         if not soft_modes and asm.ndof:
@@ -1061,10 +1133,17 @@ def _calibration(run, preconditioner, soft):
 
 
 def _cg_step(run, max_order, full, preconditioner):
-    """Block PCG, one order per step, until the stopping rule is met (``_met``) or max_order."""
+    """Block PCG, one order per step, until the stopping rule is met or the cap.
+
+    With a certified lower bound (``run.lam`` or the companion ``run.lam_n``) only the rigorous
+    interval stops the iteration (issue 22): the multilevel CG runs up to ``max_order`` steps; if
+    the interval is still wider than ``tol``, up to ``factor_steps`` more steps preconditioned by
+    the certificate's factorisation of ``H - s M`` (when the sparse certificate made one), else the
+    multilevel CG continues up to ``certify_max_order``. Without one, the calibrated extrapolation
+    may stop it as before (``_met``)."""
     asm = run.asm
     B = -asm.F if asm.ndof else np.zeros((0, _n_mandel(asm.net.dim)))
-    run.Cs, run.lowers = [run.C0], [None]
+    run.Cs, run.lowers, run.margins = [run.C0], [None], [0.0]
     scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
     run.trivial = asm.ndof == 0 or float(np.abs(B).max(initial=0.0)) <= 1e-13 * scale_F
     if run.trivial:
@@ -1072,6 +1151,9 @@ def _cg_step(run, max_order, full, preconditioner):
         run.lowers[0] = run.C0.copy()
         run.best_low = np.array(_iso(run.C0))
         run.converged = True
+        if run.factor is not None:
+            run.factor.release()
+            run.factor = None
         return
     P = run.Minv
     if preconditioner == "amg":
@@ -1084,8 +1166,14 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
+    rigorous = run.lam is not None or run.lam_n is not None
+    cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
+    if rigorous and run.factor is None:
+        cap = max(int(max_order), int(run.certify_max_order))
     order = 0
-    for order in range(1, int(max_order) + 1):
+    for order in range(1, cap + 1):
+        if order > max_order:
+            _continue_certifying(run, cg, full)
         cg.step()
         if cg.unstable:
             run.unstable = True
@@ -1093,13 +1181,43 @@ def _cg_step(run, max_order, full, preconditioner):
             break
         C = _tensor(run.C_aff, cg.Rk, run.area, run.corr)
         run.Cs.append(C)
+        run.margins.append(_roundoff(cg) / run.area)
         run.lowers.append(_best_lower(run, C, cg))
-        if _met(C, run.best_low, run.tol, run.Cs, run.calibrated, run.prestress):
+        mI = run.margins[-1] * np.eye(C.shape[0])
+        if _met(C + mI, run.best_low, run.tol, run.Cs, run.calibrated and not rigorous, run.prestress,
+                floor=2 * np.array(_iso(mI))):
             run.converged = True
             break
         if cg.done:
             break
+    if not run.converged and rigorous and not run.unstable:
+        # the rigorous interval did not meet tol: the calibrated extrapolation still may (as before)
+        run.converged = _met(run.Cs[-1], None, run.tol, run.Cs, run.calibrated, run.prestress)
+    if run.factor is not None:
+        run.factor.release()
+        run.factor = None
     run.order, run.n_floppy, run.n_soft = order, cg.n_floppy, cg.n_deflated
+
+
+def _continue_certifying(run, cg, full):
+    """Past ``max_order`` with a certified bound: switch the preconditioner to the certificate's
+    factorisation (``PH`` then has its spectrum at 1 up to the few eigenvalues near the shift),
+    or keep the multilevel one; the true residual drives the iteration from here (each step then
+    minimises the energy exactly along its block, so the upper bounds stay monotone whatever the
+    conjugation), and the full basis is kept only while it fits in memory."""
+    cg.true_residual = True
+    cg.R = cg.Rt
+    if run.factor is not None:
+        if run.n_factor_steps == 0:
+            fac, n = run.factor, cg.H.shape[0]
+            cg.Minv = sla.LinearOperator((n, n), matvec=fac.solve, matmat=fac.solve, dtype=float)
+            cg.Z = cg.Minv @ cg.R          # this step's block already from the factorisation
+            cg.P = cg.Z
+        run.n_factor_steps += 1
+    elif full and run.limit is not None:
+        cols = sum(c[2] for c in cg._chunks) + 3 * cg.B.shape[1]
+        if 16 * cg.H.shape[0] * cols + run.planned > run.limit:
+            cg.full = False
 
 
 def _estimates(run, KG, KGl):
@@ -1107,7 +1225,8 @@ def _estimates(run, KG, KGl):
     ests = []
     for m in range(2):
         seq = KG[:, m]
-        up = float(seq[-1])
+        mI = run.margins[-1] * np.eye(run.C0.shape[0])
+        up = float(seq[-1]) + float(_iso(mI)[m])          # + the round-off margin of the energy
         lo = None if run.best_low is None else float(run.best_low[m])   # every order's bound holds
         if lo is not None and not run.prestress:
             lo = max(lo, 0.0)       # without pre-stress C = min of an energy >= 0: K, G >= 0
@@ -1153,14 +1272,16 @@ def _verdict(run, ests, C_upper):
         if e.value < -_DEGENERATE * max(scale, 1e-300):
             negative = True
             reasons.append(f"negative modulus: {name} = {e.value:.4g} (interval [{_fmt(e.lower)}, {e.upper:.4g}])")
-    certified = all(e.lower is not None and e.upper - e.lower <= tol * abs(e.upper) for e in ests) or run.trivial
+    floor = 2 * np.array(_iso(run.margins[-1] * np.eye(C_upper.shape[0])))   # round-off alone (_met)
+    certified = all(e.lower is not None and e.upper - e.lower <= tol * abs(e.upper) + f
+                    for e, f in zip(ests, floor)) or run.trivial
     if run.n_floppy:
         reasons.append(f"{run.n_floppy} floppy search direction(s) dropped (zero-stiffness modes)")
     if not jammed or run.unstable:
         return certified, jammed, floppy, negative
     if not certified:
-        wide = [f"{n} {e.rel_width:.3g}" for n, e in zip("KG", ests) if e.lower is not None
-                and e.upper - e.lower > tol * abs(e.upper)]
+        wide = [f"{n} {e.rel_width:.3g}" for n, e, f in zip("KG", ests, floor) if e.lower is not None
+                and e.upper - e.lower > tol * abs(e.upper) + f]
         if wide:
             reasons.append(f"interval wider than tol {tol:g}: relative width {', '.join(wide)}")
         if run.calibrated and run.converged:
@@ -1176,6 +1297,13 @@ def _verdict(run, ests, C_upper):
         width = "rigorous interval" if run.lowers[-1] is not None else "no rigorous lower bound"
         reasons.append(f"tolerance {tol:g} not met after {run.order} step(s) ({2 * run.order} moments; "
                        f"{width}): returned the best interval")
+    if not certified and run.best_low is not None and not run.trivial:
+        lam = run.lam if run.lam is not None else run.lam_n
+        cap = (f"{run.max_order} multilevel + {run.n_factor_steps} factorised step(s)" if run.n_factor_steps
+               else f"the cap of {max(run.max_order, run.certify_max_order)} step(s)")
+        reasons.append(f"rigorous interval wider than tol after {cap}: the residual term "
+                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates; raise "
+                       "max_order, certify_max_order or factor_steps")
     return certified, jammed, floppy, negative
 
 
@@ -1190,13 +1318,14 @@ def _finish(run, preconditioner, t_asm, t_solve):
     KG = np.array([_iso(C) for C in Cs])
     KGl = np.array([_iso(L) if L is not None else (np.nan, np.nan) for L in run.lowers])
     ests = _estimates(run, KG, KGl)
-    certified, jammed, floppy, negative = _verdict(run, ests, Cs[-1])
+    C_up = Cs[-1] + run.margins[-1] * np.eye(Cs[-1].shape[0])
+    certified, jammed, floppy, negative = _verdict(run, ests, C_up)
     C_fo = run.C_fo
     Ka_all, Ga_all = _iso(run.C_aff_all)
     asm, network = run.asm, run.network
     return HierarchyResult(
         K=ests[0], G=ests[1], K_orders=KG[:, 0], G_orders=KG[:, 1], K_lower_orders=KGl[:, 0],
-        G_lower_orders=KGl[:, 1], C_orders=C_orders, C_upper=Cs[-1], C_lower=run.lowers[-1],
+        G_lower_orders=KGl[:, 1], C_orders=C_orders, C_upper=C_up, C_lower=run.lowers[-1],
         K_first_order=_iso(C_fo)[0], G_first_order=_iso(C_fo)[1], C_first_order=C_fo,
         K_affine_all=Ka_all, G_affine_all=Ga_all, order=int(run.order), n_moments=2 * int(run.order),
         tol=run.tol, converged=bool(run.converged), spectral_bound=run.lam, spectral_bound_source=run.src,
@@ -1205,7 +1334,7 @@ def _finish(run, preconditioner, t_asm, t_solve):
         n_particles=network.n_particles, n_contacts=asm.net.n_contacts, prestress=bool(run.prestress),
         assembly_time=t_asm, solve_time=t_solve, bound_time=run.t_bound,
         preconditioner=preconditioner if not run.trivial else "none", preconditioner_time=run.t_prec,
-        n_soft_modes=int(run.n_soft), certified=bool(certified), calibrated=bool(run.calibrated),
+        n_soft_modes=int(run.n_soft), n_factor_steps=int(run.n_factor_steps), certified=bool(certified), calibrated=bool(run.calibrated),
         kt_over_kn=float(run.kt_over_kn), jammed=bool(jammed), floppy=bool(floppy), negative=bool(negative))
 
 
@@ -1220,14 +1349,45 @@ def _lower(C, cg, Minv, lam, lam_hi, area):
     """
     if C is None or cg is None:
         return None
-    Z = Minv @ cg.R
-    m0 = cg.R.T @ Z
+    Z = Minv @ cg.Rt                 # the computed residual fl(B - H X) of the iterate
+    m0 = cg.Rt.T @ Z
     m0 = 0.5 * (m0 + m0.T)
     if lam_hi is None or not np.isfinite(lam_hi):
-        return C - m0 / (lam * area)
-    m1 = Z.T @ (cg.H @ Z)
-    m1 = 0.5 * (m1 + m1.T)
-    return C - ((lam + lam_hi) * m0 - m1) / (lam * lam_hi * area)
+        T = m0 / lam
+    else:
+        m1 = Z.T @ (cg.H @ Z)
+        m1 = 0.5 * (m1 + m1.T)
+        T = ((lam + lam_hi) * m0 - m1) / (lam * lam_hi)
+    E = getattr(cg, "E", None)
+    if E is not None:
+        # the exact residual is r_hat + e with |e| <= E entrywise: (r_hat + e)^T H^+ (r_hat + e) <=
+        # (1 + t) r_hat^T H^+ r_hat + (1 + 1/t) e^T H^+ e, and e^T H^+ e <= E^T |M^-1| E / lam
+        e2 = float(np.einsum("ij,ij->", E, abs(Minv) @ E)) / lam
+        tr = max(float(np.trace(T)), 1e-300)
+        t = np.sqrt(e2 / tr) if e2 > 0 else 0.0
+        T = (1 + t) * T + ((1 + 1 / t) * e2 if t > 0 else 0.0) * np.eye(T.shape[0])
+    return C - T / area
+
+
+def _roundoff(cg):
+    """A-priori floating-point margin ``s`` of the energy ``2 B^T X - X^T H X`` evaluated as
+    ``B^T X + X^T fl(B - H X)`` [unit of R]: the computed 3 x 3 tensor is within ``s I`` of the exact
+    energy of the computed ``X`` in the Loewner order (Gershgorin on the entrywise bounds). Each
+    entry errs by at most ``g_n (|B|^T |X| + |X|^T |r|) + g_m |X|^T (|B| + |H| |X|)`` with
+    ``g_m = (m + 1) u`` for the residual (``m`` non-zeros per row of ``H``) and ``g_n = sqrt(n) u``
+    for the dot products over the ``n`` unknowns (the usual estimate, as for the certificate's
+    margin, docs/stiffness.md). Also stores ``cg.E`` (ndof, s), the entrywise bound of the
+    residual's error ``g_m (|B| + |H| |X|)``, for the lower bound."""
+    u = np.finfo(float).eps
+    if cg.Habs is None:
+        cg.Habs = abs(cg.H)
+        cg.m_row = int(np.diff(cg.Habs.indptr).max(initial=0))
+    n = cg.H.shape[0]
+    aX, aB = np.abs(cg.X), np.abs(cg.B)
+    cg.E = (cg.m_row + 1) * u * (aB + cg.Habs @ aX)
+    D = np.sqrt(n) * u * (aB.T @ aX + aX.T @ np.abs(cg.Rt)) + aX.T @ cg.E
+    D = np.maximum(D, D.T)
+    return float(D.sum(axis=1).max(initial=0.0))
 
 
 def _best_lower(run, C, cg):
@@ -1241,23 +1401,25 @@ def _best_lower(run, C, cg):
         cands.append(_lower(C, cg, run.Ninv, run.lam_n, None, run.area))
     if not cands:
         return None
+    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     L = max(cands, key=lambda L: sum(_iso(L)))
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)
     return L
 
 
-def _met(C, L, tol, Cs, calibrated=True, prestress=True):
+def _met(C, L, tol, Cs, calibrated=True, prestress=True, floor=(0.0, 0.0)):
     """Stop test: the rigorous interval (``L`` = the best lower bounds (K, G) of all orders so far,
-    or None; raised to 0 without pre-stress) has relative width <= tol for both K and G, or, only
-    where the extrapolation is
-    calibrated, its stated interval ``value +- error`` has."""
+    or None; raised to 0 without pre-stress) has relative width <= tol for both K and G (plus
+    ``floor``, the width the round-off margins alone make: a modulus that is exactly 0 has no
+    relative width), or, only where the extrapolation is calibrated, its stated interval
+    ``value +- error`` has."""
     K, G = _iso(C)
     if L is not None:
         Kl, Gl = L
         if not prestress:
             Kl, Gl = max(Kl, 0.0), max(Gl, 0.0)
-        if (K - Kl) <= tol * abs(K) and (G - Gl) <= tol * abs(G):
+        if (K - Kl) <= tol * abs(K) + floor[0] and (G - Gl) <= tol * abs(G) + floor[1]:
             return True
     if not calibrated:
         return False

@@ -116,22 +116,8 @@ def gershgorin_upper(H, Minv_sqrt):
     return r * (1.0 + 1e3 * _U * max(A.shape[0], 1))
 
 
-def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
-                    Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4) -> SpectralBound:
-    """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
-    threshold ``eps``, with the counts of zero and negative eigenvalues (module docstring).
-
-    H : (n, n) real symmetric sparse; M : (n, n) symmetric positive definite sparse (checked by
-    its inertia); eps : zero threshold, in (0, 1e-3]; psd : ``H`` is known to be positive
-    semi-definite (no negative eigenvalues: saves the factorisation of ``H + eps M``);
-    backend : :func:`microhom.factor.factor` back end (must report the inertia: ``"pardiso"`` or
-    ``"splu"``); rel_gap : in (0, 0.5], the shift is ``(1 - rel_gap)`` times the estimate;
-    tol : Lanczos tolerance; Minv_sqrt : ``M^-1/2`` (sparse) for the Gershgorin upper bound;
-    lam_max : a known upper bound of the largest eigenvalue (used for the round-off margin);
-    max_memory [bytes] : memory limit of each factorisation; max_tries : shifts tried.
-
-    Cost: two numeric factorisations (three when not ``psd``) and a few tens of solves."""
-    t0 = time.perf_counter()
+def _check_pencil(H, M, eps, rel_gap, backend):
+    """Argument checks of :func:`certified_bound`; returns (H, M) as CSR."""
     H = sp.csr_matrix(H)
     M = sp.csr_matrix(M)
     n = H.shape[0]
@@ -150,6 +136,30 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
     if backend == "cholmod":
         raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
                          "LL^T only)")
+    return H, M
+
+
+def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
+                    Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4, keep_factor=False):
+    """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
+    threshold ``eps``, with the counts of zero and negative eigenvalues (module docstring).
+
+    H : (n, n) real symmetric sparse; M : (n, n) symmetric positive definite sparse (checked by
+    its inertia); eps : zero threshold, in (0, 1e-3]; psd : ``H`` is known to be positive
+    semi-definite (no negative eigenvalues: saves the factorisation of ``H + eps M``);
+    backend : :func:`microhom.factor.factor` back end (must report the inertia: ``"pardiso"`` or
+    ``"splu"``); rel_gap : in (0, 0.5], the shift is ``(1 - rel_gap)`` times the estimate;
+    tol : Lanczos tolerance; Minv_sqrt : ``M^-1/2`` (sparse) for the Gershgorin upper bound;
+    lam_max : a known upper bound of the largest eigenvalue (used for the round-off margin);
+    max_memory [bytes] : memory limit of each factorisation; max_tries : shifts tried;
+    keep_factor : also return the factorisation of ``H - s M`` at the certified shift (a
+    :class:`microhom.factor.Factor`, the caller releases it), or None when not certified:
+    ``(SpectralBound, Factor or None)`` instead of the ``SpectralBound`` alone.
+
+    Cost: two numeric factorisations (three when not ``psd``) and a few tens of solves."""
+    t0 = time.perf_counter()
+    H, M = _check_pencil(H, M, eps, rel_gap, backend)
+    n = H.shape[0]
     nf = 0
     fm = factor(M, backend=backend, max_memory=max_memory)
     try:
@@ -225,13 +235,17 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                    f"no shift above eps = {eps:g} certified in {max_tries} tries (eigenvalues crowd "
                    "just above the zero threshold)", be)
 
+    kept = None
     try:
-        return _run()
+        res = _run()
+        if keep_factor and res.lower is not None:
+            kept, fac = fac, None     # the factor of H - s M at the certified shift s
     except FactorisationError as exc:     # perturbed pivots, no symmetric pivoting: no certificate
-        return out(None, None, None, None, 0, 0, f"no certified inertia: {exc}", be)
+        res = out(None, None, None, None, 0, 0, f"no certified inertia: {exc}", be)
     finally:
         if fac is not None:
             fac.release()
+    return (res, kept) if keep_factor else res
 
 
 def _dense_eigs(H, M):

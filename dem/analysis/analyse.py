@@ -323,8 +323,9 @@ class AnalysisResult(Result):
         What the closure was given (Z, r, phi, kt/kn, ...); printed in the JSON's ``closure``
         section after the prediction.
     hierarchy : microhom.hierarchy.HierarchyResult or SectionError
-        The relaxation hierarchy (same pre-stress choice as the exact stiffness, at most 16 CG
-        steps): ``hierarchy.K.value``, ``.upper`` (rigorous upper bound), ``.lower`` (rigorous
+        The relaxation hierarchy (same pre-stress choice as the exact stiffness, 16 multilevel CG
+        steps, then up to 4 steps preconditioned by the certificate's factorisation while the
+        certified interval is wider than tol): ``hierarchy.K.value``, ``.upper`` (rigorous upper bound), ``.lower`` (rigorous
         lower bound or None), ``.error`` (stated) [N/m], ``order``, ``converged``, ``unstable``,
         ``valid``, ``certified``, ``calibrated``, ``reasons``.
     hierarchy_s : float or None
