@@ -197,6 +197,10 @@ def candidates(df):
         if c not in df or df[c].isna().any():   # the pebble-game columns need the cached packings
             continue
         trials.append((f"closure + {c}", (c,), FEATURES_K, FEATURES_G))
+    # the Maxwell term without the game: redundant constraints per particle, up to the factor
+    # (2 - s)/2 (kt > 0) or 1/2 (kt = 0) and 2/N, linear in Z - Z_iso (the closure has log dZ)
+    df = df.assign(maxwell_linear=(1.0 - df.rattler_fraction) * df.dZ)
+    trials.append(("closure + (Z - Z_iso)(1 - x_r)", ("maxwell_linear",), FEATURES_K, FEATURES_G))
     for name, extra, nK, nG in trials:
         lo = lopo(df, extra, nK, nG)
         out.append(dict(features=name, rms_logK=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
