@@ -14,7 +14,7 @@ each of the six Mandel strain modes with amplitude ``+a`` and ``-a``:
   ghost spheres across the periodic boundary carry the box's velocity offset, ``remap v``);
 * relaxation: velocities and spins zeroed, damped dynamics (``fix nve/sphere``, ``fix viscous`` on
   translations, contact dashpots ``gamma_n = gamma_t`` on the relative motion, rotations free,
-  tangential history kept) until the unbalanced force ratio is below ``tol_unbalanced``;
+  tangential history kept) until the unbalanced force and torque ratios are below ``tol``;
 * the stress: ``compute pressure NULL virial`` (no kinetic part), printed with 17 digits.
 
 LAMMPS's restricted triclinic box allows only upper-triangular displacement gradients ``L`` (its
@@ -43,13 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from dem.engine.lammps import lammps_available, read_run, run_lammps, write_inputs
+from dem.engine.lammps import lammps_available, read_dump_local, read_run, run_lammps, write_inputs
 from dem.engine.packing import PackingProtocol
 from microhom.results import Result
 from microhom.tensors import isotropic_moduli, mandel_to_strain, strain_to_mandel
 
 __all__ = ["ProbesResult", "ProbeComparison", "pack_with_restart", "relax_base", "lammps_probes",
-           "compare"]
+           "compare", "report", "main"]
 
 _PCOMP = ("pxx", "pyy", "pzz", "pyz", "pxz", "pxy")   # Mandel order of LAMMPS's 6 components
 _RESULT_LINE = "PROBE_RESULT"
@@ -72,7 +72,10 @@ class ProbesResult(Result):
     amplitudes : tuple of float
         Strain amplitudes probed (Mandel norm of the strain, dimensionless).
     stress0 : (3, 3) array
-        LAMMPS's stress of the base state [Pa], tension positive (``-P`` of ``compute pressure``).
+        LAMMPS's stress of the base state [Pa], tension positive: ``-P`` of ``compute pressure``,
+        symmetric from LAMMPS's six components (``P_ab = (1/V) sum c_a f_b`` for a <= b; the full
+        P is not symmetric: ``(1/V) sum -overlap (n f_t - f_t n)``, LAMMPS's torque arm being the
+        radius).
     asymmetry : float
         Largest ``|sigma(+a) + sigma(-a) - 2 sigma0| / (2 a)`` over the modes at the smallest
         amplitude, over the largest entry of ``C_mandel`` (the second-order term, O(a); a probe
@@ -81,9 +84,15 @@ class ProbesResult(Result):
         Largest stress change over the last ``tail_steps`` steps of the relaxations (the
         relaxation residual), divided by ``a``, over the largest entry of ``C_mandel``.
     unbalanced : float
-        Largest final unbalanced force ratio over all probes.
+        Largest final unbalanced ratio over all probes: mean |force| and mean |torque| / radius
+        over the mean contact force, the larger (the relaxations stop on both: LAMMPS's pressure
+        gives one of each pair of shear components, ``P_ab = (1/V) sum c_a f_b``, a < b, equal to
+        the other only where the torques balance).
     contact_events : int
         Largest change of the contact count of a probe against the base state.
+    sliding_by_amplitude : dict
+        amplitude -> the largest number of contacts at the Coulomb limit ``|f_t| >= mu f_n`` after
+        a probe (``compute pair/local``; 0 at mu = 0, where no contact carries a tangential force).
     steps : int
         LAMMPS time steps of all probes (ramps, relaxations, tails).
     wall_time : float
@@ -100,6 +109,7 @@ class ProbesResult(Result):
     residual: float
     unbalanced: float
     contact_events: int
+    sliding_by_amplitude: dict
     steps: int
     wall_time: float
 
@@ -208,8 +218,13 @@ variable        fres atom sqrt(fx*fx+fy*fy+fz*fz)
 compute         fres all reduce ave v_fres
 variable        nc equal c_zsum/2
 variable        fmean equal c_fsum/(v_nc+1.0e-300)
-variable        unb equal c_fres/(v_fmean+1.0e-300)
-thermo_style    custom step c_pv c_pv[1] c_pv[2] c_pv[3] c_pv[4] c_pv[5] c_pv[6] v_unb v_nc
+variable        unbf equal c_fres/(v_fmean+1.0e-300)
+compute         tq all property/atom tqx tqy tqz radius
+variable        tres atom sqrt(c_tq[1]*c_tq[1]+c_tq[2]*c_tq[2]+c_tq[3]*c_tq[3])/c_tq[4]
+compute         tres all reduce ave v_tres
+variable        unbt equal c_tres/(v_fmean+1.0e-300)
+variable        unb equal (v_unbf>v_unbt)*v_unbf+(v_unbf<=v_unbt)*v_unbt
+thermo_style    custom step c_pv c_pv[1] c_pv[2] c_pv[3] c_pv[4] c_pv[5] c_pv[6] v_unbf v_unbt v_unb v_nc
 thermo_modify   norm no
 thermo          10000
 """
@@ -324,11 +339,26 @@ unfix           def
 def _run_probe(pdir, prm, mode, amp, ramp_steps, relax):
     name = f"p{mode}{'+' if amp > 0 else '-'}{abs(amp):.0e}"
     log = pdir / f"log.{name}"
-    if not log.exists() or "tail" not in _parse(log):
-        (pdir / f"in.{name}").write_text(_probe_deck(prm, mode, amp, ramp_steps, relax))
+    if not log.exists() or "tail" not in _parse(log) or not (pdir / f"slide.{name}.dump").exists():
+        (pdir / f"in.{name}").write_text(_probe_deck(prm, mode, amp, ramp_steps, relax) + f"""\
+compute         ps all pair/local force p1 p2 p3
+dump            ds all local 1 slide.{name}.dump c_ps[1] c_ps[2] c_ps[3] c_ps[4]
+dump_modify     ds format float %.17g first yes
+run             0
+""")
         run_lammps(pdir, input_name=f"in.{name}", extra_args=())
         os.replace(pdir / "log.lammps", log)
-    return _parse(log), log
+    return _parse(log), log, _sliding(pdir / f"slide.{name}.dump", float(prm["mu"]))
+
+
+def _sliding(path, mu) -> int:
+    """Contacts at the Coulomb limit |f_t| >= mu f_n (1 - 1e-9) in a probe's final state (0 when
+    mu = 0: every contact is frictionless there)."""
+    if mu == 0:
+        return 0
+    _, arr = read_dump_local(path)
+    fn, ft = arr[:, 0], np.linalg.norm(arr[:, 1:4], axis=1)
+    return int(np.sum((fn > 0) & (ft >= mu * fn * (1 - 1e-9))))
 
 
 def _loop_steps(log):
@@ -351,7 +381,7 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
     s0 = _stress(base_log["relaxed"])
     n0 = base_log["relaxed"]["contacts"]
     t0 = time.perf_counter()
-    Cs, asym, resid, unb, events, steps = {}, 0.0, 0.0, 0.0, 0, 0
+    Cs, asym, resid, unb, events, steps, sliding = {}, 0.0, 0.0, 0.0, 0, 0, {}
     amps = tuple(sorted(float(a) for a in amplitudes))
     for a in amps:
         C = np.empty((6, 6))
@@ -360,7 +390,8 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
         for m in range(6):
             rec = {}
             for sgn in (1, -1):
-                r, log = _run_probe(pdir, prm, m, sgn * a, ramp_steps, relax)
+                r, log, n_slide = _run_probe(pdir, prm, m, sgn * a, ramp_steps, relax)
+                sliding[a] = max(sliding.get(a, 0), n_slide)
                 rec[sgn] = r
                 steps += _loop_steps(log)
                 unb = max(unb, r["relaxed"]["unbalanced"])
@@ -383,7 +414,7 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
     K, G = isotropic_moduli(C)
     return ProbesResult(C_mandel=C, C_by_amplitude=Cs, K=K, G=G, amplitudes=amps, stress0=s0,
                         asymmetry=asym, residual=resid, unbalanced=unb, contact_events=events,
-                        steps=steps, wall_time=time.perf_counter() - t0)
+                        sliding_by_amplitude=sliding, steps=steps, wall_time=time.perf_counter() - t0)
 
 
 def compare(base_run, probes: ProbesResult) -> ProbeComparison:
@@ -430,7 +461,8 @@ def report(probes: ProbesResult, cmp: ProbeComparison) -> str:
         lines.append(f"probes' amplitude spread {a:g} -> {b:g}: {d:.2e}")
     lines += [f"+/- asymmetry at {a0:g} (second-order term): {probes.asymmetry:.2e}; relaxation "
               f"residual: {probes.residual:.2e}; largest unbalanced force ratio {probes.unbalanced:.1e}; "
-              f"contact events {probes.contact_events}",
+              f"contact events {probes.contact_events}; contacts at the Coulomb limit after a probe: "
+              + ", ".join(f"{a:g}: {v}" for a, v in probes.sliding_by_amplitude.items()),
               f"pre-stress terms' size {cmp.prestress_size:.2e}; tangential-force stress scale "
               f"{cmp.tangential_scale:.2e} (both over max|C_exact|)",
               f"K: exact {cmp.K_exact:.8g}, probes {cmp.K_probes:.8g} (rel {cmp.K_probes / cmp.K_exact - 1:+.1e}); "

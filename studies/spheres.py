@@ -166,7 +166,9 @@ def main(argv=None):
     t_all = time.perf_counter()
     print(f"3D study: N = {n}, pD/kn {pks}, mu {mus}, seed {a.seed}; load {os.getloadavg()[0]:.1f}", flush=True)
     rows = []
-    for k, (pk, mu) in enumerate((pk, mu) for pk in pks for mu in mus):
+    # the fast packings first (high pressure, high friction): a partial run covers the most cases
+    order = [(pk, mu) for pk in sorted(pks, reverse=True) for mu in sorted(mus, reverse=True)]
+    for k, (pk, mu) in enumerate(order):
         print(f"[{k + 1}/{len(pks) * len(mus)}] pD/kn = {pk:g}, mu = {mu:g}", flush=True)
         folder = out / "packings" / f"n{n}_p{pk:g}_mu{mu:g}_s{a.seed}"
         r = sphere_case(n, pk, mu, a.seed, folder, tol=a.tol, probes=a.probes)
