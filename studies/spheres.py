@@ -73,7 +73,7 @@ def _measure(run, tol) -> dict:
         K_mf=st.K_affine, G_mf=st.G_affine, stats_s=t_st,
         K_first=h.K_first_order, G_first=h.G_first_order,
         K_lower=h.K.lower, K_upper=h.K.upper, G_lower=h.G.lower, G_upper=h.G.upper,
-        hier_order=h.order, hier_certified=bool(h.converged), hier_valid=bool(h.valid),
+        hier_order=h.order, hier_certified=bool(h.certified), hier_valid=bool(h.valid),
         hier_reasons="; ".join(h.reasons), hier_s=t_h,
         K_exact=ex.K, G_exact=ex.G, K_affine_exact=ex.K_affine, G_affine_exact=ex.G_affine,
         exact_flags="; ".join(ex.flags), n_floppy=ex.n_floppy, exact_s=t_ex,
