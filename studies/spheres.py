@@ -97,7 +97,7 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
         row.update(_measure(run, tol))
         row["case_s"] = time.perf_counter() - t0
         cache.write_text(json.dumps(row))
-    if probes and "K_probes" not in row:
+    if probes and "probes_tangential_scale" not in row:
         run, prm, _ = pack_with_restart(proto, folder)
         t0 = time.perf_counter()
         base, blog = relax_base(folder, prm)
@@ -105,7 +105,8 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
         cmp = compare(base, pr)
         row.update(K_probes=pr.K, G_probes=pr.G, probes_difference=cmp.difference,
                    probes_asymmetry=pr.asymmetry, probes_events=pr.contact_events,
-                   probes_s=time.perf_counter() - t0, probes_sliding=cmp.n_sliding)
+                   probes_s=time.perf_counter() - t0, probes_sliding=max(pr.sliding_by_amplitude.values()),
+                   probes_prestress_size=cmp.prestress_size, probes_tangential_scale=cmp.tangential_scale)
         cache.write_text(json.dumps(row))
     return row
 
@@ -134,7 +135,8 @@ def tables(df: pd.DataFrame) -> dict:
             t["probes_error"] = df[f"{m}_probes"] / df[f"{m}_cauchy"] - 1
         mods.append(t)
     times = df[key + ["pack_s", "stats_s", "hier_s", "hier_order", "hier_certified", "exact_s"]
-               + (["probes_s", "probes_difference"] if "probes_s" in df else [])].copy()
+               + (["probes_s", "probes_difference", "probes_tangential_scale", "probes_prestress_size",
+                   "probes_sliding"] if "probes_tangential_scale" in df else [])].copy()
     return {"statistics": stats, "moduli": pd.concat(mods, ignore_index=True), "times": times}
 
 
