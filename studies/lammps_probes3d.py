@@ -37,6 +37,7 @@ import argparse
 import json
 import math
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -362,7 +363,6 @@ def _sliding(path, mu) -> int:
 
 
 def _loop_steps(log):
-    import re
     return sum(int(m.group(1)) for m in re.finditer(r"for (\d+) steps with", Path(log).read_text()))
 
 
@@ -371,11 +371,13 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
     """Run the 12 probes per amplitude from ``folder/probes/base/base.restart`` (made by
     :func:`relax_base`) and build the (6, 6) Cauchy stiffness [Pa]; see the module docstring.
     Probes already run (their logs) are reused."""
-    for name, val, ok in (("amplitudes", amplitudes, len(amplitudes) >= 1 and all(0 < a < 1e-2 for a in amplitudes)),
-                          ("ramp_steps", ramp_steps, int(ramp_steps) == ramp_steps >= 1),
-                          ("tol", tol, 0 < tol < 1)):
+    checks = (("amplitudes", amplitudes, "one or more values in (0, 1e-2)",
+               len(amplitudes) >= 1 and all(0 < a < 1e-2 for a in amplitudes)),
+              ("ramp_steps", ramp_steps, "an integer >= 1", int(ramp_steps) == ramp_steps >= 1),
+              ("tol", tol, "in (0, 1)", 0 < tol < 1))
+    for name, val, allowed, ok in checks:
         if not ok:
-            raise ValueError(f"{name} must be {'amplitudes in (0, 1e-2)' if name == 'amplitudes' else 'an integer >= 1' if name == 'ramp_steps' else 'in (0, 1)'}, got {val!r}")
+            raise ValueError(f"{name} must be {allowed}, got {val!r}")
     pdir = Path(folder) / "probes"
     relax = _relax_lines(prm, tol, max_steps, check_every, tail_steps)
     s0 = _stress(base_log["relaxed"])
@@ -473,6 +475,8 @@ def report(probes: ProbesResult, cmp: ProbeComparison) -> str:
 
 
 def main(argv=None):
+    """``python -m studies.lammps_probes3d``: per packing (one per pressure and friction), the
+    probes at every amplitude, the comparison printed and written under ``--out``."""
     from studies.common import add_out, cli_out_dir, report_to
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
