@@ -96,8 +96,11 @@ class ProbesResult(Result):
         a probe (``compute pair/local``; 0 at mu = 0, where no contact carries a tangential force).
     steps : int
         LAMMPS time steps of all probes (ramps, relaxations, tails).
+    lammps_time : float
+        LAMMPS's own loop time of all probes [s] (from the logs: the same when the probes are
+        read back from a cache).
     wall_time : float
-        Wall time of the probes [s] (LAMMPS's runs, one process each).
+        Wall time of this call [s] (LAMMPS's runs, one process each; small when cached).
     """
 
     C_mandel: np.ndarray
@@ -112,6 +115,7 @@ class ProbesResult(Result):
     contact_events: int
     sliding_by_amplitude: dict
     steps: int
+    lammps_time: float
     wall_time: float
 
 
@@ -362,8 +366,10 @@ def _sliding(path, mu) -> int:
     return int(np.sum((fn > 0) & (ft >= mu * fn * (1 - 1e-9))))
 
 
-def _loop_steps(log):
-    return sum(int(m.group(1)) for m in re.finditer(r"for (\d+) steps with", Path(log).read_text()))
+def _loops(log):
+    """(steps, seconds) of a LAMMPS log's ``Loop time of T on P procs for S steps`` lines."""
+    found = re.findall(r"Loop time of (\S+) on \d+ procs for (\d+) steps with", Path(log).read_text())
+    return sum(int(n) for _, n in found), sum(float(t) for t, _ in found)
 
 
 def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=200, tol=1e-13,
@@ -383,7 +389,7 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
     s0 = _stress(base_log["relaxed"])
     n0 = base_log["relaxed"]["contacts"]
     t0 = time.perf_counter()
-    Cs, asym, resid, unb, events, steps, sliding = {}, 0.0, 0.0, 0.0, 0, 0, {}
+    Cs, asym, resid, unb, events, steps, sliding, lammps_time = {}, 0.0, 0.0, 0.0, 0, 0, {}, 0.0
     amps = tuple(sorted(float(a) for a in amplitudes))
     for a in amps:
         C = np.empty((6, 6))
@@ -395,7 +401,9 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
                 r, log, n_slide = _run_probe(pdir, prm, m, sgn * a, ramp_steps, relax)
                 sliding[a] = max(sliding.get(a, 0), n_slide)
                 rec[sgn] = r
-                steps += _loop_steps(log)
+                n_steps, secs = _loops(log)
+                steps += n_steps
+                lammps_time += secs
                 unb = max(unb, r["relaxed"]["unbalanced"])
                 events = max(events, int(abs(r["relaxed"]["contacts"] - n0)))
                 res_a[m] = max(res_a[m] if sgn == -1 else 0.0, np.abs(strain_to_mandel(
@@ -416,7 +424,8 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
     K, G = isotropic_moduli(C)
     return ProbesResult(C_mandel=C, C_by_amplitude=Cs, K=K, G=G, amplitudes=amps, stress0=s0,
                         asymmetry=asym, residual=resid, unbalanced=unb, contact_events=events,
-                        sliding_by_amplitude=sliding, steps=steps, wall_time=time.perf_counter() - t0)
+                        sliding_by_amplitude=sliding, steps=steps, lammps_time=lammps_time,
+                        wall_time=time.perf_counter() - t0)
 
 
 def compare(base_run, probes: ProbesResult) -> ProbeComparison:
@@ -470,7 +479,8 @@ def report(probes: ProbesResult, cmp: ProbeComparison) -> str:
               f"K: exact {cmp.K_exact:.8g}, probes {cmp.K_probes:.8g} (rel {cmp.K_probes / cmp.K_exact - 1:+.1e}); "
               f"G: exact {cmp.G_exact:.8g}, probes {cmp.G_probes:.8g} (rel {cmp.G_probes / cmp.G_exact - 1:+.1e})",
               f"network: {cmp.n_contacts} contacts, {cmp.n_rattlers} rattlers, {cmp.n_sliding} sliding; "
-              f"probes {probes.steps} LAMMPS steps in {probes.wall_time:.1f} s, exact solve {cmp.exact_time:.2f} s"]
+              f"probes {probes.steps} LAMMPS steps, LAMMPS loop time {probes.lammps_time:.1f} s, exact solve "
+              f"{cmp.exact_time:.2f} s"]
     return "\n".join(lines)
 
 
@@ -511,7 +521,7 @@ def main(argv=None):
                              asymmetry=pr.asymmetry, residual=pr.residual,
                              prestress_size=cmp.prestress_size, tangential_scale=cmp.tangential_scale,
                              K_exact=cmp.K_exact, K_probes=cmp.K_probes, G_exact=cmp.G_exact,
-                             G_probes=cmp.G_probes, probes_s=pr.wall_time, exact_s=cmp.exact_time))
+                             G_probes=cmp.G_probes, probes_s=pr.lammps_time, exact_s=cmp.exact_time))
             (folder / "probes" / "comparison.json").write_text(json.dumps(
                 {"probes": pr.as_dict(), "comparison": cmp.as_dict()}))
     import pandas as pd
