@@ -42,6 +42,7 @@ import math
 import os
 import re
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -148,6 +149,11 @@ class ProbeComparison(Result):
         tangential forces that the exact solver leaves out (0 on frictionless spheres).
     spin_arm : str
         The spin arm of the exact solve (``"radius"``, LAMMPS's).
+    min_contacts : int or None
+        The exact solve's rattler threshold (None: the solver's rule, 3 contacts with friction).
+    n_unstable : int
+        Negative modes of the exact solve's Hessian under the pre-stress (the rolling modes of
+        kept 2-contact spheres appear here).
     n_contacts, n_rattlers, n_sliding : int
         Of the network read back.
     exact_time : float
@@ -166,6 +172,8 @@ class ProbeComparison(Result):
     prestress_size: float
     tangential_scale: float
     spin_arm: str
+    min_contacts: object
+    n_unstable: int
     n_contacts: int
     n_rattlers: int
     n_sliding: int
@@ -431,15 +439,18 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
                         wall_time=time.perf_counter() - t0)
 
 
-def compare(base_run, probes: ProbesResult) -> ProbeComparison:
-    """The exact tensor of the base state's network (``prestress=True``, ``spin_arm="radius"``)
-    against LAMMPS's probes."""
+def compare(base_run, probes: ProbesResult, min_contacts=None) -> ProbeComparison:
+    """The exact tensor of the base state's network (``prestress=True``, ``spin_arm="radius"``,
+    the rattler threshold ``min_contacts``: None is the solver's rule, 2 keeps the frictional
+    spheres with two contacts, which carry stiffness in LAMMPS) against LAMMPS's probes."""
     from dem.analysis.stiffness import stiffness
     from microhom.tensors import prestress_correction
 
     net = base_run.network
     t0 = time.perf_counter()
-    ex = stiffness(net, prestress=True, spin_arm="radius")
+    with warnings.catch_warnings():      # the 2-contact spheres' rolling modes: "unstable" flags
+        warnings.simplefilter("ignore")
+        ex = stiffness(net, prestress=True, spin_arm="radius", min_contacts=min_contacts)
     t_ex = time.perf_counter() - t0
     Ce = ex.C_mandel
     scale = np.abs(Ce).max()
@@ -454,7 +465,8 @@ def compare(base_run, probes: ProbesResult) -> ProbeComparison:
                                / scale),
         K_exact=float(ex.K), G_exact=float(ex.G), K_probes=Kp, G_probes=Gp,
         prestress_size=float(np.abs(prestress_correction(probes.stress0)).max() / scale),
-        tangential_scale=tscale, spin_arm="radius", n_contacts=int(net.n_contacts),
+        tangential_scale=tscale, spin_arm="radius", min_contacts=min_contacts, n_unstable=int(ex.n_unstable),
+        n_contacts=int(net.n_contacts),
         n_rattlers=int(ex.n_rattlers), n_sliding=int(np.sum(net.sliding)), exact_time=t_ex)
 
 

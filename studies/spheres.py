@@ -16,6 +16,9 @@ the friction ``mu`` from the gas on (``mu_prep = mu``), isotropic pressure p wit
 * the exact tensor (:func:`dem.analysis.stiffness.stiffness`), the reference: the stiffness of the
   energy density (no pre-stress, the hierarchy's quantity), and the Cauchy stiffness with the
   pre-stress and LAMMPS's spin arm (the probes' quantity);
+* the same Cauchy tensor with the frictional spheres of two contacts kept (``min_contacts=2``):
+  the solver's 3D rule removes them as rattlers, but a sphere between two contacts, though it can
+  roll, transmits force between its neighbours; LAMMPS's probes include them;
 * with ``--probes``: LAMMPS's own strain probes (:mod:`studies.lammps_probes3d`, amplitude 1e-6,
   relaxed to unbalanced force and torque ratios below 1e-11), against the exact Cauchy tensor.
 
@@ -101,12 +104,21 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
         row.update(_measure(run, tol))
         row["case_s"] = time.perf_counter() - t0
         cache.write_text(json.dumps(row))
-    if probes and "probes_tangential_scale" not in row:     # (run, or re-read from the logs)
+    if "K_cauchy2" not in row:          # the Cauchy tensor with the frictional 2-contact spheres kept
+        run, _, _ = pack_with_restart(proto, folder)
+        kept, t_k = _exact(run.network, prestress=True, spin_arm="radius",
+                           min_contacts=2 if mu > 0 else None)
+        row.update(K_cauchy2=kept.K, G_cauchy2=kept.G, rattlers2=kept.n_rattlers,
+                   unstable2=kept.n_unstable, cauchy2_s=t_k)
+        cache.write_text(json.dumps(row))
+    if probes and "probes_difference2" not in row:     # (run, or re-read from the logs)
         run, prm, _ = pack_with_restart(proto, folder)
         base, blog = relax_base(folder, prm, tol=PROBE_TOL)
         pr = lammps_probes(folder, prm, blog, amplitudes=(PROBE_AMPLITUDE,), tol=PROBE_TOL)
         cmp = compare(base, pr)
-        row.update(K_probes=pr.K, G_probes=pr.G, probes_difference=cmp.difference,
+        cmp2 = compare(base, pr, min_contacts=2 if mu > 0 else None)
+        row.update(probes_difference2=cmp2.difference, K_probes_vs2=pr.K / cmp2.K_exact - 1,
+                   G_probes_vs2=pr.G / cmp2.G_exact - 1, K_probes=pr.K, G_probes=pr.G, probes_difference=cmp.difference,
                    probes_asymmetry=pr.asymmetry, probes_events=pr.contact_events,
                    probes_s=pr.lammps_time, probes_sliding=max(pr.sliding_by_amplitude.values()),
                    probes_prestress_size=cmp.prestress_size, probes_tangential_scale=cmp.tangential_scale)
@@ -133,13 +145,16 @@ def tables(df: pd.DataFrame) -> dict:
         t["first_order_error"] = df[f"{m}_first"] / df[f"{m}_exact"] - 1
         t["upper_error"] = df[f"{m}_upper"] / df[f"{m}_exact"] - 1
         t["exact_cauchy"] = df[f"{m}_cauchy"]
+        t["exact_cauchy_2contact_kept"] = df[f"{m}_cauchy2"]
         if f"{m}_probes" in df:
             t["probes"] = df[f"{m}_probes"]
             t["probes_error"] = df[f"{m}_probes"] / df[f"{m}_cauchy"] - 1
+            t["probes_error_2contact_kept"] = df[f"{m}_probes"] / df[f"{m}_cauchy2"] - 1
         mods.append(t)
     times = df[key + ["pack_s", "stats_s", "hier_s", "hier_order", "hier_certified", "exact_s"]
-               + (["probes_s", "probes_difference", "probes_tangential_scale", "probes_prestress_size",
-                   "probes_sliding"] if "probes_tangential_scale" in df else [])].copy()
+               + (["probes_s", "probes_difference", "probes_difference2", "probes_tangential_scale",
+                   "probes_prestress_size", "probes_asymmetry", "probes_events", "probes_sliding"]
+                  if "probes_difference2" in df else [])].copy()
     return {"statistics": stats, "moduli": pd.concat(mods, ignore_index=True), "times": times}
 
 
