@@ -60,7 +60,7 @@ from .indicators import seam_profile
 from .params import MineParams
 
 __all__ = ["FaceStage", "SalamonCheck", "FaceAdvance", "remove_cells", "advance_face", "wedge_load",
-           "wedge_secant", "local_mine_stiffness", "salamon_verdict", "overburden_stiffness"]
+           "wedge_secant", "local_mine_stiffness", "probe_stiffness", "salamon_verdict", "overburden_stiffness"]
 
 _PER_IFC = ("nx", "ny", "kn", "kt", "ft", "coh", "tanphi", "tanphi_r", "vent", "sn0", "is_disl", "sn", "tau",
             "jtp", "jnp", "pg", "broken", "fseg", "flam")
@@ -156,18 +156,20 @@ def local_mine_stiffness(m: Model, wedge, closed_only: bool = False) -> float:
     idx = 12 * newidx[wc] + 2 * wk
     np.add.at(f, idx, FE[:, 0])
     np.add.at(f, idx + 1, FE[:, 1])
-    Kf = K[free][:, free].tocsc()
-    reg = 1e-12 * float(Kf.diagonal().mean())        # floating cells (all interfaces open) stay solvable
-    Kf = Kf + reg * _eye(Kf.shape[0])
-    du = np.zeros(rest.u.size)
-    du[free] = spla.spsolve(Kf, f[free])
-    w = float(f @ du)
-    return F * F / w if w > 0 else float("inf")
+    return probe_stiffness(K[free][:, free], f[free], F)
 
 
-def _eye(n):
+def probe_stiffness(K, f, F: float) -> float:
+    """Stiffness seen by a load pattern ``f`` (n,) of size ``F`` on a system of stiffness ``K`` (n, n),
+    sparse: ``F^2 / (f . K^-1 f)`` (the generalised force ``F`` over its work-conjugate displacement).
+    A diagonal shift of 1e-12 of the mean diagonal keeps floating parts solvable (they then carry no
+    load: a pattern that loads one gives a stiffness near 0)."""
     import scipy.sparse as sp
-    return sp.identity(n, format="csc")
+    Kf = sp.csc_matrix(K)
+    Kf = Kf + 1e-12 * float(Kf.diagonal().mean()) * sp.identity(Kf.shape[0], format="csc")
+    du = spla.spsolve(Kf, np.asarray(f, float))
+    w = float(np.dot(f, du))
+    return F * F / w if w > 0 else float("inf")
 
 
 def wedge_secant(prev: Model, cur: Model, keep, wedge_cur, u_virgin_prev, u_virgin_cur):
@@ -390,8 +392,8 @@ def _record(stage, face, n_removed, m: Model, g, spring0, converged, peak, wedge
                      x_m=x, syy_Pa=syy, wall_s=wall)
 
 
-def advance_face(p: MineParams, n_steps: int = 4, slice_width: float | None = None, ek_tol: float = 1e-3,
-                 relax_alpha: float = 500.0, t_max: float = 0.2, dt_safety: float | None = None,
+def advance_face(p: MineParams, n_steps: int = 4, slice_width: float | None = None, ek_tol: float = 1e-5,
+                 relax_alpha: float = 300.0, t_max: float = 0.2, dt_safety: float | None = None,
                  sample: float = 2.5e-4, window: float = 5e-3, partition: MineParams | None = None) -> FaceAdvance:
     """The adit (stage 0) and then ``n_steps`` slices of ``slice_width`` [m] (default one column of
     cells, 2 r_in) at the face, each ramped over ``p.ramp_time`` and relaxed with mass damping
