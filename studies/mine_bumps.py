@@ -395,14 +395,20 @@ EQUAL_FRACTION = 0.1
 excess over the control (or the resolution)."""
 
 
-def map_readings(quick: bool, placement: str = "near"):
+def map_readings(quick: bool, placement: str = "near", subset: dict | None = None):
     """The readings of the map (one dict of MineParams fields each), with the dislocation's
-    ``placement`` ("near": the map; "far": the line runs toward the rib and cuts the face)."""
+    ``placement`` ("near": the map; "far": the line runs toward the rib and cuts the face);
+    ``subset``: {axis of ``MAP_AXES``: allowed values} keeps only those readings."""
     base = dict(MAP_BASE, placement=placement)
     if quick:
         return [dict(base, ramp_time=0.005, disl_phi_deg=16.0, gas_pressure=1e6, coal_c=150e3)]
     keys = list(MAP_AXES)[::-1]                     # coal cohesion outermost: the paper's coal first
-    return [dict(base, **dict(zip(keys, vals))) for vals in itertools.product(*list(MAP_AXES.values())[::-1])]
+    out = [dict(base, **dict(zip(keys, vals))) for vals in itertools.product(*list(MAP_AXES.values())[::-1])]
+    for k, vals in (subset or {}).items():
+        if k not in MAP_AXES:
+            raise ValueError(f"subset axis {k!r}: allowed {', '.join(MAP_AXES)}")
+        out = [r for r in out if any(abs(r[k] - v) <= 1e-9 * max(1.0, abs(v)) for v in vals)]
+    return out
 
 
 def _map_control(r):
@@ -410,7 +416,7 @@ def _map_control(r):
     return {k: v for k, v in r.items() if k not in ("disl_phi_deg", "gas_pressure")} | {"gas": "none"}
 
 
-def map_cases(quick: bool, out_dir: str, noise: str = "dt", placement: str = "near"):
+def map_cases(quick: bool, out_dir: str, noise: str = "dt", placement: str = "near", subset: dict | None = None):
     """The runs of the map. ``noise="dt"``: each case repeated at the time steps ``REPS``;
     ``noise="lattice"``: every map reading with the dislocation moved across the lattice
     (``JITTER``) at one time step (0.7 of the bound). One control per distinct control reading and
@@ -421,7 +427,7 @@ def map_cases(quick: bool, out_dir: str, noise: str = "dt", placement: str = "ne
         reps = [("disl_first", x, 0.7) for x in ((2.45, 2.55) if quick else JITTER)]
     else:
         reps = [(None, None, d) for d in ((0.67, 0.73) if quick else REPS)]
-    for r0 in map_readings(quick, placement):
+    for r0 in map_readings(quick, placement, subset):
         for jit, x, dts in reps:
             r = dict(r0, **({jit: x} if jit else {}))
             c = _map_control(r)
@@ -715,6 +721,9 @@ def main(argv=None):
                          "the dislocation moved across the lattice (lattice)")
     ap.add_argument("--placement", choices=("near", "far"), default="near",
                     help="the dislocation's placement (far: the line runs toward the rib and cuts the face)")
+    for ax_, unit in (("disl_phi_deg", "deg"), ("gas_pressure", "Pa"), ("coal_c", "Pa")):
+        ap.add_argument("--" + ax_.replace("_", "-"), type=float, nargs="+", default=None,
+                        help=f"only these values of {ax_} [{unit}] (default: the whole map {MAP_AXES[ax_]})")
     ap.add_argument("--out", default="out/mine_bumps")
     ap.add_argument("--scheduler", default=None, help="None (serial), 'local' or a Dask address")
     ap.add_argument("--workers", type=int, default=None)
@@ -729,7 +738,8 @@ def main(argv=None):
     cli_out_dir(out, cache=False)  # checked before computing (one line and exit 1 otherwise)
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    all_cases = map_cases(a.quick, out, a.noise, a.placement)
+    subset = {k: getattr(a, k) for k in MAP_AXES if getattr(a, k) is not None}
+    all_cases = map_cases(a.quick, out, a.noise, a.placement, subset)
     df = run_cases(run_case, all_cases, os.path.join(out, "cases.csv"), scheduler=a.scheduler, workers=a.workers,
                    progress=not a.no_progress)
     wall = time.perf_counter() - t0

@@ -142,3 +142,46 @@ def test_salamon_verdict_brackets():
     assert salamon_verdict(-0.5, 1.0, 2.0) == "stable"
     assert salamon_verdict(-3.0, 1.0, 2.0) == "unstable"
     assert salamon_verdict(float("nan"), 1.0, 2.0) == "no data"
+
+
+# ----------------------------------------------------------------------------- the study: quick, killed, resumed
+@pytest.mark.slow
+def test_face_study_quick_is_killed_and_resumes(tmp_path):
+    """``python -m studies.mine_face --quick`` killed (SIGKILL) after its first finished case resumes:
+    the re-run keeps the finished cases (same rows, not re-run) and completes the rest, the stages
+    are quasi-static and the figures are written."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    import pandas as pd
+
+    from studies.mine_face import main
+    out = tmp_path / "face"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", PYTHONPATH=os.getcwd())
+    proc = subprocess.Popen([sys.executable, "-m", "studies.mine_face", "--quick", "--out", str(out), "--no-progress"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    csv = out / "cases.csv"
+    t0 = time.time()
+    try:
+        while time.time() - t0 < 600:
+            if csv.exists() and len(pd.read_csv(csv)) >= 1:
+                break
+            if proc.poll() is not None:
+                break
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    before = pd.read_csv(csv)
+    assert 1 <= len(before) < 4, "the run was not killed mid-way"
+    assert main(["--quick", "--out", str(out), "--no-progress"]) == 0
+    after = pd.read_csv(csv).set_index("case_id")
+    assert len(after) == 4 and (after.status == "ok").all()
+    for _, r in before.iterrows():
+        assert after.loc[r.case_id, "wall_time_s"] == r.wall_time_s      # kept, not re-run
+    st = pd.read_csv(out / "stages.csv")
+    assert len(st) == 8 and st.converged.all()
+    for f in ("profile", "energy", "wedge"):
+        assert (out / f"fig_face_{f}.png").exists()
