@@ -40,11 +40,13 @@ QUICK = dict(width=6.0, height=5.0, seam_top=2.5, elastic_layer=1.0, floor_layer
              ramp_time=0.005)
 
 
-def face_cases(quick: bool, out_dir: str):
-    """The runs: each reading at 60 and 120 deg, and one control per angle."""
-    rs = [dict(READINGS[1], **QUICK)] if quick else list(READINGS)
+def face_cases(quick: bool, out_dir: str, phis=None):
+    """The runs: each reading (those with a fault friction in ``phis`` [deg], default all) at 60 and
+    120 deg, and one control per angle."""
+    rs = [dict(READINGS[1], **QUICK)] if quick else [r for r in READINGS if phis is None or r["disl_phi_deg"] in phis]
     n = 1 if quick else N_STEPS
-    out = [{"role": "control", "reading": _map_control(rs[0]), "partition": dict(rs[0], disl_angle_deg=a),
+    geo = dict(READINGS[0], **QUICK) if quick else READINGS[0]     # the partition uses the line's geometry only
+    out = [{"role": "control", "reading": _map_control(rs[0]), "partition": dict(geo, disl_angle_deg=a),
             "n_steps": n, "out": out_dir} for a in ANGLES]
     out += [{"role": "case", "reading": dict(r, disl_angle_deg=a), "n_steps": n, "out": out_dir}
             for r in rs for a in ANGLES]
@@ -154,6 +156,8 @@ def _save(fig, plt, out, name):
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m studies.mine_face", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="a 150-cell scene, one slice (3 runs)")
+    ap.add_argument("--disl-phi-deg", type=float, nargs="+", default=None,
+                    help="only these fault frictions [deg] (default: 16, 22 and 30)")
     ap.add_argument("--out", default="out/mine_face")
     ap.add_argument("--scheduler", default=None, help="None (serial), 'local' or a Dask address")
     ap.add_argument("--workers", type=int, default=None)
@@ -163,7 +167,7 @@ def main(argv=None):
     out = a.out + ("_quick" if a.quick and a.out == "out/mine_face" else "")
     cli_out_dir(out, cache=False)
     t0, load0 = time.perf_counter(), os.getloadavg()[0]
-    cases = face_cases(a.quick, out)
+    cases = face_cases(a.quick, out, a.disl_phi_deg)
     df = run_cases(run_face_case, cases, os.path.join(out, "cases.csv"), scheduler=a.scheduler, workers=a.workers,
                    progress=not a.no_progress)
     for _, r in df[df.status != "ok"].iterrows():
