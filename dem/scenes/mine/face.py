@@ -329,6 +329,8 @@ class FaceAdvance(Result):
         Salamon's check over the stages.
     wall_s, cpu_s : float
         Wall and CPU time of the whole advance [s].
+    final : Model
+        The model at the end of the last stage (not exported).
     """
     params: dict
     slice_width_m: float
@@ -339,7 +341,7 @@ class FaceAdvance(Result):
     salamon: SalamonCheck
     wall_s: float = 0.0
     cpu_s: float = 0.0
-    final: object = field(default=None, metadata={"export": False})   # the last stage's model
+    final: Model = field(default=None, metadata={"export": False})
 
     def table(self):
         """One row per stage (the scalars of :class:`FaceStage`), a pandas DataFrame."""
