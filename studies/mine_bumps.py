@@ -576,7 +576,7 @@ def map_figures(all_cases, mt, out, quick, placement="near"):
         ax.set_title("Vertical stress along the seam during the excavation ramp (60 deg, paper-closest map "
                      "reading; dynamic, not quasi-static stages)", fontsize=8)
         ax.legend(fontsize=7)
-        save(fig, "fig_profile_near.png")
+        save(fig, f"fig_profile_{placement}.png")
     if s[60.0] is not None and s[120.0] is not None:
         fig, axs = plt.subplots(1, 3, figsize=(16, 3.6))
         for ax, (lab, sn) in zip(axs, (("60 deg", s[60.0]), ("120 deg", s[120.0]), ("control", sc))):
@@ -585,7 +585,7 @@ def map_figures(all_cases, mt, out, quick, placement="near"):
                 if lab == "control":
                     for seg in s[60.0]["disl"]:
                         ax.plot(seg[:, 0], seg[:, 1], color="0.5", ls=":", lw=0.8)
-        save(fig, "fig_cracks_near.png")
+        save(fig, f"fig_cracks_{placement}.png")
     if sc is not None and s[60.0] is not None and s[120.0] is not None:      # difference maps
         fig, axs = plt.subplots(1, 2, figsize=(13, 3.6))
         for ax, a in zip(axs, ANGLES):
@@ -599,7 +599,7 @@ def map_figures(all_cases, mt, out, quick, placement="near"):
             ax.set_aspect("equal")
             ax.set_title(f"|u({int(a)} deg) - u(control)| [mm] at the end", fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
-        save(fig, "fig_difference_near.png")
+        save(fig, f"fig_difference_{placement}.png")
     if s[60.0] is not None and s[120.0] is not None:                          # fault-slip profiles
         fig, ax = plt.subplots(figsize=(7, 4))
         for a, k in ((60.0, k60), (120.0, k120)):
