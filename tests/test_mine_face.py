@@ -145,7 +145,6 @@ def test_salamon_verdict_brackets():
 
 
 # ----------------------------------------------------------------------------- the study: quick, killed, resumed
-@pytest.mark.slow
 def test_face_study_quick_is_killed_and_resumes(tmp_path):
     """``python -m studies.mine_face --quick`` killed (SIGKILL) after its first finished case resumes:
     the re-run keeps the finished cases (same rows, not re-run) and completes the rest, the stages
