@@ -110,6 +110,7 @@ def _flat_blocks(prefix, blocks):
 def run_case(case: dict) -> dict:
     """One run of the study (Dask task): a 60/120 case or a control evaluated on every partition it
     is compared with. Saves the final-state snapshot and the seam profiles to out/states/<id>.npz."""
+    cpu0 = time.process_time()
     r = case["reading"]
     dts = case.get("dt_safety")
     if case["role"] == "case":
@@ -147,6 +148,7 @@ def run_case(case: dict) -> dict:
     pr = ind.profile
     np.savez_compressed(os.path.join(sd, case_id(case) + ".npz"), **snapshot(res.scene), prof_dist=pr.dist_m,
                         prof_g=pr.g, prof_syy=pr.syy_Pa, Ek_t=res.series["t"], Ek=res.series["Ek"], **extra)
+    row["cpu_time_s"] = time.process_time() - cpu0     # this worker's CPU time for the case (wall in the runner)
     return row
 
 
@@ -342,7 +344,9 @@ def main_legacy(a):
                     "wedge dbroken 120", "votes 120/60/=", "verdict"]
     counts = vt["verdict"].value_counts().to_dict()
     run_s = float(df["wall_time_s"].sum())
-    head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s), scheduler "
+    cpu_s = float(df["cpu_time_s"].sum()) if "cpu_time_s" in df else float("nan")
+    head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s, of their CPU "
+            f"times {cpu_s:.0f} s), scheduler "
             f"{a.scheduler or 'serial'} workers {a.workers or '-'}, load average at start {load0[0]:.2f} / end "
             f"{os.getloadavg()[0]:.2f}. Verdicts: {counts}")
     summ = summary_by_reading(vt) if len(vt) else pd.DataFrame()
@@ -391,12 +395,20 @@ EQUAL_FRACTION = 0.1
 excess over the control (or the resolution)."""
 
 
-def map_readings(quick: bool):
-    """The readings of the map (one dict of MineParams fields each)."""
+def map_readings(quick: bool, placement: str = "near", subset: dict | None = None):
+    """The readings of the map (one dict of MineParams fields each), with the dislocation's
+    ``placement`` ("near": the map; "far": the line runs toward the rib and cuts the face);
+    ``subset``: {axis of ``MAP_AXES``: allowed values} keeps only those readings."""
+    base = dict(MAP_BASE, placement=placement)
     if quick:
-        return [dict(MAP_BASE, ramp_time=0.005, disl_phi_deg=16.0, gas_pressure=1e6, coal_c=150e3)]
+        return [dict(base, ramp_time=0.005, disl_phi_deg=16.0, gas_pressure=1e6, coal_c=150e3)]
     keys = list(MAP_AXES)[::-1]                     # coal cohesion outermost: the paper's coal first
-    return [dict(MAP_BASE, **dict(zip(keys, vals))) for vals in itertools.product(*list(MAP_AXES.values())[::-1])]
+    out = [dict(base, **dict(zip(keys, vals))) for vals in itertools.product(*list(MAP_AXES.values())[::-1])]
+    for k, vals in (subset or {}).items():
+        if k not in MAP_AXES:
+            raise ValueError(f"subset axis {k!r}: allowed {', '.join(MAP_AXES)}")
+        out = [r for r in out if any(abs(r[k] - v) <= 1e-9 * max(1.0, abs(v)) for v in vals)]
+    return out
 
 
 def _map_control(r):
@@ -404,35 +416,32 @@ def _map_control(r):
     return {k: v for k, v in r.items() if k not in ("disl_phi_deg", "gas_pressure")} | {"gas": "none"}
 
 
-def map_cases(quick: bool, out_dir: str, noise: str = "dt"):
+def map_cases(quick: bool, out_dir: str, noise: str = "dt", placement: str = "near", subset: dict | None = None):
     """The runs of the map. ``noise="dt"``: each case repeated at the time steps ``REPS``;
-    ``noise="lattice"``: the paper-closest reading only, the dislocation moved across the lattice
-    (``JITTER``) at one time step."""
+    ``noise="lattice"``: every map reading with the dislocation moved across the lattice
+    (``JITTER``) at one time step (0.7 of the bound). One control per distinct control reading and
+    repetition, listed just before the first runs that need it."""
     dur = 0.01 if quick else 0.05
     out, seen = [], set()
     if noise == "lattice":
-        for x in ((2.45, 2.55) if quick else JITTER):
-            r = dict(map_readings(True)[0] if quick else dict(MAP_BASE, **PAPER_CLOSEST), disl_first=x)
-            out.append({"role": "control", "reading": _map_control(r),
-                        "partitions": [[r["placement"], a, 1] for a in ANGLES],
-                        "duration": dur, "out": out_dir, "dt_safety": 0.7, "jitter": "disl_first"})
-            for a in ANGLES:
-                out.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,
-                            "dt_safety": 0.7, "jitter": "disl_first"})
-        return out
-    reps = (0.67, 0.73) if quick else REPS
-    for r in map_readings(quick):                  # each control just before the first runs that need it
-        for dts in reps:
+        reps = [("disl_first", x, 0.7) for x in ((2.45, 2.55) if quick else JITTER)]
+    else:
+        reps = [(None, None, d) for d in ((0.67, 0.73) if quick else REPS)]
+    for r0 in map_readings(quick, placement, subset):
+        for jit, x, dts in reps:
+            r = dict(r0, **({jit: x} if jit else {}))
             c = _map_control(r)
+            extra = {"jitter": jit} if jit else {}
             ck = json.dumps(c, sort_keys=True) + str(dts)
             if ck not in seen:
                 seen.add(ck)
                 out.append({"role": "control", "reading": c, "partitions": [[r["placement"], a, 1] for a in ANGLES],
-                            "duration": dur, "out": out_dir, "dt_safety": dts})
-        for dts in reps:
+                            "duration": dur, "out": out_dir, "dt_safety": dts, **extra})
+        for jit, x, dts in reps:
+            r = dict(r0, **({jit: x} if jit else {}))
             for a in ANGLES:
                 out.append({"role": "case", "reading": r, "angle": a, "n_disl": 1, "duration": dur, "out": out_dir,
-                            "dt_safety": dts})
+                            "dt_safety": dts, **({"jitter": jit} if jit else {})})
     return out
 
 
@@ -522,8 +531,8 @@ def map_table(all_cases, df) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _closest(all_cases, out, quick, role, angle=None, dts=None):
-    want = map_readings(quick)[0] if quick else dict(MAP_BASE, **PAPER_CLOSEST)
+def _closest(all_cases, out, quick, role, angle=None, dts=None, placement="near"):
+    want = map_readings(quick, placement)[0] if quick else dict(MAP_BASE, **PAPER_CLOSEST, placement=placement)
     for c in all_cases:
         if c["role"] != role or (dts is not None and c["dt_safety"] != dts):
             continue
@@ -537,7 +546,7 @@ def _closest(all_cases, out, quick, role, angle=None, dts=None):
     return None
 
 
-def map_figures(all_cases, mt, out, quick):
+def map_figures(all_cases, mt, out, quick, placement="near"):
     """The pictures of the decisive pass (docs/results/mine.md)."""
     import matplotlib
     matplotlib.use("Agg")
@@ -545,7 +554,7 @@ def map_figures(all_cases, mt, out, quick):
     made = []
     reps = sorted({c["dt_safety"] for c in all_cases})
     mid = reps[len(reps) // 2]
-    k60, k120 = _key("near", 60.0, 1), _key("near", 120.0, 1)
+    k60, k120 = _key(placement, 60.0, 1), _key(placement, 120.0, 1)
 
     def save(fig, name):
         fig.tight_layout()
@@ -555,8 +564,8 @@ def map_figures(all_cases, mt, out, quick):
         made.append(fn)
 
     # the reading closest to the paper: cracks of 60, 120 and the control, and the seam stress profile
-    s = {a: _closest(all_cases, out, quick, "case", a, mid) for a in ANGLES}
-    sc = _closest(all_cases, out, quick, "control", dts=mid)
+    s = {a: _closest(all_cases, out, quick, "case", a, mid, placement) for a in ANGLES}
+    sc = _closest(all_cases, out, quick, "control", dts=mid, placement=placement)
     if s[60.0] is not None:
         fig, ax = plt.subplots(figsize=(7, 4))
         for k in range(len(s[60.0]["prof_g"])):
@@ -567,7 +576,7 @@ def map_figures(all_cases, mt, out, quick):
         ax.set_title("Vertical stress along the seam during the excavation ramp (60 deg, paper-closest map "
                      "reading; dynamic, not quasi-static stages)", fontsize=8)
         ax.legend(fontsize=7)
-        save(fig, "fig_profile_near.png")
+        save(fig, f"fig_profile_{placement}.png")
     if s[60.0] is not None and s[120.0] is not None:
         fig, axs = plt.subplots(1, 3, figsize=(16, 3.6))
         for ax, (lab, sn) in zip(axs, (("60 deg", s[60.0]), ("120 deg", s[120.0]), ("control", sc))):
@@ -576,7 +585,7 @@ def map_figures(all_cases, mt, out, quick):
                 if lab == "control":
                     for seg in s[60.0]["disl"]:
                         ax.plot(seg[:, 0], seg[:, 1], color="0.5", ls=":", lw=0.8)
-        save(fig, "fig_cracks_near.png")
+        save(fig, f"fig_cracks_{placement}.png")
     if sc is not None and s[60.0] is not None and s[120.0] is not None:      # difference maps
         fig, axs = plt.subplots(1, 2, figsize=(13, 3.6))
         for ax, a in zip(axs, ANGLES):
@@ -590,7 +599,7 @@ def map_figures(all_cases, mt, out, quick):
             ax.set_aspect("equal")
             ax.set_title(f"|u({int(a)} deg) - u(control)| [mm] at the end", fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
-        save(fig, "fig_difference_near.png")
+        save(fig, f"fig_difference_{placement}.png")
     if s[60.0] is not None and s[120.0] is not None:                          # fault-slip profiles
         fig, ax = plt.subplots(figsize=(7, 4))
         for a, k in ((60.0, k60), (120.0, k120)):
@@ -609,7 +618,7 @@ def map_figures(all_cases, mt, out, quick):
     fig, ax = plt.subplots(figsize=(7, 4))
     for lab, role, a, k, col in (("60 deg", "case", 60.0, k60, "tab:blue"), ("120 deg", "case", 120.0, k120, "tab:red"),
                                  ("control", "control", None, k60, "k")):
-        curves = [_closest(all_cases, out, quick, role, a, d) for d in reps]
+        curves = [_closest(all_cases, out, quick, role, a, d, placement) for d in reps]
         curves = [c for c in curves if c is not None and ("Ek_wedge_" + k) in c]
         if not curves:
             continue
@@ -710,6 +719,11 @@ def main(argv=None):
     ap.add_argument("--noise", choices=("dt", "lattice"), default="dt",
                     help="repetitions at 5 time steps over the whole map (dt), or the paper-closest reading with "
                          "the dislocation moved across the lattice (lattice)")
+    ap.add_argument("--placement", choices=("near", "far"), default="near",
+                    help="the dislocation's placement (far: the line runs toward the rib and cuts the face)")
+    for ax_, unit in (("disl_phi_deg", "deg"), ("gas_pressure", "Pa"), ("coal_c", "Pa")):
+        ap.add_argument("--" + ax_.replace("_", "-"), type=float, nargs="+", default=None,
+                        help=f"only these values of {ax_} [{unit}] (default: the whole map {MAP_AXES[ax_]})")
     ap.add_argument("--out", default="out/mine_bumps")
     ap.add_argument("--scheduler", default=None, help="None (serial), 'local' or a Dask address")
     ap.add_argument("--workers", type=int, default=None)
@@ -718,12 +732,14 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.legacy:
         return main_legacy(a)
-    out = a.out + ("_lattice" if a.noise == "lattice" and a.out == "out/mine_bumps" else "") \
-        + ("_quick" if a.quick and a.out == "out/mine_bumps" else "")
+    dflt = a.out == "out/mine_bumps"
+    out = a.out + ("_lattice" if a.noise == "lattice" and dflt else "") + ("_far" if a.placement == "far" and dflt else "") \
+        + ("_quick" if a.quick and dflt else "")
     cli_out_dir(out, cache=False)  # checked before computing (one line and exit 1 otherwise)
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    all_cases = map_cases(a.quick, out, a.noise)
+    subset = {k: getattr(a, k) for k in MAP_AXES if getattr(a, k) is not None}
+    all_cases = map_cases(a.quick, out, a.noise, a.placement, subset)
     df = run_cases(run_case, all_cases, os.path.join(out, "cases.csv"), scheduler=a.scheduler, workers=a.workers,
                    progress=not a.no_progress)
     wall = time.perf_counter() - t0
@@ -738,8 +754,10 @@ def main(argv=None):
     cols += ["residual max [J/m]", "W_top / W_E", "votes", "verdict"]
     show = mt[cols] if len(mt) else mt
     run_s = float(df["wall_time_s"].sum())
+    cpu_s = float(df["cpu_time_s"].sum()) if "cpu_time_s" in df else float("nan")
     counts = mt["verdict"].value_counts().to_dict() if len(mt) else {}
-    head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s), scheduler "
+    head = (f"{len(df)} runs ({len(bad)} failed), wall {wall:.0f} s (sum of run times {run_s:.0f} s, of their CPU "
+            f"times {cpu_s:.0f} s), scheduler "
             f"{a.scheduler or 'serial'} workers {a.workers or '-'}, load average at start {load0[0]:.2f} / end "
             f"{os.getloadavg()[0]:.2f}. Verdicts: {counts}. Votes in the order: {', '.join(MAP_IND)}")
     stat = static_coulomb(map_readings(True)[0] if a.quick else None, ("rock",) if a.quick else ("rock", "rollers"))
@@ -758,11 +776,12 @@ def main(argv=None):
                   f"120: {r0[f'{name} excess 120']:+.4g} +- {r0[f'{name} excess 120 2sigma']:.2g}   "
                   f"120-60: {r0[f'{name} diff 120-60']:+.4g} (MDE {r0[f'{name} MDE']:.2g}) -> {r0[f'verdict {name}']}")
     print(head)
-    made = map_figures(all_cases, mt, out, a.quick)
+    made = map_figures(all_cases, mt, out, a.quick, a.placement)
     if a.img:
         os.makedirs(a.img, exist_ok=True)
         for f in made:
-            shutil.copy(f, os.path.join(a.img, "mine_map_" + os.path.basename(f)))
+            pre = "mine_map_" + ("far_" if a.placement == "far" else "") + ("lattice_" if a.noise == "lattice" else "")
+            shutil.copy(f, os.path.join(a.img, pre + os.path.basename(f)))
     print(f"wrote {out}/cases.csv, verdict.csv, verdict.md, {len(made)} figures ({time.perf_counter() - t0:.0f} s)")
     return 0
 
