@@ -327,6 +327,26 @@ def _check(name, a, lo, hi=np.inf, lo_open=False):
     return a
 
 
+def _model(model):
+    """The coefficients, covariances, error scale and leverages of the stored model, or of
+    ``model``'s overrides (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``, ``h_mean``,
+    ``h_max``)."""
+    m = model or {}
+    return (np.asarray(m.get("coef_K", COEF_K), dtype=float), np.asarray(m.get("coef_G", COEF_G), dtype=float),
+            np.asarray(m.get("cov_K", COV_K), dtype=float), np.asarray(m.get("cov_G", COV_G), dtype=float),
+            m.get("Q", Q), m.get("h_mean", H_MEAN), m.get("h_max", H_MAX))
+
+
+def _outside_box(values, kt_over_kn, shape):
+    """True where an input lies outside the corpus's box ``RANGES`` (kt/kn: only where > 0)."""
+    box = np.zeros(shape, dtype=bool)
+    for name, v in values.items():
+        lo, hi = RANGES[name]
+        box |= (v < lo - 1e-9) | (v > hi + 1e-9)
+    klo, khi = RANGES["kt_over_kn"]
+    return box | ((kt_over_kn > 0) & ((kt_over_kn < klo - 1e-12) | (kt_over_kn > khi + 1e-12)))
+
+
 def _leverage(X, cov):
     return np.sum((X @ cov) * X, axis=-1)
 
@@ -413,13 +433,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     xr = _check("rattler_fraction", 0.0 if rattler_fraction is None else rattler_fraction, 0.0, 1.0)
     if np.any(xr >= 1):
         raise ValueError("rattler_fraction must be in [0, 1); got 1")
-    m = model or {}
-    cK = np.asarray(m.get("coef_K", COEF_K), dtype=float)
-    cG = np.asarray(m.get("coef_G", COEF_G), dtype=float)
-    covK = np.asarray(m.get("cov_K", COV_K), dtype=float)
-    covG = np.asarray(m.get("cov_G", COV_G), dtype=float)
-    q = m.get("Q", Q)
-    h_mean, h_max = m.get("h_mean", H_MEAN), m.get("h_max", H_MAX)
+    cK, cG, covK, covG, q, h_mean, h_max = _model(model)
     missing_zs = size_coordination is None
     zs = np.asarray(0.0 if missing_zs else size_coordination, dtype=float)
     if not np.all(np.isfinite(zs)):
@@ -442,13 +456,8 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     hK, hG = _leverage(XK, covK), _leverage(XG, covG)
     eK = q["K"] * np.sqrt(1 + hK / h_mean["K"])
     eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
-    box = np.zeros(K.shape, dtype=bool)
-    for name, v in (("Z", nc), ("dispersity", d), ("r", r), ("phi", phi), ("p_over_kn", pk),
-                    ("size_coordination", zs), ("rattler_fraction", xr), ("psi6_local", q6)):
-        lo, hi = RANGES[name]
-        box |= (v < lo - 1e-9) | (v > hi + 1e-9)
-    klo, khi = RANGES["kt_over_kn"]
-    box |= (kr > 0) & ((kr < klo - 1e-12) | (kr > khi + 1e-12))
+    box = _outside_box(dict(Z=nc, dispersity=d, r=r, phi=phi, p_over_kn=pk, size_coordination=zs,
+                            rattler_fraction=xr, psi6_local=q6), kr, K.shape)
     out = box | (hK > h_max["K"]) | (hG > h_max["G"])
     flags = (np.where(out, 1, 0) | np.where(dz < DZ_MIN, 2, 0)
              | np.where(missing_zs & (d > 0.05), 4, 0) | (8 if missing_p else 0)

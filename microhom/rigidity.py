@@ -50,6 +50,7 @@ numerical ones (``studies.closure_rigidity``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -63,11 +64,51 @@ __all__ = ["RigidityResult", "pebble_game", "rigidity_matrix", "numerical_floppy
 
 
 # ---- the pebble game (numba) ---------------------------------------------------------------------
+class _Graph(NamedTuple):
+    """The directed pebble graph of n bodies: pebble capacity ``kcap`` and free pebbles ``free``
+    (n,); per body its out-bars ``outv`` (target body), ``oute`` (bar), ``outs`` (lattice shift, 2)
+    in the first ``outdeg`` slots (n, 3)."""
+    kcap: np.ndarray
+    free: np.ndarray
+    outdeg: np.ndarray
+    outv: np.ndarray
+    oute: np.ndarray
+    outs: np.ndarray
+
+
+class _Scratch(NamedTuple):
+    """Work arrays of the searches (n bodies): visit stamps ``seen`` and the running ``stamp`` (1,),
+    the breadth-first parents, queue ``vis`` and its length ``nvis`` (1,), a stack, the union-find
+    of the wrap test (``par``, lattice potentials ``pot`` (n, 2), ``rank``) and its ``roots`` (3,)."""
+    seen: np.ndarray
+    stamp: np.ndarray
+    parent_v: np.ndarray
+    parent_s: np.ndarray
+    stack: np.ndarray
+    vis: np.ndarray
+    nvis: np.ndarray
+    par: np.ndarray
+    pot: np.ndarray
+    rank: np.ndarray
+    roots: np.ndarray
+
+
 @numba.njit(cache=True)
-def _search(w, p1, p2, free, outdeg, outv, oute, outs, seen, st, parent_v, parent_s, stack, vis, nvis):
-    """Breadth-first search from ``w`` along the pebble directions for a free pebble held by a vertex
-    other than ``p1``, ``p2`` (pinned; they can be passed through). On success the path is reversed
-    and the pebble moves to ``w``; on failure ``vis[:nvis[0]]`` lists the vertices reached."""
+def _scratch(n):
+    """Fresh :class:`_Scratch` for n bodies."""
+    return _Scratch(np.zeros(n, np.int64), np.zeros(1, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64),
+                    np.zeros(n + 1, np.int64), np.zeros(n + 1, np.int64), np.zeros(1, np.int64), np.arange(n),
+                    np.zeros((n, 2), np.int64), np.zeros(n, np.int64), np.zeros(3, np.int64))
+
+
+@numba.njit(cache=True)
+def _search(w, p1, p2, g, sc, st):
+    """Breadth-first search from ``w`` along the pebble directions of :class:`_Graph` ``g`` for a
+    free pebble held by a vertex other than ``p1``, ``p2`` (pinned; they can be passed through),
+    visit stamp ``st``. On success the path is reversed and the pebble moves to ``w``; on failure
+    ``sc.vis[:sc.nvis[0]]`` lists the vertices reached."""
+    free, outdeg, outv, oute, outs = g.free, g.outdeg, g.outv, g.oute, g.outs
+    seen, parent_v, parent_s, vis, nvis = sc.seen, sc.parent_v, sc.parent_s, sc.vis, sc.nvis
     seen[w] = st
     vis[0] = w
     nv = 1
@@ -116,10 +157,10 @@ def _search(w, p1, p2, free, outdeg, outv, oute, outs, seen, st, parent_v, paren
 
 
 @numba.njit(cache=True)
-def _gather(u, v, target, kcap, free, outdeg, outv, oute, outs, seen, stamp, parent_v, parent_s, stack, vis,
-            nvis):
+def _gather(u, v, target, g, sc):
     """Bring free pebbles to ``u`` and ``v`` (``v = -1``: ``u`` alone) until they hold ``target``
     or none can be found; returns the number they hold."""
+    kcap, free, stamp = g.kcap, g.free, sc.stamp
     while True:
         have = free[u] + (free[v] if v >= 0 else 0)
         if have >= target:
@@ -127,12 +168,10 @@ def _gather(u, v, target, kcap, free, outdeg, outv, oute, outs, seen, stamp, par
         got = False
         if free[u] < kcap[u]:
             stamp[0] += 1
-            got = _search(u, u, v, free, outdeg, outv, oute, outs, seen, stamp[0], parent_v, parent_s, stack,
-                          vis, nvis)
+            got = _search(u, u, v, g, sc, stamp[0])
         if not got and v >= 0 and free[v] < kcap[v]:
             stamp[0] += 1
-            got = _search(v, u, v, free, outdeg, outv, oute, outs, seen, stamp[0], parent_v, parent_s, stack,
-                          vis, nvis)
+            got = _search(v, u, v, g, sc, stamp[0])
         if not got:
             return have
 
@@ -150,10 +189,13 @@ def _uf_root(x, par, pot):
 
 
 @numba.njit(cache=True)
-def _wraps(roots, nroots, extra_a, extra_b, ex, ey, outdeg, outv, outs, seen, st, stack, par, pot, rank):
-    """True if the set reachable from ``roots`` along the pebble directions (closed: its induced
-    accepted bars are the out-bars of its vertices), with the extra bar ``a -> b`` of shift
-    ``(ex, ey)`` (``a = -1``: none), has a cycle of nonzero net lattice translation."""
+def _wraps(nroots, extra_a, extra_b, ex, ey, g, sc, st):
+    """True if the set reachable from ``sc.roots[:nroots]`` along the pebble directions of ``g``
+    (closed: its induced accepted bars are the out-bars of its vertices), with the extra bar
+    ``a -> b`` of shift ``(ex, ey)`` (``a = -1``: none), has a cycle of nonzero net lattice
+    translation (visit stamp ``st``)."""
+    outdeg, outv, outs = g.outdeg, g.outv, g.outs
+    roots, seen, stack, par, pot, rank = sc.roots, sc.seen, sc.stack, sc.par, sc.pot, sc.rank
     nv = 0
     for r in range(nroots):
         x = roots[r]
@@ -209,35 +251,23 @@ def _wraps(roots, nroots, extra_a, extra_b, ex, ey, outdeg, outv, outs, seen, st
 @numba.njit(cache=True)
 def _play(n, kcap, ba, bb, bsx, bsy, periodic):
     """The game over the bars ``(ba, bb)`` with lattice shifts ``(bsx, bsy)`` in order; returns the
-    state and the per-bar independence."""
+    per-bar independence and the :class:`_Graph`."""
     nb = ba.shape[0]
-    free = kcap.copy()
-    outdeg = np.zeros(n, np.int64)
-    outv = np.full((n, 3), -1, np.int64)
-    oute = np.full((n, 3), -1, np.int64)
-    outs = np.zeros((n, 3, 2), np.int64)
-    seen = np.zeros(n, np.int64)
-    stamp = np.zeros(1, np.int64)
-    parent_v = np.zeros(n, np.int64)
-    parent_s = np.zeros(n, np.int64)
-    stack = np.zeros(n + 1, np.int64)
-    vis = np.zeros(n + 1, np.int64)
-    nvis = np.zeros(1, np.int64)
-    par = np.arange(n)
-    pot = np.zeros((n, 2), np.int64)
-    rank = np.zeros(n, np.int64)
-    roots = np.zeros(3, np.int64)
+    g = _Graph(kcap, kcap.copy(), np.zeros(n, np.int64), np.full((n, 3), -1, np.int64), np.full((n, 3), -1, np.int64),
+               np.zeros((n, 3, 2), np.int64))
+    free, outdeg, outv, oute, outs = g.free, g.outdeg, g.outv, g.oute, g.outs
+    sc = _scratch(n)
+    stamp, roots = sc.stamp, sc.roots
     independent = np.zeros(nb, np.bool_)
     for e in range(nb):
         u, v = ba[e], bb[e]
-        have = _gather(u, v, 4, kcap, free, outdeg, outv, oute, outs, seen, stamp, parent_v, parent_s, stack,
-                       vis, nvis)
+        have = _gather(u, v, 4, g, sc)
         ok = have >= 4
         if not ok and have == 3 and periodic:
             stamp[0] += 1
             roots[0] = u
             roots[1] = v
-            ok = _wraps(roots, 2, u, v, bsx[e], bsy[e], outdeg, outv, outs, seen, stamp[0], stack, par, pot, rank)
+            ok = _wraps(2, u, v, bsx[e], bsy[e], g, sc, stamp[0])
         if ok:
             independent[e] = True
             if free[u] > 0:
@@ -251,31 +281,27 @@ def _play(n, kcap, ba, bb, bsx, bsy, periodic):
             outs[t, d, 1] = sy
             outdeg[t] = d + 1
             free[t] -= 1
-    return independent, free, outdeg, outv, oute, outs
+    return independent, g
 
 
 # long: one numba loop over the contacts (the cluster growth), its state kept in local arrays
 @numba.njit(cache=True)
-def _clusters(n, kcap, ci, cj, adj_ptr, adj_v, adj_c, free, outdeg, outv, oute, outs, periodic):
-    """Jacobs-Hendrickson decomposition: contact labels (-1: none), and the flat member lists of
-    the clusters (``members[ptr[c]:ptr[c + 1]]``)."""
+def _clusters(n, contacts, adjacency, g, periodic):
+    """Jacobs-Hendrickson decomposition of the played :class:`_Graph` ``g`` over the ``contacts``
+    ``(ci, cj)`` with the particles' ``adjacency`` ``(ptr, body, contact)`` (:func:`_adjacency`):
+    contact labels (-1: none), and the flat member lists of the clusters
+    (``members[ptr[c]:ptr[c + 1]]``)."""
+    ci, cj = contacts
+    adj_ptr, adj_v, adj_c = adjacency
+    kcap, free = g.kcap, g.free
+    sc = _scratch(n)
+    stamp, roots, nvis, vis = sc.stamp, sc.roots, sc.nvis, sc.vis
     nc = ci.shape[0]
     label = np.full(nc, -1, np.int64)
     processed = np.zeros(nc, np.bool_)
     body_cluster = np.full(n, -1, np.int64)
     in_c = np.full(n, -1, np.int64)
     flop = np.full(n, -1, np.int64)
-    seen = np.zeros(n, np.int64)
-    stamp = np.zeros(1, np.int64)
-    parent_v = np.zeros(n, np.int64)
-    parent_s = np.zeros(n, np.int64)
-    stack = np.zeros(n + 1, np.int64)
-    vis = np.zeros(n + 1, np.int64)
-    nvis = np.zeros(1, np.int64)
-    par = np.arange(n)
-    pot = np.zeros((n, 2), np.int64)
-    rank = np.zeros(n, np.int64)
-    roots = np.zeros(3, np.int64)
     queue = np.zeros(n + 1, np.int64)
     members = np.zeros(n + 2 * nc + 1, np.int64)
     ptr = np.zeros(n + nc + 2, np.int64)
@@ -293,8 +319,7 @@ def _clusters(n, kcap, ci, cj, adj_ptr, adj_v, adj_c, free, outdeg, outv, oute, 
                 continue
         else:
             b1, b2 = u, v
-        pinned = _gather(b1, b2, 3, kcap, free, outdeg, outv, oute, outs, seen, stamp, parent_v, parent_s, stack,
-                         vis, nvis)
+        pinned = _gather(b1, b2, 3, g, sc)
         in_c[b1] = cid
         queue[0] = b1
         nq = 1
@@ -314,8 +339,7 @@ def _clusters(n, kcap, ci, cj, adj_ptr, adj_v, adj_c, free, outdeg, outv, oute, 
                     flop[w] = cid
                     continue
                 stamp[0] += 1
-                if _search(w, b1, b2, free, outdeg, outv, oute, outs, seen, stamp[0], parent_v, parent_s, stack,
-                           vis, nvis):
+                if _search(w, b1, b2, g, sc, stamp[0]):
                     flop[w] = cid
                     continue
                 nv = nvis[0]
@@ -324,7 +348,7 @@ def _clusters(n, kcap, ci, cj, adj_ptr, adj_v, adj_c, free, outdeg, outv, oute, 
                     roots[0] = w
                     roots[1] = b1
                     roots[2] = b2 if b2 >= 0 else b1
-                    if _wraps(roots, 3, -1, -1, 0, 0, outdeg, outv, outs, seen, stamp[0], stack, par, pot, rank):
+                    if _wraps(3, -1, -1, 0, 0, g, sc, stamp[0]):
                         flop[w] = cid
                         continue
                 for t in range(nv):
@@ -485,12 +509,11 @@ def pebble_game(network: ContactNetwork, *, min_contacts=None) -> RigidityResult
     ratt, idx, i, j, kcap, lb, body, shifts, bar_contact = _game_graph(network, min_contacts)
     periodic = network.cell is not None
     ba, bb = i[bar_contact], j[bar_contact]
-    indep, free, outdeg, outv, oute, outs = _play(N, kcap, ba.astype(np.int64), bb.astype(np.int64),
-                                                   shifts[bar_contact, 0].copy(), shifts[bar_contact, 1].copy(),
-                                                   periodic)
+    indep, g = _play(N, kcap, ba.astype(np.int64), bb.astype(np.int64), shifts[bar_contact, 0].copy(),
+                     shifts[bar_contact, 1].copy(), periodic)
     adj_ptr, adj_v, adj_c = _adjacency(N, i.astype(np.int64), j.astype(np.int64))
-    lab, members, ptr = _clusters(N, kcap, i.astype(np.int64), j.astype(np.int64), adj_ptr, adj_v, adj_c, free,
-                                  outdeg, outv, oute, outs, periodic)
+    lab, members, ptr = _clusters(N, (i.astype(np.int64), j.astype(np.int64)), (adj_ptr, adj_v, adj_c), g,
+                                  periodic)
     contact_cluster = np.full(network.n_contacts, -1, np.int64)
     contact_cluster[idx] = lab
     sizes = np.diff(ptr)
