@@ -18,9 +18,9 @@ SI units, tension positive, plane strain, per m of thickness. The mine scene tha
 from .dynamics import (Model, advance, assemble_stiffness, cell_stress, energies, gershgorin_dt, model_forces,
                        power_dt, step)
 from .element import element_stiffness, hex_geometry, isotropic_from_C, periodic_moduli
-from .interface import InterfaceLaw, mc_update, spring_stiffness_rule
+from .interface import InterfaceLaw, Strength, Traction, mc_update, spring_stiffness_rule
 from .lattice import make_lattice
 
 __all__ = ["element_stiffness", "periodic_moduli", "isotropic_from_C", "hex_geometry", "InterfaceLaw",
-           "mc_update", "spring_stiffness_rule", "make_lattice", "Model", "step", "advance", "model_forces",
+           "Strength", "Traction", "mc_update", "spring_stiffness_rule", "make_lattice", "Model", "step", "advance", "model_forces",
            "gershgorin_dt", "power_dt", "energies", "cell_stress", "assemble_stiffness"]

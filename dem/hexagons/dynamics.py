@@ -31,7 +31,7 @@ from numba import njit
 
 from ..runtime import InstabilityError          # shared with the disk engine
 from .element import element_stiffness
-from .interface import mc_update, spring_stiffness_rule
+from .interface import Strength, Traction, mc_update, spring_stiffness_rule
 from .lattice import make_lattice
 
 __all__ = ["Model", "Cells", "Walls", "Interfaces", "Fault", "Contact", "Kinematics", "step", "advance",
@@ -504,9 +504,9 @@ def _forces(u, f, vh, acc, g, dt, cells, walls, ifc, fault):
         jn = dux * n_x + duy * n_y
         jt = -dux * n_y + duy * n_x
         pg_old = pg[e]
-        s_n, ta, br, pgn, db, df, is_open = mc_update(jn, jt - jtp[e], sn0[e], tau[e], broken[e], pg_old,
-                                                      kn[e], kt[e], ft[e], coh[e], tanphi[e],
-                                                      tanphi_r[e], vent[e])
+        state = Traction(sn0[e], tau[e], broken[e], pg_old)
+        law = Strength(kn[e], kt[e], ft[e], coh[e], tanphi[e], tanphi_r[e], vent[e])
+        s_n, ta, br, pgn, db, df, is_open = mc_update(jn, jt - jtp[e], state, law)
         if is_open and pg_old > 0.0:
             w_gas += L * pg_old * (jn - jnp[e])
         jtp[e] = jt

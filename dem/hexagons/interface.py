@@ -24,10 +24,13 @@ work pg L d[u]n.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-__all__ = ["mc_update", "InterfaceLaw", "spring_stiffness_rule", "INTACT", "TENSION", "SHEAR"]
+__all__ = ["mc_update", "Strength", "Traction", "InterfaceLaw", "spring_stiffness_rule", "INTACT", "TENSION",
+           "SHEAR"]
 
 INTACT, TENSION, SHEAR = 0, 1, 2
 
@@ -54,11 +57,39 @@ def _broken_law(sn_tr, tau_tr, pg, kn, tanphi_r, vent_open):
     return sn, tau, pg, is_open, vented
 
 
+class Strength(NamedTuple):
+    """An interface's stiffness and strength: penalty springs ``kn``, ``kt`` [Pa/m], tensile
+    strength ``ft`` and cohesion ``coh`` [Pa], friction ``tanphi`` (intact) and ``tanphi_r``
+    (broken), and the opening ``vent_open`` [m] beyond which the gas escapes."""
+    kn: float
+    kt: float
+    ft: float
+    coh: float
+    tanphi: float
+    tanphi_r: float
+    vent_open: float
+
+
+class Traction(NamedTuple):
+    """An interface's state before the update: the normal traction ``sn0`` of the spring at zero
+    jump [Pa], the shear traction ``tau`` [Pa], ``broken`` (``INTACT``, ``TENSION``, ``SHEAR``) and
+    the gas pressure ``pg`` [Pa]."""
+    sn0: float
+    tau: float
+    broken: int
+    pg: float
+
+
 @njit(cache=True, inline="always")
-def mc_update(jn, djt, sn0, tau_old, broken, pg, kn, kt, ft, coh, tanphi, tanphi_r, vent_open):
-    """One update of the interface law. Returns (sn, tau, broken, pg, d_break, d_fric, is_open)
-    with energies per unit length [J/m^2 -> J/m per m of edge]. For an interface that was already
-    broken, the fifth value is the energy of the vented gas instead of a break."""
+def mc_update(jn, djt, state, law):
+    """One update of the interface law for the normal jump ``jn`` and the tangential jump
+    increment ``djt`` [m] from the :class:`Traction` ``state`` with the :class:`Strength` ``law``.
+    Returns (sn, tau, broken, pg, d_break, d_fric, is_open) with energies per unit length
+    [J/m^2 -> J/m per m of edge]. For an interface that was already broken, the fifth value is the
+    energy of the vented gas instead of a break."""
+    sn0, tau_old, broken, pg = state.sn0, state.tau, state.broken, state.pg
+    kn, kt, ft, coh, tanphi = law.kn, law.kt, law.ft, law.coh, law.tanphi
+    tanphi_r, vent_open = law.tanphi_r, law.vent_open
     sn_tr = sn0 + kn * jn
     tau_tr = tau_old + kt * djt
     if broken == 0:
@@ -120,9 +151,10 @@ class InterfaceLaw:
         self.d_fric = 0.0
 
     def update(self, jn, jt):
-        sn, tau, br, pg, db, df, _ = mc_update(float(jn), float(jt) - self.jt_prev, self.sn0, self.tau,
-                                               self.broken, self.pg, self.kn, self.kt, self.ft, self.c,
-                                               self.tanphi, self.tanphi_r, self.vent_open)
+        sn, tau, br, pg, db, df, _ = mc_update(float(jn), float(jt) - self.jt_prev,
+                                               Traction(self.sn0, self.tau, self.broken, self.pg),
+                                               Strength(self.kn, self.kt, self.ft, self.c, self.tanphi,
+                                                        self.tanphi_r, self.vent_open))
         self.jt_prev = float(jt)
         self.sn, self.tau, self.broken, self.pg = sn, tau, br, pg
         self.d_break += db
