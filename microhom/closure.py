@@ -145,12 +145,13 @@ H_MEAN = {'K': 0.0247748, 'G': 0.0247748}   # mean leverage of the corpus
 H_MAX = {'K': 1.01966, 'G': 1.00086}   # 3 x the largest leverage of the corpus: beyond, flagged
 RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8042, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03643771377340144], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163], 'psi6_local': [0.477, 0.9734]}   # the box of the corpus (usable rows)
 DZ_MIN = 0.05
-#: fewest particles of the corpus's packings (N = 1000 and 4000): below it flagged (bit 64). At
-#: N = 64 the packing-to-packing scatter of G is 2-6 times that at N = 1000 and a few excess
-#: contacts decide G near the isostatic point (docs/results/closure.md, section 5)
+#: The fewest particles of the corpus's packings (N = 1000 and 4000); fewer are flagged (bit 64).
+#: At N = 64 the packing-to-packing scatter of G is 2-6 times that at N = 1000 and a few excess
+#: contacts decide G near the isostatic point (docs/results/closure.md, section 5).
 N_MIN = 1000
 # -------------------------------------------------------------------------------------------------
-#: psi6_local assumed when not given (flagged, bit 32): the median of the corpus's usable rows
+#: The psi6_local assumed when it is not given (and then flagged, bit 32), the median of the corpus's
+#: usable rows.
 PSI6_LOCAL_DEFAULT = 0.62
 ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
 

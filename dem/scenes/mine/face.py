@@ -314,7 +314,7 @@ class FaceAdvance(Result):
     Attributes
     ----------
     params : dict
-        The scene's parameters (:meth:`MineParams.to_dict`).
+        The scene's parameters (``MineParams.to_dict()``).
     slice_width_m : float
         Width of the slice removed per stage [m].
     ek_tol : float
