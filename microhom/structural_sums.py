@@ -135,10 +135,17 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     threshold stays the jamming convention d + 1 (compressive normal forces balance only if at
     most d normals span at most d - 1 directions, which leaves the particle a free translation).
 
+    ``min_contacts="rigid"`` is the former rule, d with friction (3 for spheres) and d + 1 without:
+    it keeps only particles held rigid by their own contacts, what the relaxation hierarchy's
+    block preconditioner needs (a two-contact sphere's own 6 x 6 block is singular). In 2D it is
+    the default rule.
+
     Returns (is_rattler (N,) bool, active (C,) bool: contacts between non-rattlers).
     """
-    if min_contacts is not None and (int(min_contacts) != min_contacts or min_contacts < 0):
-        raise ValueError(f"min_contacts must be a non-negative integer, got {min_contacts}")
+    rigid = isinstance(min_contacts, str) and min_contacts == "rigid"
+    if min_contacts is not None and not rigid and (isinstance(min_contacts, str) or int(min_contacts) != min_contacts
+                                                   or min_contacts < 0):
+        raise ValueError(f"min_contacts must be a non-negative integer, None or 'rigid', got {min_contacts!r}")
     n = network.n_particles
     i, j = network.pairs[:, 0], network.pairs[:, 1]
     fric = (network.effective_kt > 0).astype(np.float64)
@@ -147,10 +154,10 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     while True:
         ia, ja = i[active], j[active]
         counts = np.bincount(ia, minlength=n) + np.bincount(ja, minlength=n)
-        if min_contacts is None:
+        if min_contacts is None or rigid:
             fa = fric[active]
             n_fric = np.bincount(ia, weights=fa, minlength=n) + np.bincount(ja, weights=fa, minlength=n)
-            threshold = np.where(n_fric > 0, 2, network.dim + 1)
+            threshold = np.where(n_fric > 0, network.dim if rigid else 2, network.dim + 1)
         else:
             threshold = int(min_contacts)
         new = (~rattler) & (counts < threshold)

@@ -72,3 +72,23 @@ def test_the_2d_analogue_a_compressed_two_contact_disk_is_held_rigid():
     net = _zigzag(2, 0.3)
     ev0, evp = np.linalg.eigvalsh(_block(net, 1, False)), np.linalg.eigvalsh(_block(net, 1, True))
     assert ev0[0] > 0.1 and evp[0] > 0.1 and abs(evp[0] - ev0[0]) < 2 * 2e-3 / 0.999
+
+
+def test_the_finite_turn_about_the_chord_presses_both_contacts():
+    """The same turn done finitely (Rodrigues rotation by phi about the chord through the contact
+    points c_k = a n_k, neighbours' centres fixed at l_k n_k): the centre distances obey the closed
+    form d_k^2 = l_k^2 - 2 rho^2 (1 - cos phi) (l_k / a - 1), rho = a |n_1 + n_2| / 2, so both
+    overlaps grow at second order (docs/spheres.md, "Rattlers in 3D")."""
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        n1, n2 = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+        a, ls, phi = 0.5, (0.9, 1.1), rng.uniform(-1, 1)
+        c1, c2 = a * n1, a * n2
+        e = (c1 - c2) / np.linalg.norm(c1 - c2)
+        K = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+        R = np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
+        centre = R @ (-c1) + c1
+        rho = a * np.linalg.norm(n1 + n2) / 2
+        for n, l in ((n1, ls[0]), (n2, ls[1])):
+            d2 = np.sum((l * n - centre) ** 2)
+            assert d2 == pytest.approx(l ** 2 - 2 * rho ** 2 * (1 - np.cos(phi)) * (l / a - 1), rel=1e-12)
