@@ -319,8 +319,9 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     if floppy_shift:
         indefinite = (w < -1e-12 * scale).any(axis=1)
         n_bad = int(np.count_nonzero(indefinite))
-        wm = np.where(good | indefinite[:, None], w, scale)
-        Mb = np.einsum("nij,nj,nkj->nik", V, wm, V)
+        shift = np.where(good | indefinite[:, None], 0.0, scale - w)     # null directions only
+        dM = np.einsum("nij,nj,nkj->nik", V, shift, V)
+        has_shift = shift.any(axis=1)
     winv = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
     inv = np.einsum("nij,nj,nkj->nik", V, winv, V)
     isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V)
@@ -329,8 +330,9 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     r = np.broadcast_to(members[:, :, None], (nb, nbk, nbk)).ravel()
     c = np.broadcast_to(members[:, None, :], (nb, nbk, nbk)).ravel()
     ok = (r >= 0) & (c >= 0)
-    if floppy_shift:
-        M = sp.csr_matrix((Mb.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
+    if floppy_shift and has_shift.any():       # M itself is untouched where no block is singular
+        sel = ok & np.broadcast_to(has_shift[:, None, None], (nb, nbk, nbk)).ravel()
+        M = (M + sp.csr_matrix((dM.ravel()[sel], (r[sel], c[sel])), shape=H.shape)).tocsr()
     Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
     Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
     return M, Minv, Minv_sqrt, n_bad

@@ -132,8 +132,9 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     ``omega`` parallel to the chord ``a_1 n_1 - a_2 n_2`` with ``u = -a_1 omega x n_1`` (the sphere
     turns about the chord), a floppy mode the solvers count, not a reason to remove the sphere.
     With one contact a particle follows its neighbour and carries nothing. Frictionless, the
-    threshold stays the jamming convention d + 1 (compressive normal forces balance only if at
-    most d normals span at most d - 1 directions, which leaves the particle a free translation).
+    threshold stays the jamming convention d + 1 (d or fewer compressive normal forces balance only
+    if their normals lie in a (d - 1)-dimensional subspace, which leaves the particle a free
+    translation).
 
     ``min_contacts="rigid"`` is the former rule, d with friction (3 for spheres) and d + 1 without:
     it keeps only particles held rigid by their own contacts, what the relaxation hierarchy's
