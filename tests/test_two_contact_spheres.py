@@ -92,3 +92,20 @@ def test_the_finite_turn_about_the_chord_presses_both_contacts():
         for n, l in ((n1, ls[0]), (n2, ls[1])):
             d2 = np.sum((l * n - centre) ** 2)
             assert d2 == pytest.approx(l ** 2 - 2 * rho ** 2 * (1 - np.cos(phi)) * (l / a - 1), rel=1e-12)
+
+
+def test_the_certificate_preconditioner_shifts_only_the_turns():
+    """block_preconditioner(floppy_shift=True): each two-contact sphere's singular block gets a
+    positive eigenvalue on its turn (a null vector of H without pre-stress), nothing else changes."""
+    from microhom.hierarchy import block_preconditioner
+    net = _zigzag(3, 0.3)
+    asm = assemble(net, pin=False)
+    M0, _, _, bad0 = block_preconditioner(asm)
+    M1, _, _, bad1 = block_preconditioner(asm, floppy_shift=True)
+    assert bad0 == 4 and bad1 == 0
+    assert np.linalg.eigvalsh(M1.toarray())[0] > 0.1
+    dM = (M1 - M0).toarray()
+    w, V = np.linalg.eigh(dM)
+    turns = V[:, w > 1e-9]
+    assert turns.shape[1] == 4 and np.all(w > -1e-12)
+    assert np.abs(asm.H @ turns).max() < 1e-12                    # the shifted directions are floppy
