@@ -96,6 +96,16 @@ def _measure(run, tol) -> dict:
         rattler_rule=RATTLER_RULE)
 
 
+def _two_contact(net) -> int:
+    """Non-rattlers with exactly two load-bearing contacts, frictional ones (the spheres the former
+    rule, ``min_contacts="rigid"``, removed; each has one floppy turn about its chord)."""
+    from microhom.structural_sums import rattlers
+    rat, act = rattlers(net)
+    cnt = np.bincount(net.pairs[act].ravel(), minlength=net.n_particles)
+    fric = np.bincount(net.pairs[act & (net.effective_kt > 0)].ravel(), minlength=net.n_particles)
+    return int(np.count_nonzero(~rat & (cnt == 2) & (fric > 0)))
+
+
 def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progress=print) -> dict:
     """One packing of the study, from the cache ``folder/case.json`` when there (see module doc)."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -118,6 +128,10 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
         row.update(_measure(run, tol))
         row["case_s"] = time.perf_counter() - t0
         cache.write_text(json.dumps(row))
+    if "two_contact" not in row:       # spheres the former rule removed: two load-bearing contacts
+        run, _, _ = pack_with_restart(proto, folder)
+        row["two_contact"] = _two_contact(run.network)
+        cache.write_text(json.dumps(row))
     if probes and "probes_difference_rigid" not in row:     # (run, or re-read from the logs)
         run, prm, _ = pack_with_restart(proto, folder)
         base, blog = relax_base(folder, prm, tol=PROBE_TOL)
@@ -136,7 +150,8 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
 def tables(df: pd.DataFrame) -> dict:
     """The study's tables (pandas): statistics, moduli, and the 3D main table."""
     key = ["p_over_kn", "mu"]
-    stats = df[key + ["N", "phi", "Z_all", "Z", "r", "rattler_fraction", "sliding_fraction", "n_floppy", "cauchy_unstable",
+    stats = df[key + ["N", "phi", "Z_all", "Z", "r", "rattler_fraction", "sliding_fraction", "two_contact", "n_floppy",
+                      "cauchy_unstable",
                       "pack_s"]].copy()
     mods = []
     for m in ("K", "G"):
