@@ -279,13 +279,20 @@ def isotropic_weights():
     return eK, np.array([1.0]), eG, np.array([0.5, 0.25])
 
 
-def block_preconditioner(asm: Assembly):
+def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3 for disks and
     6 x 6 for spheres) and its inverse.
 
     Returns (M, Minv, Minv_sqrt, n_bad): CSR matrices (ndof, ndof) ``M``, ``M^-1``, ``M^-1/2``
     and the number of singular or indefinite blocks (their inverse is taken on the positive part
     only; 0 for a well-posed network).
+
+    ``floppy_shift=True`` (for the inertia certificate): a positive semi-definite singular block
+    (a frictional sphere with two contacts turns about their chord without deforming them) gets
+    its largest eigenvalue on its null directions in ``M``, and only indefinite blocks count in
+    ``n_bad``. Without pre-stress such a null direction ``q`` of a block is one of ``H``
+    (``q^T H_pp q = sum_c |K_c^1/2 B_c q|^2 = 0``), so ``H q = 0`` and ``q^T F = 0``: the pencil's
+    non-zero eigenvalues and the iterates are those of the pseudo-inverse ``M^-1`` returned.
     """
     H = asm.H.tocoo()
     owner = dof_layout(asm)[0]
@@ -309,6 +316,12 @@ def block_preconditioner(asm: Assembly):
     scale = np.maximum(np.abs(w).max(axis=1, keepdims=True), 1e-300)
     good = w > 1e-12 * scale
     n_bad = int(np.count_nonzero(~good.all(axis=1)))
+    if floppy_shift:
+        indefinite = (w < -1e-12 * scale).any(axis=1)
+        n_bad = int(np.count_nonzero(indefinite))
+        shift = np.where(good | indefinite[:, None], 0.0, scale - w)     # null directions only
+        dM = np.einsum("nij,nj,nkj->nik", V, shift, V)
+        has_shift = shift.any(axis=1)
     winv = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
     inv = np.einsum("nij,nj,nkj->nik", V, winv, V)
     isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V)
@@ -317,6 +330,9 @@ def block_preconditioner(asm: Assembly):
     r = np.broadcast_to(members[:, :, None], (nb, nbk, nbk)).ravel()
     c = np.broadcast_to(members[:, None, :], (nb, nbk, nbk)).ravel()
     ok = (r >= 0) & (c >= 0)
+    if floppy_shift and has_shift.any():       # M itself is untouched where no block is singular
+        sel = ok & np.broadcast_to(has_shift[:, None, None], (nb, nbk, nbk)).ravel()
+        M = (M + sp.csr_matrix((dM.ravel()[sel], (r[sel], c[sel])), shape=H.shape)).tocsr()
     Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
     Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
     return M, Minv, Minv_sqrt, n_bad
@@ -354,7 +370,7 @@ def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
         none = (None, None, 0, 0, None)
         if n > spectral.CERTIFIED_MAX_DOF:
             return none
-        M, _, S, n_bad = block_preconditioner(asm)
+        M, _, S, n_bad = block_preconditioner(asm, floppy_shift=asm.Kgs is None)
         if n_bad:
             return none
         S = S if Minv_sqrt is None else Minv_sqrt

@@ -119,22 +119,34 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     """Iteratively flag rattlers: particles with fewer than ``min_contacts`` load-bearing contacts.
 
     Removing a rattler removes its contacts, which may make neighbours rattlers; iterate to a fixed
-    point. Default ``min_contacts=None`` decides per particle: d if any of its remaining contacts
-    has tangent stiffness (2 for frictional disks, 3 for frictional spheres), else d + 1 (3 for
-    frictionless disks, 4 for frictionless spheres: the jamming convention).
+    point. Default ``min_contacts=None`` decides per particle: 2 if any of its remaining contacts
+    has tangent stiffness (frictional disks and spheres alike), else d + 1 (3 for frictionless
+    disks, 4 for frictionless spheres: the jamming convention).
 
-    The frictional rule is one rule in both dimensions: d is the fewest contacts that hold a
-    particle rigid, translations and rotations, against its neighbours' springs. A contact at arm
-    ``a_k`` along ``n_k`` is undeformed when ``u + a_k omega x n_k = 0``; two such contacts give
-    ``omega x (a_1 n_1 - a_2 n_2) = 0``. In 2D ``omega`` is normal to the plane, so
-    ``omega = 0`` and two contacts hold the disk; in 3D ``omega`` parallel to
-    ``a_1 n_1 - a_2 n_2`` with ``u = -a_1 omega x n_1`` moves neither contact point (a sphere
-    rolls between two contacts), and a third contact off that line removes the mode.
+    The rule keeps every particle that can carry load, not only the ones held rigid
+    (docs/spheres.md, "Rattlers in 3D"). A frictional particle with two contacts is a two-force
+    body: in equilibrium its two contact forces are equal, opposite and along the chord joining the
+    contact points, and it passes that force, and the stiffness along the chord, between its
+    neighbours. In 2D two contacts also hold the disk rigid. In 3D a contact at arm ``a_k`` along
+    ``n_k`` is undeformed when ``u + a_k omega x n_k = 0``; two such contacts leave one motion,
+    ``omega`` parallel to the chord ``a_1 n_1 - a_2 n_2`` with ``u = -a_1 omega x n_1`` (the sphere
+    turns about the chord), a floppy mode the solvers count, not a reason to remove the sphere.
+    With one contact a particle follows its neighbour and carries nothing. Frictionless, the
+    threshold stays the jamming convention d + 1 (d or fewer compressive normal forces balance only
+    if their normals lie in a (d - 1)-dimensional subspace, which leaves the particle a free
+    translation).
+
+    ``min_contacts="rigid"`` is the former rule, d with friction (3 for spheres) and d + 1 without:
+    it keeps only particles held rigid by their own contacts, what the relaxation hierarchy's
+    block preconditioner needs (a two-contact sphere's own 6 x 6 block is singular). In 2D it is
+    the default rule.
 
     Returns (is_rattler (N,) bool, active (C,) bool: contacts between non-rattlers).
     """
-    if min_contacts is not None and (int(min_contacts) != min_contacts or min_contacts < 0):
-        raise ValueError(f"min_contacts must be a non-negative integer, got {min_contacts}")
+    rigid = isinstance(min_contacts, str) and min_contacts == "rigid"
+    if min_contacts is not None and not rigid and (isinstance(min_contacts, str) or int(min_contacts) != min_contacts
+                                                   or min_contacts < 0):
+        raise ValueError(f"min_contacts must be a non-negative integer, None or 'rigid', got {min_contacts!r}")
     n = network.n_particles
     i, j = network.pairs[:, 0], network.pairs[:, 1]
     fric = (network.effective_kt > 0).astype(np.float64)
@@ -143,10 +155,10 @@ def rattlers(network: ContactNetwork, min_contacts=None):
     while True:
         ia, ja = i[active], j[active]
         counts = np.bincount(ia, minlength=n) + np.bincount(ja, minlength=n)
-        if min_contacts is None:
+        if min_contacts is None or rigid:
             fa = fric[active]
             n_fric = np.bincount(ia, weights=fa, minlength=n) + np.bincount(ja, weights=fa, minlength=n)
-            threshold = np.where(n_fric > 0, network.dim, network.dim + 1)
+            threshold = np.where(n_fric > 0, network.dim if rigid else 2, network.dim + 1)
         else:
             threshold = int(min_contacts)
         new = (~rattler) & (counts < threshold)
@@ -453,7 +465,7 @@ class SphereStatistics(Result):
     The 3D subset of :class:`NetworkStatistics`: what has a 3D meaning is measured, the rest is
     listed in ``not_defined`` with the reason (``NOT_IN_3D``), never computed with a 2D formula.
     Suffix ``_all``: every particle and contact; no suffix: rattlers removed (iteratively,
-    :func:`rattlers`: fewer than 3 contacts with friction, 4 without). Moduli in Pa (the unit of
+    :func:`rattlers`: fewer than 2 contacts with friction, 4 without). Moduli in Pa (the unit of
     kn [N/m] over a length), lengths in the unit of the positions [m], the rest dimensionless.
 
     Attributes
@@ -522,7 +534,7 @@ def sphere_statistics(network: ContactNetwork, min_contacts=None) -> SphereStati
         A network of spheres: positions (N, 3) [m], radii [m], contacts, kn, kt [N/m]; periodic
         (the moduli are per cell volume).
     min_contacts : int, optional
-        Rattler threshold of :func:`rattlers` (None: 3 with tangent stiffness, 4 without).
+        Rattler threshold of :func:`rattlers` (None: 2 with tangent stiffness, 4 without).
     """
     if not isinstance(network, ContactNetwork):
         raise TypeError(f"network must be a microhom.network.ContactNetwork, got {type(network).__name__}")

@@ -16,9 +16,9 @@ the friction ``mu`` from the gas on (``mu_prep = mu``), isotropic pressure p wit
 * the exact tensor (:func:`dem.analysis.stiffness.stiffness`), the reference: the stiffness of the
   energy density (no pre-stress, the hierarchy's quantity), and the Cauchy stiffness with the
   pre-stress and LAMMPS's spin arm (the probes' quantity);
-* the same Cauchy tensor with the frictional spheres of two contacts kept (``min_contacts=2``):
-  the solver's 3D rule removes them as rattlers, but a sphere between two contacts, though it can
-  roll, transmits force between its neighbours; LAMMPS's probes include them;
+* the same Cauchy tensor under the former 3D rattler rule (``min_contacts="rigid"``: frictional
+  spheres need 3 contacts), for comparison: the rule now keeps frictional spheres with two
+  contacts, which transmit force between their neighbours (LAMMPS's probes include them);
 * with ``--probes``: LAMMPS's own strain probes (:mod:`studies.lammps_probes3d`, amplitude 1e-6,
   relaxed to unbalanced force and torque ratios below 1e-11), against the exact Cauchy tensor.
 
@@ -57,6 +57,11 @@ def _exact(net, **kw):
     return r, time.perf_counter() - t0
 
 
+#: version of the rattler rule the cached measurements were made with (2: frictional spheres need 2
+#: contacts); rows measured under another are measured again (the packing and probes are reused)
+RATTLER_RULE = 2
+
+
 def _measure(run, tol) -> dict:
     """Statistics, mean field, hierarchy and exact tensors of one packing (a flat dict)."""
     from microhom.hierarchy import relaxation_hierarchy
@@ -73,6 +78,7 @@ def _measure(run, tol) -> dict:
     t_h = time.perf_counter() - t0
     ex, t_ex = _exact(net)
     exc, t_exc = _exact(net, prestress=True, spin_arm="radius")
+    excr, _ = _exact(net, prestress=True, spin_arm="radius", min_contacts="rigid")
     return dict(
         N=net.n_particles, phi=st.phi, Z_all=st.nc_all, Z=st.nc, r=st.r, r_all=st.r_all,
         rattler_fraction=st.rattler_fraction, sliding_fraction=st.sliding_fraction,
@@ -84,7 +90,20 @@ def _measure(run, tol) -> dict:
         hier_reasons="; ".join(h.reasons), hier_s=t_h,
         K_exact=ex.K, G_exact=ex.G, K_affine_exact=ex.K_affine, G_affine_exact=ex.G_affine,
         exact_flags="; ".join(ex.flags), n_floppy=ex.n_floppy, exact_s=t_ex,
-        K_cauchy=exc.K, G_cauchy=exc.G, cauchy_unstable=exc.n_unstable, cauchy_s=t_exc)
+        rattlers=ex.n_rattlers,
+        K_cauchy=exc.K, G_cauchy=exc.G, cauchy_unstable=exc.n_unstable, cauchy_s=t_exc,
+        K_cauchy_rigid=excr.K, G_cauchy_rigid=excr.G, rattlers_rigid=excr.n_rattlers,
+        rattler_rule=RATTLER_RULE)
+
+
+def _two_contact(net) -> int:
+    """Non-rattlers with exactly two load-bearing contacts, frictional ones (the spheres the former
+    rule, ``min_contacts="rigid"``, removed; each has one floppy turn about its chord)."""
+    from microhom.structural_sums import rattlers
+    rat, act = rattlers(net)
+    cnt = np.bincount(net.pairs[act].ravel(), minlength=net.n_particles)
+    fric = np.bincount(net.pairs[act & (net.effective_kt > 0)].ravel(), minlength=net.n_particles)
+    return int(np.count_nonzero(~rat & (cnt == 2) & (fric > 0)))
 
 
 def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progress=print) -> dict:
@@ -94,6 +113,11 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
     row = json.loads(cache.read_text()) if cache.exists() else None
     proto = PackingProtocol(n=n, p_over_kn=p_over_kn, kn=1.0, mu=mu, mu_prep=mu,
                             dispersity=0.2, seed=seed)
+    if row is not None and row.get("rattler_rule") != RATTLER_RULE:   # measured under the former rule
+        run, _, _ = pack_with_restart(proto, folder)
+        keep = {k: row[k] for k in ("p_over_kn", "mu", "seed", "pack_s", "steps", "converged")}
+        row = dict(keep, **_measure(run, tol))
+        cache.write_text(json.dumps(row))
     if row is None:
         t0 = time.perf_counter()
         run, prm, wall = pack_with_restart(proto, folder, max_steps=2_000_000)
@@ -104,21 +128,18 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
         row.update(_measure(run, tol))
         row["case_s"] = time.perf_counter() - t0
         cache.write_text(json.dumps(row))
-    if "K_cauchy2" not in row:          # the Cauchy tensor with the frictional 2-contact spheres kept
+    if "two_contact" not in row:       # spheres the former rule removed: two load-bearing contacts
         run, _, _ = pack_with_restart(proto, folder)
-        kept, t_k = _exact(run.network, prestress=True, spin_arm="radius",
-                           min_contacts=2 if mu > 0 else None)
-        row.update(K_cauchy2=kept.K, G_cauchy2=kept.G, rattlers2=kept.n_rattlers,
-                   unstable2=kept.n_unstable, cauchy2_s=t_k)
+        row["two_contact"] = _two_contact(run.network)
         cache.write_text(json.dumps(row))
-    if probes and "probes_difference2" not in row:     # (run, or re-read from the logs)
+    if probes and "probes_difference_rigid" not in row:     # (run, or re-read from the logs)
         run, prm, _ = pack_with_restart(proto, folder)
         base, blog = relax_base(folder, prm, tol=PROBE_TOL)
         pr = lammps_probes(folder, prm, blog, amplitudes=(PROBE_AMPLITUDE,), tol=PROBE_TOL)
         cmp = compare(base, pr)
-        cmp2 = compare(base, pr, min_contacts=2 if mu > 0 else None)
-        row.update(probes_difference2=cmp2.difference, K_probes_vs2=pr.K / cmp2.K_exact - 1,
-                   G_probes_vs2=pr.G / cmp2.G_exact - 1, K_probes=pr.K, G_probes=pr.G, probes_difference=cmp.difference,
+        cmp2 = compare(base, pr, min_contacts="rigid")
+        row.update(probes_difference_rigid=cmp2.difference, K_probes_vs_rigid=pr.K / cmp2.K_exact - 1,
+                   G_probes_vs_rigid=pr.G / cmp2.G_exact - 1, K_probes=pr.K, G_probes=pr.G, probes_difference=cmp.difference,
                    probes_asymmetry=pr.asymmetry, probes_events=pr.contact_events,
                    probes_s=pr.lammps_time, probes_sliding=max(pr.sliding_by_amplitude.values()),
                    probes_prestress_size=cmp.prestress_size, probes_tangential_scale=cmp.tangential_scale)
@@ -129,7 +150,8 @@ def sphere_case(n, p_over_kn, mu, seed, folder, *, tol=0.01, probes=False, progr
 def tables(df: pd.DataFrame) -> dict:
     """The study's tables (pandas): statistics, moduli, and the 3D main table."""
     key = ["p_over_kn", "mu"]
-    stats = df[key + ["N", "phi", "Z_all", "Z", "r", "rattler_fraction", "sliding_fraction",
+    stats = df[key + ["N", "phi", "Z_all", "Z", "r", "rattler_fraction", "sliding_fraction", "two_contact", "n_floppy",
+                      "cauchy_unstable",
                       "pack_s"]].copy()
     mods = []
     for m in ("K", "G"):
@@ -145,16 +167,16 @@ def tables(df: pd.DataFrame) -> dict:
         t["first_order_error"] = df[f"{m}_first"] / df[f"{m}_exact"] - 1
         t["upper_error"] = df[f"{m}_upper"] / df[f"{m}_exact"] - 1
         t["exact_cauchy"] = df[f"{m}_cauchy"]
-        t["exact_cauchy_2contact_kept"] = df[f"{m}_cauchy2"]
+        t["exact_cauchy_rigid"] = df[f"{m}_cauchy_rigid"]
         if f"{m}_probes" in df:
             t["probes"] = df[f"{m}_probes"]
             t["probes_error"] = df[f"{m}_probes"] / df[f"{m}_cauchy"] - 1
-            t["probes_error_2contact_kept"] = df[f"{m}_probes"] / df[f"{m}_cauchy2"] - 1
+            t["probes_error_rigid"] = df[f"{m}_probes"] / df[f"{m}_cauchy_rigid"] - 1
         mods.append(t)
     times = df[key + ["pack_s", "stats_s", "hier_s", "hier_order", "hier_certified", "exact_s"]
-               + (["probes_s", "probes_difference", "probes_difference2", "probes_tangential_scale",
+               + (["probes_s", "probes_difference", "probes_difference_rigid", "probes_tangential_scale",
                    "probes_prestress_size", "probes_asymmetry", "probes_events", "probes_sliding"]
-                  if "probes_difference2" in df else [])].copy()
+                  if "probes_difference_rigid" in df else [])].copy()
     return {"statistics": stats, "moduli": pd.concat(mods, ignore_index=True), "times": times}
 
 

@@ -292,7 +292,7 @@ def test_sphere_statistics_coordination_and_fraction():
         st = network_statistics(net)
         assert isinstance(st, SphereStatistics)
         rat = rattlers(net)[0]
-        # the rattler rule by hand: peel spheres with fewer than 3 (friction) / 4 contacts
+        # the rattler rule by hand: peel spheres with fewer than 2 (friction) / 4 contacts
         alive = np.ones(net.n_particles, bool)
         while True:
             cnt = {p: 0 for p in range(net.n_particles)}
@@ -300,7 +300,7 @@ def test_sphere_statistics_coordination_and_fraction():
                 if alive[i] and alive[j]:
                     cnt[i] += 1
                     cnt[j] += 1
-            weak = [p for p in cnt if alive[p] and cnt[p] < (3 if kt > 0 else 4)]
+            weak = [p for p in cnt if alive[p] and cnt[p] < (2 if kt > 0 else 4)]
             if not weak:
                 break
             alive[weak] = False

@@ -34,6 +34,14 @@ def test_spheres_quick_runs_and_resumes(tmp_path, capsys):
     assert main(["--quick", "--out", str(tmp_path)]) == 0
     assert "packed by LAMMPS" not in capsys.readouterr().out
     assert json.loads(case.read_text()) == before
+    # a row measured under the former rattler rule is measured again, the packing reused
+    stale = {k: v for k, v in before.items() if k != "rattler_rule"}
+    stale["K_exact"] = -1.0
+    case.write_text(json.dumps(stale))
+    assert main(["--quick", "--out", str(tmp_path)]) == 0
+    assert "packed by LAMMPS" not in capsys.readouterr().out
+    again = json.loads(case.read_text())
+    assert again["K_exact"] == before["K_exact"] and again["rattler_rule"] == before["rattler_rule"]
 
 
 def test_spheres_refuses_bad_arguments(tmp_path):
