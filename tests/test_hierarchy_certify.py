@@ -115,7 +115,11 @@ def test_near_floppy_and_floppy_intervals_stay_rigorous(soft, kwargs):
     """Near-floppy (weak band) and floppy (band removed) networks, dense and sparse certificates,
     with and without the factorised steps: every interval contains the exact value, and tol is met."""
     net = _weak_band(soft)
-    ex = stiffness(net)
+    if soft:   # a stiffness ratio of ~3e8: the exact solver says so
+        with pytest.warns(RuntimeWarning, match="ill-conditioned"):
+            ex = stiffness(net)
+    else:
+        ex = stiffness(net)
     h = relaxation_hierarchy(net, **kwargs)
     assert h.spectral_bound is not None
     assert h.certified and h.K.rel_width <= 0.01 and h.G.rel_width <= 0.01
