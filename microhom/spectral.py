@@ -33,7 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
-from microhom.factor import FactorisationError, _Pardiso, _Pencil, available_backends, factor
+from microhom.factor import (AUTO_PARDISO_DOF, FactorisationError, _Pardiso, _Pencil, available_backends,
+                             factor)
 from microhom.results import Result
 
 __all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
@@ -42,8 +43,6 @@ __all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper"
 #: largest system certified by default (``microhom.hierarchy.spectral_lower_bound``, ``dem analyse``):
 #: 1e5 frictional disks (3 unknowns each)
 CERTIFIED_MAX_DOF = 300_000
-#: smallest system for which ``backend="auto"`` takes PARDISO (else SuperLU)
-AUTO_PARDISO_DOF = 30_000
 #: default zero threshold of the pencil (eigenvalues in (-eps, eps) are the null space)
 ZERO_EPS = 1e-12
 _U = np.finfo(float).eps

@@ -54,8 +54,8 @@ from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tens
                               voigt_to_mandel, voigt_to_tensor)
 
 from microhom import factor as _factor
-from microhom.factor import (COUNTS, MemoryGuardError, NotPositiveDefinite, have_pardiso, memory_check,
-                             predicted_factor_bytes)
+from microhom.factor import (AUTO_PARDISO_DOF, COUNTS, MemoryGuardError, NotPositiveDefinite, have_pardiso,
+                             memory_check, predicted_factor_bytes)
 
 _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
@@ -311,10 +311,6 @@ SOLVERS = ("auto", "pardiso", "cholmod", "splu")
 #: smallest system for which ``solver="auto"`` takes CHOLMOD (measured: 3e3 unknowns, SuperLU 0.03 s
 #: against 0.09 s; 3e4 unknowns, CHOLMOD 2.5x faster)
 AUTO_CHOLMOD_DOF = 10_000
-#: smallest system for which ``solver="auto"`` takes PARDISO (measured, one thread, CPU time of
-#: analysis + factorisation + solve: 8.8e3 unknowns PARDISO 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns
-#: 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s; docs/stiffness.md)
-AUTO_PARDISO_DOF = 30_000
 
 
 def _auto_solver(n):
