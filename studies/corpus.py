@@ -41,6 +41,20 @@ Protocols (:data:`PROTOCOLS`):
     dt_over_dtcrit=0.8, fire=False``), identical disks, test friction tan 26 deg (0.4877), kt = kn;
     knobs mu_prep (0.05: the main study's) and p/kn (1e-4: the main study's). Identical disks at
     small mu_prep partly order (psi6 up to ~0.5).
+``dem_fixedphi``
+    The ``lammps_prep`` protocol run by this project's disk engine (``_dem_fixedphi``, which
+    drives :class:`dem.engine.integrate.Simulation` directly: :func:`dem.engine.packing.pack`
+    only servo-compresses to a pressure): a cold random gas at phi 0.30 (random sequential
+    addition, no overlaps, where LAMMPS pushes a random insertion apart), fixed-rate compression
+    with the box side linear in time to the target phi (LAMMPS ``fix deform ... final``, the same
+    20000 steps of 0.2 sqrt(m/kn)), then relaxation at fixed box until the translational kinetic
+    energy per particle is below 1e-12 kn d^2 (checked every 100 steps, at most 400000 steps);
+    :class:`dem.engine.contact_laws.LinearFriction` with kt = kn, mu = 0.5 and normal and
+    tangential dashpots of damping ratio 0.05, plus the global drag ``F = -0.1 sqrt(kn m) v`` of
+    ``in.prep`` (LAMMPS ``fix viscous``, applied to the translational velocities after every
+    step), no local damping. Read back as the LAMMPS rows are: normal forces from the overlaps,
+    no tangential forces, no sliding contacts (the engine's own sliding fraction is kept in the
+    row's meta).
 
 Exact response: :func:`dem.analysis.stiffness.stiffness` of the network with ``kt = ratio * kn`` (kn = 1),
 without pre-stress (``K``, ``G``; the target of the closure, as the theory) and with it (``K_ps``,
@@ -72,7 +86,8 @@ MEASURE_VERSION = 5
 #: :func:`network_features` (5 added psi6, psi6_local): their exact moduli are kept and the
 #: statistics recomputed from the cached network
 FEATURES_ONLY_SINCE = (4,)
-PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped", "pack_study")
+PROTOCOLS = ("pack_frictional", "pack_frictionless", "lammps_prep", "minimise", "pack_slowdamped", "pack_study",
+             "dem_fixedphi")
 
 
 @dataclass(frozen=True)
@@ -132,6 +147,7 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
         for d in (0.1, 0.3):
             for phi in (0.83, 0.86):
                 rows.append(_row("lammps_prep", 1000, seed, phi=phi, dispersity=d))
+                rows.append(_row("dem_fixedphi", 1000, seed, phi=phi, dispersity=d))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-2, mu_prep=0.3, dispersity=0.0))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-3, mu_prep=0.05, dispersity=0.3))
         for mp in (0.05, 0.3):    # the main study's packings (identical frictional disks, low p)
@@ -234,6 +250,73 @@ def _lammps_prep(row, work):
     return np.asarray(cfg.positions)[:, :2], np.asarray(cfg.radii), np.asarray(cfg.cell)[:2, :2], {}
 
 
+#: the in.prep protocol in this engine's units (kn = 1, mean diameter 1, unit mass of a mean disk)
+FIXEDPHI = dict(phi0=0.30, ncomp=20000, nrelax=400000, kestop=1e-12, dt=0.2, zeta=0.05, drag=0.1, mu=0.5)
+
+
+class _LinearBox:
+    """Cell control of ``fix deform ... final``: the (square) box side changes linearly in time at
+    ``rate`` [m/s], i.e. the isotropic velocity gradient is ``rate / L`` (L the current side)."""
+
+    def __init__(self, rate):
+        self.rate = float(rate)
+
+    def update(self, state, p, K, dt):
+        e = self.rate / state.h[0, 0]
+        return np.array([[e, 0.0], [0.0, e]])
+
+    def to_meta(self):
+        return {"kind": "linear_box", "rate": self.rate}
+
+
+def _dem_fixedphi(row, verbose=False):
+    """The ``lammps_prep`` protocol run by this engine (module docstring, ``dem_fixedphi``):
+    (positions, radii, cell, meta) of the relaxed packing."""
+    from dem.engine.contact_laws import LinearFriction
+    from dem.engine.integrate import Simulation
+    from dem.engine.packing import PackingProtocol, network_from_state, random_gas
+    c, p = FIXEDPHI, row.params
+    proto = PackingProtocol(n=row.n, seed=row.seed, dispersity=p["dispersity"], radius=0.5, kn=1.0,
+                            phi0=c["phi0"], gas_overlaps=False)
+    st = random_gas(proto, spins=True)       # areal density 4/pi: a disk of diameter 1 has mass 1
+    e = float(np.exp(-np.pi * c["zeta"] / np.sqrt(1 - c["zeta"] ** 2)))   # restitution of zeta
+    law = LinearFriction(kn=1.0, kt=1.0, mu=c["mu"], restitution=e, tangential_damping=True)
+    sim = Simulation(st, law, dt=c["dt"], damping=0.0)
+    if sim.dt > sim.dt_crit:
+        raise RuntimeError(f"dt = {sim.dt} above the engine's dt_crit {sim.dt_crit}")
+    m1 = 1.0                                  # mass of a mean disk (in.prep's m1)
+    fac = np.exp(-c["drag"] * np.sqrt(m1) * sim.dt / st.mass)[:, None]   # fix viscous, exact per step
+    L_target = float(np.sqrt(np.sum(np.pi * st.radius ** 2) / p["phi"]))
+    sim.control = _LinearBox((L_target - st.h[0, 0]) / (c["ncomp"] * sim.dt))
+    for k in range(c["ncomp"]):
+        sim.step(tally=False)
+        st.v *= fac
+    st.h = np.diag([L_target, L_target])     # remove the round-off of the linear ramp
+    sim.need_rebuild = True
+    sim.control = None
+    st.L = np.zeros((2, 2))
+    nrel, ke = 0, np.inf
+    while nrel < c["nrelax"]:
+        for k in range(100):
+            sim.step(tally=False)
+            st.v *= fac
+        nrel += 100
+        ke = 0.5 * float(np.sum(st.mass[:, None] * st.v ** 2)) / st.n
+        if ke < c["kestop"]:
+            break
+    if verbose:
+        print(f"  dem_fixedphi: {nrel} relaxation steps, KE/N {ke:.3g}", flush=True)
+    sim.refresh()
+    net = network_from_state(st, sim.law)
+    order = np.argsort(st.ids, kind="stable")
+    from microhom.periodic import wrap
+    pos = wrap(st.x[order], st.h)[0]
+    return pos, st.radius[order].copy(), st.h.copy(), dict(
+        steps_relax=nrel, ke_per_particle=ke, relaxed=bool(ke < c["kestop"]),
+        engine_sliding_fraction=float(net.sliding.mean()) if net.n_contacts else 0.0,
+        engine_p_over_kn=float(np.sum(net.fn * np.hypot(*net.branch.T)) / (2 * net.area)) if net.n_contacts else 0.0)
+
+
 def packing_protocol(row: CorpusRow):
     """The :class:`dem.engine.packing.PackingProtocol` of a row made by the disk DEM (``pack_*``
     protocols): the corpus's rows of that kind are protocols plus a name."""
@@ -276,6 +359,8 @@ def build_network(row: CorpusRow, cache: Path):
     else:
         if row.protocol == "minimise":
             pos, rad, cell, extra = _minimise(row)
+        elif row.protocol == "dem_fixedphi":
+            pos, rad, cell, extra = _dem_fixedphi(row)
         else:
             pos, rad, cell, extra = _lammps_prep(row, cache / "lammps" / row.key)
             # LAMMPS lengths are in mean diameters already (mean radius 0.5): keep them
