@@ -40,7 +40,7 @@ from microhom.results import Result
 from studies.closure_fit import SUMMARY, usable
 from studies.common import cli_out_dir, write_table
 
-__all__ = ["TWIN_FEATURES", "TwinsResult", "standardised", "pairs", "summary", "twins", "main"]
+__all__ = ["TWIN_FEATURES", "TwinsResult", "standardised", "pairs", "summary", "twins", "nearest_twins", "main"]
 
 #: the packing statistics the closure sees (besides kt/kn, which twins share exactly): log of
 #: Z - Z_iso, phi (in the mean field), dispersity, r, size-coordination, rattler fraction, log10 p/kn,
@@ -175,6 +175,27 @@ def twins(df: pd.DataFrame | None = None, radius: float = 1.0) -> TwinsResult:
                        worst_pair_G=f"{w.protocol_1} vs {w.protocol_2} at kt/kn = {w.kt_over_kn:g} (d = {w.d:.2f})")
 
 
+def nearest_twins(pr: pd.DataFrame, protocol: str = "lammps_prep", other: str = "dem_fixedphi") -> pd.DataFrame:
+    """Each row of ``protocol`` (a packing at one kt/kn) with its nearest row of ``other`` at the
+    same kt/kn, from the pairs ``pr`` of :func:`pairs`: the keys, the distance ``d`` and the exact
+    moduli of both (``K``, ``G`` of ``protocol``; ``K_twin``, ``G_twin``), ``dK = K_twin / K - 1``,
+    ``dG`` likewise (signed, relative), and the unexplained parts of :func:`pairs`. Empty if
+    either protocol has no row."""
+    a = pr[(pr.protocol_1 == protocol) & (pr.protocol_2 == other)]
+    b = pr[(pr.protocol_1 == other) & (pr.protocol_2 == protocol)]
+    flip = {"key_1": "key_2", "key_2": "key_1", "G_1": "G_2", "G_2": "G_1", "K_1": "K_2", "K_2": "K_1",
+            "protocol_1": "protocol_2", "protocol_2": "protocol_1"}
+    both = pd.concat([a, b.rename(columns=flip)], ignore_index=True)
+    if both.empty:
+        return pd.DataFrame(columns=["kt_over_kn", "key", "key_twin", "d", "K", "K_twin", "dK", "G", "G_twin", "dG"])
+    near = both.sort_values("d", kind="stable").groupby(["key_1", "kt_over_kn"], sort=True).head(1)
+    out = pd.DataFrame(dict(kt_over_kn=near.kt_over_kn, key=near.key_1, key_twin=near.key_2, d=near.d,
+                            K=near.K_1, K_twin=near.K_2, dK=near.K_2 / near.K_1 - 1, G=near.G_1, G_twin=near.G_2,
+                            dG=near.G_2 / near.G_1 - 1, unexplained_K=near.unexplained_K,
+                            unexplained_G=near.unexplained_G))
+    return out.sort_values(["kt_over_kn", "key"]).reset_index(drop=True)
+
+
 def plot(pr: pd.DataFrame, radius: float, path: Path):
     """closure_twins.png: |G1/G2 - 1| and |K1/K2 - 1| against the feature distance, cross-protocol
     pairs coloured by kt/kn, same-protocol pairs grey; the stored closure's median stated error
@@ -229,6 +250,19 @@ def main(argv=None):
                 "predicted ratio is removed.")
     write_table(res.by_kt, out, "twins_by_kt", f"Pairs within feature distance {args.radius:g}, per kt/kn")
     write_table(tw[cols], out, "twins", f"Cross-protocol twins (feature distance < {args.radius:g})")
+    nt = nearest_twins(res.pairs)
+    if len(nt):
+        print("each LAMMPS packing (lammps_prep) and its nearest twin made by our engine with the same protocol "
+              "(dem_fixedphi):")
+        print(nt.to_string(index=False, float_format=ff))
+        byk = nt.groupby("kt_over_kn").agg(d_max=("d", "max"), dK_median=("dK", lambda x: x.abs().median()),
+                                           dK_max=("dK", lambda x: x.abs().max()), dK_mean=("dK", "mean"),
+                                           dG_median=("dG", lambda x: x.abs().median()),
+                                           dG_max=("dG", lambda x: x.abs().max()), dG_mean=("dG", "mean")).reset_index()
+        print(byk.to_string(index=False, float_format=ff))
+        write_table(nt, out, "twins_lammps", "Each LAMMPS packing and its nearest dem_fixedphi twin (same kt/kn)")
+        write_table(byk, out, "twins_lammps_by_kt", "LAMMPS packings and their nearest dem_fixedphi twins, per kt/kn",
+                    "dK, dG = twin / LAMMPS - 1; median and max of |dK|, |dG|; mean signed.")
     if not args.quick:
         plot(res.pairs, args.radius, out / "closure_twins.png")
     print(f"written {out}")

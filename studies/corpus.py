@@ -148,17 +148,21 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
             for phi in (0.83, 0.86):
                 rows.append(_row("lammps_prep", 1000, seed, phi=phi, dispersity=d))
                 rows.append(_row("dem_fixedphi", 1000, seed, phi=phi, dispersity=d))
+            rows.append(_row("dem_fixedphi", 1000, seed, phi=0.845, dispersity=d))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-2, mu_prep=0.3, dispersity=0.0))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-3, mu_prep=0.05, dispersity=0.3))
         for mp in (0.05, 0.3):    # the main study's packings (identical frictional disks, low p)
             for p in (1e-4, 1e-3):
                 rows.append(_row("pack_study", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
+    # two more seeds of the LAMMPS protocol in this engine (a few s each: twins of the LAMMPS rows)
+    rows += [_row("dem_fixedphi", 1000, seed, phi=phi, dispersity=d) for seed in (4, 5) for d in (0.1, 0.3)
+             for phi in (0.83, 0.86)]
     big = [_row("pack_frictional", 4000, 7, p_over_kn=1e-3, mu_prep=0.3, dispersity=0.2),
            _row("minimise", 4000, 7, phi=0.87, radii="bidisperse")]
     # build order: seeds 1 and 2 of every protocol (interleaved, so that a partial corpus is
     # balanced), then the N = 4000 rows, then seed 3
     first = sorted((r for r in rows if r.seed < 3), key=lambda r: (r.seed, PROTOCOLS.index(r.protocol)))
-    return first + big + [r for r in rows if r.seed == 3]
+    return first + big + [r for r in rows if r.seed >= 3]
 
 
 # ---- building ------------------------------------------------------------------------------------
@@ -306,13 +310,13 @@ def _dem_fixedphi(row, verbose=False):
             break
     if verbose:
         print(f"  dem_fixedphi: {nrel} relaxation steps, KE/N {ke:.3g}", flush=True)
-    sim.refresh()
+    m = sim.refresh()
     net = network_from_state(st, sim.law)
     order = np.argsort(st.ids, kind="stable")
     from microhom.periodic import wrap
     pos = wrap(st.x[order], st.h)[0]
     return pos, st.radius[order].copy(), st.h.copy(), dict(
-        steps_relax=nrel, ke_per_particle=ke, relaxed=bool(ke < c["kestop"]),
+        steps_relax=nrel, ke_per_particle=ke, relaxed=bool(ke < c["kestop"]), engine_unbalanced=m["unbalanced"],
         engine_sliding_fraction=float(net.sliding.mean()) if net.n_contacts else 0.0,
         engine_p_over_kn=float(np.sum(net.fn * np.hypot(*net.branch.T)) / (2 * net.area)) if net.n_contacts else 0.0)
 
