@@ -148,15 +148,16 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
             for phi in (0.83, 0.86):
                 rows.append(_row("lammps_prep", 1000, seed, phi=phi, dispersity=d))
                 rows.append(_row("dem_fixedphi", 1000, seed, phi=phi, dispersity=d))
+            rows.append(_row("lammps_prep", 1000, seed, phi=0.845, dispersity=d))
             rows.append(_row("dem_fixedphi", 1000, seed, phi=0.845, dispersity=d))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-2, mu_prep=0.3, dispersity=0.0))
         rows.append(_row("pack_slowdamped", 1000, seed, p_over_kn=1e-3, mu_prep=0.05, dispersity=0.3))
         for mp in (0.05, 0.3):    # the main study's packings (identical frictional disks, low p)
             for p in (1e-4, 1e-3):
                 rows.append(_row("pack_study", 1000, seed, p_over_kn=p, mu_prep=mp, dispersity=0.0))
-    # two more seeds of the LAMMPS protocol in this engine (a few s each: twins of the LAMMPS rows)
-    rows += [_row("dem_fixedphi", 1000, seed, phi=phi, dispersity=d) for seed in (4, 5) for d in (0.1, 0.3)
-             for phi in (0.83, 0.86)]
+    # two more seeds of the LAMMPS protocol, by LAMMPS and by this engine (the two mirror each other)
+    rows += [_row(prot, 1000, seed, phi=phi, dispersity=d) for seed in (4, 5) for d in (0.1, 0.3)
+             for phi in (0.83, 0.86) for prot in ("lammps_prep", "dem_fixedphi")]
     big = [_row("pack_frictional", 4000, 7, p_over_kn=1e-3, mu_prep=0.3, dispersity=0.2),
            _row("minimise", 4000, 7, phi=0.87, radii="bidisperse")]
     # build order: seeds 1 and 2 of every protocol (interleaved, so that a partial corpus is

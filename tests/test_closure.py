@@ -95,25 +95,25 @@ def test_corpus_is_what_the_issue_asks(corpus):
     # the LAMMPS protocol twice: by LAMMPS and by our engine, at the same target phi and radii
     fp = corpus[corpus.protocol.isin(["lammps_prep", "dem_fixedphi"])]
     knobs = fp.groupby("protocol")[["knob_phi", "knob_dispersity"]].apply(lambda g: set(map(tuple, g.to_numpy())))
-    assert knobs["lammps_prep"] <= knobs["dem_fixedphi"]
-    assert fp[fp.protocol == "dem_fixedphi"].seed.nunique() >= 5
+    assert knobs["lammps_prep"] == knobs["dem_fixedphi"]
+    assert (fp.groupby("protocol").seed.nunique() >= 5).all()
 
 
 def test_leave_one_protocol_out_targets(corpus):
     """Issue 25's targets per held-out protocol, as docs/results/closure.md section 4 states them:
-    valid predictions within 10 % rms (G) for every protocol and 5 % rms (K) for every protocol
-    but the LAMMPS protocol run by our engine (dem_fixedphi), the documented near miss (5.2 % rms,
-    too stiff at small kt/kn); the LAMMPS packings themselves (7.7 % before their twins were in the
-    corpus) now meet it. The stated error covers at least 90 % of each protocol's valid cases."""
+    valid predictions within 5 % rms (K) and 10 % rms (G) for every protocol, the LAMMPS packings
+    included (7.7 % in K before their twins made by our engine, dem_fixedphi, were in the corpus);
+    the stated error covers at least 90 % of each protocol's valid cases, and calibrated without
+    that protocol (nested) still at least 85 %."""
     from studies.closure_fit import calibrate, lopo, lopo_table
     lo = lopo(corpus)
     q, inside = calibrate(lo)
     tab = lopo_table(lo, q, inside).set_index("protocol")
     assert (tab.rms_G <= 0.10).all(), tab.rms_G
-    assert (tab.drop(index="dem_fixedphi").rms_K <= 0.05).all(), tab.rms_K
-    assert tab.loc["lammps_prep", "rms_K"] <= 0.045
-    assert 0.05 < tab.loc["dem_fixedphi", "rms_K"] <= 0.055
+    assert (tab.rms_K <= 0.05).all(), tab.rms_K
+    assert tab.loc["lammps_prep", "rms_K"] <= 0.04
     assert (tab.inside_K >= 0.9).all() and (tab.inside_G >= 0.9).all()
+    assert (tab.nested_K >= 0.85).all() and (tab.nested_G >= 0.85).all()
     assert (tab.valid >= 0.9 * tab.cases).all()
 
 

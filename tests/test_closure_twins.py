@@ -82,7 +82,7 @@ def test_lammps_packings_have_twins_with_the_same_moduli():
     pr = pairs(DF)
     nt = nearest_twins(pr)
     lam = DF[DF.protocol == "lammps_prep"]
-    assert len(nt) == len(lam) == 48
+    assert len(nt) == len(lam) == 104
     assert nt.d.max() < 0.35
     assert nt.dK.abs().median() < 0.02 and nt.dK.abs().max() < 0.08
     assert nt.dG.abs().median() < 0.04 and nt.dG.abs().max() < 0.13
