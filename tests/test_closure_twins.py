@@ -75,8 +75,9 @@ def test_main_quick_writes_the_tables(tmp_path, capsys):
 def test_lammps_packings_have_twins_with_the_same_moduli():
     """docs/results/closure.md section 5: every LAMMPS packing (lammps_prep) has, at each kt/kn, a
     twin made by our engine with the same protocol (dem_fixedphi) within 0.35 standardised units,
-    and the twins' K agree to the packing-to-packing scatter of one protocol (median 1.3 %, at most
-    7.8 %; LAMMPS seeds among themselves below 0.25: up to 3.8 %), G to 3.3 % (median) and 12 %.
+    and the twins' K agree to the packing-to-packing scatter of one protocol (median 1.1 %, at most
+    7.8 %; two seeds of one of the two protocols below 0.25: up to 6.0 %), G to 2.9 % (median) and
+    12 %.
     nearest_twins is checked against a brute-force search over the pairs."""
     from studies.closure_twins import nearest_twins
     pr = pairs(DF)
