@@ -9,7 +9,7 @@ exact linear response (``dem.analysis.stiffness``, without pre-stress) of a corp
 seven protocols (``studies.corpus``: our servo compression frictional and frictionless, the older
 heavily damped one, the main study's, LAMMPS's ``in.prep`` run by LAMMPS and by our own engine,
 harmonic energy minimisation; N = 1000
-and 4000, three seeds, kt/kn 0-1, dispersity 0-0.5, identical disks included). Results, leave-one-protocol-out errors and what fails:
+and 4000, three to five seeds, kt/kn 0-1, dispersity 0-0.5, identical disks included). Results, leave-one-protocol-out errors and what fails:
 docs/results/closure.md. It is an empirical closure with the known limits built into its form:
 
     G = G_mf  dZ / (dZ + a),        a = exp(c_G . f_G)

@@ -161,7 +161,7 @@ def corpus_rows(quick=False) -> list[CorpusRow]:
     big = [_row("pack_frictional", 4000, 7, p_over_kn=1e-3, mu_prep=0.3, dispersity=0.2),
            _row("minimise", 4000, 7, phi=0.87, radii="bidisperse")]
     # build order: seeds 1 and 2 of every protocol (interleaved, so that a partial corpus is
-    # balanced), then the N = 4000 rows, then seed 3
+    # balanced), then the N = 4000 rows, then seeds 3 and up
     first = sorted((r for r in rows if r.seed < 3), key=lambda r: (r.seed, PROTOCOLS.index(r.protocol)))
     return first + big + [r for r in rows if r.seed >= 3]
 
