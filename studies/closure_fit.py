@@ -1,7 +1,8 @@
 """Fit the statistics-only closure (``microhom.closure``) on the corpus of ``studies.corpus`` and
-measure it honestly: leave one protocol out, the candidate statistics, the collapse plots.
+measure it honestly: leave one protocol out, leave one preparation family out, the candidate
+statistics, the collapse plots.
 
-    python -m studies.closure_fit [--cache DIR] [--out DIR] [--quick] [--no-build] [--bench]
+    python -m studies.closure_fit [--cache DIR] [--out DIR] [--quick] [--no-build] [--bench] [--trials]
 
 1. The corpus (``studies.corpus.load_corpus``: built where the cache lacks it, unless
    ``--no-build``); ``--quick`` reads the committed corpus summary ``studies/closure_corpus.csv``
@@ -13,6 +14,12 @@ measure it honestly: leave one protocol out, the candidate statistics, the colla
    errors, leverages; the error scale ``Q`` is the 90th percentile of
    ``|err| / sqrt(1 + h / h_mean)`` over all held-out cases, and the table gives per protocol the
    rms and max error and the fraction inside the stated error.
+4b. Leave one preparation family out (:data:`FAMILIES`: protocols that share a preparation, so
+   that no twin of the held-out packings is in the fit): per family, fit on the other families,
+   Q calibrated on *their* LOPO residuals (the error the closure would state), predict the family;
+   valid cases (not flagged: leverage and the training rows' box), rms and max error, coverage of
+   the stated error and overclaims (valid, outside it). ``--trials`` (always without ``--quick``):
+   the same two tables with the normal-force coefficient of variation added (:data:`FN_CV_TRIALS`).
 5. Candidate statistics: LOPO rms of ``log(K/K_mf)`` and ``log(G/G_mf)`` when each candidate is
    added to the base features (how much of the spread across protocols it removes).
 6. Plots under ``--out`` (collapse of G/G_mf and K/K_mf against Z - Z_iso by protocol; predicted
@@ -69,6 +76,12 @@ def usable(df: pd.DataFrame) -> pd.DataFrame:
     return out.reset_index(drop=True)
 
 
+def _extra(extra, m):
+    """The corpus columns added to modulus ``m``'s design: ``extra`` itself (both moduli) or
+    ``extra[m]`` when it is a mapping ``{"K": (...), "G": (...)}``."""
+    return tuple(extra.get(m, ())) if isinstance(extra, dict) else tuple(extra)
+
+
 def design(df, names, extra=()):
     """Feature matrix of the rows of ``df`` (columns ``names`` of ``ALL_FEATURES``, then the
     corpus columns ``extra``) and dZ."""
@@ -91,8 +104,8 @@ def mean_field(df):
 def fit(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
     """Coefficients c_K, c_G of the closure's form on ``df`` (kn = 1), nonlinear least squares on
     log K and log G from a linear start in the transformed targets, and (F^T F)^-1 per modulus."""
-    XK, dz = design(df, names_K, extra)
-    XG, _ = design(df, names_G, extra)
+    XK, dz = design(df, names_K, _extra(extra, "K"))
+    XG, _ = design(df, names_G, _extra(extra, "G"))
     K_mf, G_mf = mean_field(df)
     lK, lG = np.log(df.K.to_numpy()), np.log(df.G.to_numpy())
     tK = np.log(np.clip(K_mf / df.K.to_numpy() - 1, 1e-3, None))
@@ -106,8 +119,8 @@ def fit(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
 
 
 def predict_rows(df, cK, cG, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
-    XK, dz = design(df, names_K, extra)
-    XG, _ = design(df, names_G, extra)
+    XK, dz = design(df, names_K, _extra(extra, "K"))
+    XG, _ = design(df, names_G, _extra(extra, "G"))
     K_mf, G_mf = mean_field(df)
     dz = np.maximum(dz, 1e-12)
     K = K_mf / (1 + np.exp(XK @ cK))
@@ -115,18 +128,38 @@ def predict_rows(df, cK, cG, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
     return K, G, XK, XG
 
 
-def lopo(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G):
+#: Preparation families (``studies.corpus``): protocols that share a preparation, held out
+#: together by :func:`lofo`. Fixed-rate compression to a solid fraction then relaxation at fixed
+#: box (LAMMPS's ``in.prep``, by LAMMPS and by our engine); servo compression to a pressure with
+#: friction (``dem.engine.packing.pack`` under three damping schedules); frictionless relaxation to
+#: an energy minimum (servo + FIRE quench, L-BFGS at fixed solid fraction).
+FAMILIES = {"fixed_phi": ("lammps_prep", "dem_fixedphi"),
+            "servo_frictional": ("pack_frictional", "pack_slowdamped", "pack_study"),
+            "frictionless_minimum": ("pack_frictionless", "minimise")}
+
+
+def family_of(protocols, families=FAMILIES):
+    """The family name of each protocol (a protocol in no family is its own family)."""
+    fam = {p: f for f, ps in families.items() for p in ps}
+    return np.array([fam.get(p, p) for p in protocols], dtype=object)
+
+
+def lopo(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G, families=None):
     """Leave one protocol out: per held-out row, the relative errors and the leverages in the
-    designs of the other protocols (with their mean and largest training leverage)."""
+    designs of the other protocols (with their mean and largest training leverage).
+    ``families`` (a mapping family -> protocols, e.g. :data:`FAMILIES`): leave one *family* out
+    instead; the column ``held_out`` names the unit left out (the protocol, or its family)."""
     rows = []
-    for prot in sorted(df.protocol.unique()):
-        tr, te = df[df.protocol != prot], df[df.protocol == prot]
+    unit = df.protocol.to_numpy() if families is None else family_of(df.protocol, families)
+    for prot in sorted(set(unit)):
+        tr, te = df[unit != prot], df[unit == prot]
         cK, cG, covK, covG = fit(tr, extra, names_K, names_G)
         Kp, Gp, XK, XG = predict_rows(te, cK, cG, extra, names_K, names_G)
-        d = dict(protocol=prot, key=te.key.to_numpy(), kt_over_kn=te.kt_over_kn.to_numpy(),
+        d = dict(protocol=te.protocol.to_numpy(), held_out=prot, key=te.key.to_numpy(),
+                 kt_over_kn=te.kt_over_kn.to_numpy(),
                  err_K=Kp / te.K.to_numpy() - 1, err_G=Gp / te.G.to_numpy() - 1)
         for m, X, cov, names in (("K", XK, covK, names_K), ("G", XG, covG, names_G)):
-            Xtr, _ = design(tr, names, extra)
+            Xtr, _ = design(tr, names, _extra(extra, m))
             htr = np.einsum("ij,jk,ik->i", Xtr, cov, Xtr)
             d.update({f"h_{m}": np.einsum("ij,jk,ik->i", X, cov, X), f"hmean_{m}": htr.mean(),
                       f"hmax_{m}": htr.max()})
@@ -173,6 +206,100 @@ def lopo_table(lo, q, inside):
         rows.append(d)
     return pd.DataFrame(rows)[["protocol", "cases", "valid", "rms_K", "max_K", "inside_K", "nested_K", "rms_G",
                                "max_G", "inside_G", "nested_G"]]
+
+
+def _outside_training_box(te, tr, extra=()):
+    """True for each row of ``te`` outside the box of ``tr``'s statistics (the ``RANGES`` of a
+    closure fitted on ``tr``, and the range of each corpus column in ``extra``; kt/kn only where
+    > 0)."""
+    box = data_ranges(tr)
+    out = np.zeros(len(te), dtype=bool)
+    for c in set(_extra(extra, "K")) | set(_extra(extra, "G")):
+        out |= ((te[c] < tr[c].min() - 1e-9) | (te[c] > tr[c].max() + 1e-9)).to_numpy()
+    cols = dict(Z=te.Z, dispersity=te.dispersity, r=te.r, phi=te.phi, p_over_kn=te.p_over_kn,
+                size_coordination=te.Z_size - te.Z, rattler_fraction=te.rattler_fraction, psi6_local=te.psi6_local)
+    for name, v in cols.items():
+        lo_, hi_ = box[name]
+        out |= ((v < lo_ - 1e-9) | (v > hi_ + 1e-9)).to_numpy()
+    kr = te.kt_over_kn.to_numpy()
+    klo, khi = box["kt_over_kn"]
+    return out | ((kr > 0) & ((kr < klo - 1e-12) | (kr > khi + 1e-12)))
+
+
+def lofo(df, extra=(), names_K=FEATURES_K, names_G=FEATURES_G, families=FAMILIES, h_factor=3.0):
+    """Leave one preparation family out, with the error statement a closure fitted without that
+    family would make: per family F, the closure is fitted on the other families, its Q is
+    calibrated on *their* leave-one-protocol-out residuals (:func:`calibrate` of :func:`lopo` on
+    the other families), and F's rows are predicted. Per held-out row (the columns of
+    :func:`lopo`, plus): ``Q_K``, ``Q_G`` (that nested Q), ``stated_K``, ``stated_G``
+    (``Q sqrt(1 + h/h_mean)``), ``in_box`` (inside the box of the training rows' statistics),
+    ``valid`` (leverage at most ``h_factor`` times the training's largest, in K and G, and inside
+    the box: what that closure would not flag), ``overclaim`` (valid, yet outside its stated error
+    in K or G)."""
+    lo = lopo(df, extra, names_K, names_G, families=families)
+    fam = family_of(df.protocol, families)
+    parts = []
+    for f, g in lo.groupby("held_out", sort=True):
+        tr = df[fam != f]
+        q, _ = calibrate(lopo(tr, extra, names_K, names_G), h_factor=h_factor)
+        te = df.set_index(["key", "kt_over_kn"]).loc[list(zip(g.key, g.kt_over_kn))].reset_index()
+        g = g.assign(Q_K=q["K"], Q_G=q["G"], stated_K=q["K"] * scale(g, "K").to_numpy(),
+                     stated_G=q["G"] * scale(g, "G").to_numpy(), in_box=~_outside_training_box(te, tr, extra))
+        parts.append(g)
+    lo = pd.concat(parts).sort_index()
+    lo["valid"] = (lo.h_K <= h_factor * lo.hmax_K) & (lo.h_G <= h_factor * lo.hmax_G) & lo.in_box
+    inside = (lo.err_K.abs() <= lo.stated_K * (1 + 1e-12)) & (lo.err_G.abs() <= lo.stated_G * (1 + 1e-12))
+    lo["overclaim"] = lo.valid & ~inside
+    return lo
+
+
+def lofo_table(lo, by="held_out"):
+    """Per held-out family (``by="held_out"``) or per protocol within it (``by="protocol"``):
+    cases, valid (not flagged by the closure fitted without the family), rms and max relative error
+    of the valid ones, the fraction of them inside the stated error (``inside_*``, with the nested Q
+    of :func:`lofo`), overclaims (valid, outside the stated error in K or G), and that Q."""
+    rows = []
+    for u, g in lo.groupby(by, sort=True):
+        gv = g[g.valid]
+        d = dict(held_out=g.held_out.iloc[0], protocol=u if by == "protocol" else "+".join(sorted(g.protocol.unique())),
+                 cases=len(g), valid=int(g.valid.sum()), in_box=int(g.in_box.sum()))
+        for m in ("K", "G"):
+            e = gv[f"err_{m}"].abs()
+            d.update({f"rms_{m}": float(np.sqrt(np.mean(e ** 2))) if len(gv) else np.nan,
+                      f"max_{m}": float(e.max()) if len(gv) else np.nan,
+                      f"inside_{m}": float(np.mean(e <= gv[f"stated_{m}"] * (1 + 1e-12))) if len(gv) else np.nan})
+        d.update(overclaims=int(g.overclaim.sum()), Q_K=float(g.Q_K.iloc[0]), Q_G=float(g.Q_G.iloc[0]),
+                 rms_K_all=float(np.sqrt(np.mean(g.err_K ** 2))), rms_G_all=float(np.sqrt(np.mean(g.err_G ** 2))))
+        rows.append(d)
+    return pd.DataFrame(rows)[["held_out", "protocol", "cases", "in_box", "valid", "rms_K", "max_K", "inside_K",
+                               "rms_G", "max_G", "inside_G", "overclaims", "Q_K", "Q_G", "rms_K_all", "rms_G_all"]]
+
+
+#: Refit trials of issue 25 (item 2): the normal-force coefficient of variation ``fn_cv`` (std/mean
+#: of the contact normal forces) as one more input, in both moduli or in G only.
+FN_CV_TRIALS = (("the closure", ()), ("+ fn_cv (K and G)", ("fn_cv",)), ("+ fn_cv (G only)", {"G": ("fn_cv",)}),
+                ("+ fn_cv (K only)", {"K": ("fn_cv",)}))
+
+
+def family_trials(df, trials=FN_CV_TRIALS) -> pd.DataFrame:
+    """Each trial (name, ``extra`` of :func:`fit`) measured both ways: leave one protocol out
+    (``lopo_log_K``, ``lopo_log_G``: rms of the log error over every held-out case; ``lopo_worst_K``,
+    ``lopo_worst_G``: the largest per-protocol rms of the valid cases, the LOPO target's figure)
+    and leave one family out (per family: valid cases, rms of their relative errors, the fraction
+    inside the nested stated error, overclaims). One row per trial and held-out family."""
+    out = []
+    for name, extra in trials:
+        lo = lopo(df, extra)
+        q, inside = calibrate(lo)
+        tab = lopo_table(lo, q, inside)
+        base = dict(trial=name, lopo_log_K=float(np.sqrt(np.mean(np.log1p(lo.err_K) ** 2))),
+                    lopo_log_G=float(np.sqrt(np.mean(np.log1p(lo.err_G) ** 2))),
+                    lopo_worst_K=float(tab.rms_K.max()), lopo_worst_G=float(tab.rms_G.max()))
+        for _, r in lofo_table(lofo(df, extra)).iterrows():
+            out.append(dict(base, held_out=r.held_out, valid=r.valid, rms_K=r.rms_K, rms_G=r.rms_G,
+                            inside_K=r.inside_K, inside_G=r.inside_G, overclaims=r.overclaims,
+                            rms_K_all=r.rms_K_all, rms_G_all=r.rms_G_all))
+    return pd.DataFrame(out)
 
 
 def candidates(df):
@@ -388,6 +515,8 @@ def main(argv=None):
     ap.add_argument("--no-build", action="store_true", help="use only the cached rows of the corpus")
     ap.add_argument("--bench", action="store_true", help="measure predict_closure's throughput")
     ap.add_argument("--no-candidates", action="store_true")
+    ap.add_argument("--trials", action="store_true",
+                    help="the fn_cv refit trials, LOPO and leave one family out (with --quick too; always without)")
     ap.add_argument("--heldout", nargs="*", default=[], help="packing files from other codes (held out)")
     ap.add_argument("--hierarchy", action="store_true", help="with --heldout: the relaxation hierarchy's bounds too")
     args = ap.parse_args(argv)
@@ -420,6 +549,20 @@ def main(argv=None):
     print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     write_table(tab, out, "lopo", "Closure, leave one protocol out",
                 f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
+    lf = lofo(df)
+    ftab, fprot = lofo_table(lf), lofo_table(lf, "protocol")
+    print("leave one preparation family out (families:", FAMILIES, ")\n  valid: not flagged by the closure "
+          "fitted without the family (its leverage and box); stated error: Q of that closure's own LOPO:")
+    for t in (ftab, fprot):
+        print(t.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    write_table(pd.concat([ftab, fprot], ignore_index=True), out, "lofo", "Closure, leave one preparation family out",
+                "Per family, then per protocol within it; Q of the closure fitted without the family.")
+    lf.to_csv(out / "lofo_cases.csv", index=False)
+    if args.trials or not (args.quick or args.no_candidates):
+        tri = family_trials(df)
+        print("refit trials (normal-force coefficient of variation), LOPO and leave one family out:")
+        print(tri.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
+        write_table(tri, out, "family_trials", "Refit trials: LOPO and leave one family out")
     ranges = data_ranges(df)
     print("RANGES =", ranges)
     (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov_K=covK.tolist(),
