@@ -211,7 +211,7 @@ def lopo_table(lo, q, inside):
 def _outside_training_box(te, tr, extra=()):
     """True for each row of ``te`` outside the box of ``tr``'s statistics (the ``RANGES`` of a
     closure fitted on ``tr``, and the range of each corpus column in ``extra``; kt/kn only where
-    > 0)."""
+    > 0), and every kt = 0 row if ``tr`` has none."""
     box = data_ranges(tr)
     out = np.zeros(len(te), dtype=bool)
     for c in set(_extra(extra, "K")) | set(_extra(extra, "G")):
@@ -223,6 +223,8 @@ def _outside_training_box(te, tr, extra=()):
         out |= ((v < lo_ - 1e-9) | (v > hi_ + 1e-9)).to_numpy()
     kr = te.kt_over_kn.to_numpy()
     klo, khi = box["kt_over_kn"]
+    if not (tr.kt_over_kn == 0).any():   # no frictionless row in the fit: its frictionless terms are
+        out |= kr == 0                   # unfitted (zero), and the leverage (pinv) cannot see that
     return out | ((kr > 0) & ((kr < klo - 1e-12) | (kr > khi + 1e-12)))
 
 
