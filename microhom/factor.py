@@ -68,6 +68,12 @@ RESCALE = 1e-2
 #: 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s;
 #: docs/stiffness.md)
 AUTO_PARDISO_DOF = 30_000
+#: the same threshold for the certified bound (``microhom.spectral``), which factorises a pencil two
+#: or three times on one PARDISO analysis (minimum-degree ordering) where SuperLU orders each anew
+#: (measured, one thread, CPU time of the whole certificate on the benchmark network: 2.9e3 unknowns
+#: PARDISO 0.04-0.06 s, SuperLU 0.05-0.06 s; 8.8e3: 0.10-0.12 s against 0.19 s; 2.9e4: 0.29-0.34 s
+#: against 0.73-1.0 s; docs/results/hierarchy.md section 7)
+AUTO_PARDISO_DOF_PENCIL = 5_000
 
 
 class NotPositiveDefinite(RuntimeError):

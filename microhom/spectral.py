@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
-from microhom.factor import (AUTO_PARDISO_DOF, FactorisationError, _Pardiso, _Pencil, available_backends,
+from microhom.factor import (AUTO_PARDISO_DOF_PENCIL, FactorisationError, _Pardiso, _Pencil, available_backends,
                              factor)
 from microhom.results import Result
 
@@ -210,8 +210,8 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                              reason=reason)
 
     be = backend
-    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF unknowns (docs/stiffness.md)
-        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF else "splu"
+    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF_PENCIL unknowns (microhom.factor)
+        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF_PENCIL else "splu"
     pencil = _Pencil(H, M) if be == "pardiso" else None
     fac = None
 
