@@ -28,7 +28,9 @@ computed exactly (dense eigen-decomposition) for small systems, certified by Syl
 unavailable (then ``lower`` is None and the reason is stated). With a certified ``lam`` only the
 rigorous interval (with its round-off margins) stops CG, and steps preconditioned by the
 certificate's factorisation of ``H - s M`` close it where the soft modes hold the multilevel CG
-back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"). Far from kt = kn the pencil has a
+back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"); by
+default (``max_order="auto"``), where the sparse certificate kept that factorisation, one
+block-Jacobi step precedes them and no multilevel step is taken. Far from kt = kn the pencil has a
 cluster near ``min(kt/kn, kn/kt)`` (rolling without sliding, or the spins) and a *companion* bound
 replaces it: the pencil of the same network at ``min(kn, kt)`` in both directions
 (``_companion_bound``; docs/theory.md, section 9, "Stiffness ratios far from 1"). An extrapolated
