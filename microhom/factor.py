@@ -68,6 +68,12 @@ RESCALE = 1e-2
 #: 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s;
 #: docs/stiffness.md)
 AUTO_PARDISO_DOF = 30_000
+#: the same threshold for the certified bound (``microhom.spectral``), which factorises a pencil two
+#: or three times on one PARDISO analysis (minimum-degree ordering) where SuperLU orders each anew
+#: (measured, one thread, CPU time of the whole certificate on the benchmark network: 2.9e3 unknowns
+#: PARDISO 0.04-0.06 s, SuperLU 0.05-0.06 s; 8.8e3: 0.10-0.12 s against 0.19 s; 2.9e4: 0.29-0.34 s
+#: against 0.73-1.0 s; docs/results/hierarchy.md section 7)
+AUTO_PARDISO_DOF_PENCIL = 5_000
 
 
 class NotPositiveDefinite(RuntimeError):
@@ -292,6 +298,14 @@ class Factor:
             raise ValueError("reshift needs a factor made with a diagonal shift: factor(A, shift=, scale=)")
 
 
+#: PARDISO fill-reducing orderings (``iparm(2)``): "metis" nested dissection (least fill) and "mmd"
+#: minimum degree (measured on the 1e5-disk benchmark network, 2.95e5 unknowns, one thread: its
+#: analysis about 1.3 s CPU against 2.2-2.9 s for METIS, 8 % more fill, the same numeric
+#: factorisation time within the noise; the certificate, which factorises once or twice on
+#: one analysis, takes "mmd"; docs/results/hierarchy.md section 7)
+_ORDERINGS = {"metis": 2, "mmd": 0}
+
+
 class _Pardiso(Factor):
     """MKL PARDISO of a real symmetric matrix: ``spd=True`` Cholesky (matrix type 2; raises
     :class:`NotPositiveDefinite`), else Bunch-Kaufman ``LDL^T`` (type -2) with its inertia.
@@ -304,7 +318,7 @@ class _Pardiso(Factor):
     reshifts_in_place = True
 
     def __init__(self, A, spd=False, *, max_memory=None, perm=None, threads=None, upper=False,
-                 matching=True, shift=0.0, scale=None):
+                 matching=True, shift=0.0, scale=None, ordering="metis"):
         lib = _load_mkl()
         if not lib:
             raise RuntimeError("backend 'pardiso' needs the mkl wheel: pip install mkl (x86-64)")
@@ -328,7 +342,9 @@ class _Pardiso(Factor):
         self.pt = np.zeros(64, dtype=np.int64)
         ip = np.zeros(64, dtype=np.int32)
         ip[0] = 1          # iparm given
-        ip[1] = 2          # METIS nested dissection
+        if ordering not in _ORDERINGS:
+            raise ValueError(f"ordering must be one of {list(_ORDERINGS)}, got {ordering!r}")
+        ip[1] = _ORDERINGS[ordering]   # METIS nested dissection (2) or minimum degree (0)
         ip[3] = 0
         ip[4] = 0 if perm is None else 1
         ip[7] = 0          # no automatic refinement (the caller refines against the true matrix)

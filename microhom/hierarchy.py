@@ -28,7 +28,9 @@ computed exactly (dense eigen-decomposition) for small systems, certified by Syl
 unavailable (then ``lower`` is None and the reason is stated). With a certified ``lam`` only the
 rigorous interval (with its round-off margins) stops CG, and steps preconditioned by the
 certificate's factorisation of ``H - s M`` close it where the soft modes hold the multilevel CG
-back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"). Far from kt = kn the pencil has a
+back (issue 22; docs/theory.md, section 9, "Certified intervals that meet the tolerance"); by
+default (``max_order="auto"``), where the sparse certificate kept that factorisation, one
+block-Jacobi step precedes them and no multilevel step is taken. Far from kt = kn the pencil has a
 cluster near ``min(kt/kn, kn/kt)`` (rolling without sliding, or the spins) and a *companion* bound
 replaces it: the pencil of the same network at ``min(kn, kt)`` in both directions
 (``_companion_bound``; docs/theory.md, section 9, "Stiffness ratios far from 1"). An extrapolated
@@ -74,6 +76,12 @@ SOFT_MODES_AUTO_MAX = 20_000   # soft_modes="auto": search 3 soft modes up to th
 _FAST_RATIO = 0.3     # increment ratios below this: geometric convergence, geometric tail (k >= 4)
 _ZERO_EIG_MIN = 1e-12  # dense bound: pencil eigenvalues below max(round-off margin, this fraction of the
                        # largest) are floppy modes (the sparse certificate's zero threshold is 1e-12 too)
+#: the hierarchy's sparse certificate: the shift at half the Lanczos estimate (a loose estimate, 6
+#: Lanczos vectors, suffices). The bound is half as tight, but the factorised CG steps converge
+#: faster with it (the preconditioned spectrum lambda/(lambda - s) in (1, 2] instead of an outlier
+#: near 1e3): measured at 1e3 disks, 2 factorised steps instead of 4, widths 10 times smaller at
+#: 3000 disks (docs/results/hierarchy.md section 7; docs/theory.md section 9)
+_LEAN_CERTIFICATE = dict(rel_gap=0.5, tol=1e-2, ncv=6)
 _TRUST_RATIO = 1e-4   # dense (H, M) bound trusted down to min(kt/kn, kn/kt) = this (its soft cluster
                       # sits near 0.02 x the ratio, 1e3 x above the dense zero threshold of 1e-9 used when this was measured)
 
@@ -180,6 +188,9 @@ class HierarchyResult(Result):
     n_factor_steps : int
         CG steps (included in ``order``) preconditioned by the certificate's factorisation of
         ``H - s M`` past ``max_order`` (``factor_steps``); 0 when the multilevel CG met ``tol``.
+    certificate_factorisations : int
+        Numeric factorisations the sparse certificate made (1 when a ``spectral_guess`` was
+        confirmed, 2 on its usual path, more when a shift was lowered; 0 without it).
     n_soft_modes : int
         Soft modes deflated (``soft_modes`` > 0): their span augments every order's space.
     certified : bool
@@ -236,6 +247,7 @@ class HierarchyResult(Result):
     preconditioner_time: float = 0.0
     n_soft_modes: int = 0
     n_factor_steps: int = 0
+    certificate_factorisations: int = 0
     certified: bool = False
     calibrated: bool = False
     kt_over_kn: float = float("nan")
@@ -339,7 +351,7 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
 
 
 def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False,
-                         return_factor=False):
+                         return_factor=False, guess=None, blocks=None):
     """Smallest non-zero eigenvalue of the pencil ``(H, M)`` (floppy modes excluded), computed
     exactly by a dense eigen-decomposition of ``M^-1/2 H M^-1/2`` when ``ndof <= dense_max``.
 
@@ -349,35 +361,47 @@ def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, retur
     With ``return_max``, (lam, lam_max + margin, n_zero, n_negative). With ``return_factor`` one
     more item: the factorisation of ``H - s M`` at the certified shift of the sparse path (a
     :class:`microhom.factor.Factor`; the caller releases it), None on the dense path or when not
-    certified.
+    certified. ``guess``: an estimate of the bound for the sparse path (one factorisation when it
+    is at most twice the eigenvalue and the null space is the global translations:
+    ``microhom.spectral.certified_bound``). ``blocks``: ``block_preconditioner(asm)`` when the
+    caller has it (not recomputed when no block is singular).
     """
-    out = _spectral_lower_bound(asm, Minv_sqrt, dense_max, return_factor)
+    out = _spectral_lower_bound(asm, Minv_sqrt, dense_max, return_factor, guess, blocks)[:5]
     fac = out[-1]
     out = out[:-1] if return_max else (out[0], out[2], out[3])
     return out + (fac,) if return_factor else out
 
 
-def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
-    """(lam, lam_max, n_zero, n_negative, factor or None) of :func:`spectral_lower_bound`."""
+def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep, guess=None, blocks=None, lean=False):
+    """(lam, lam_max, n_zero, n_negative, factor or None, numeric factorisations made) of
+    :func:`spectral_lower_bound`. ``lean`` (the hierarchy's own call): the sparse certificate's
+    shift at half the Lanczos estimate (``_LEAN_CERTIFICATE``)."""
     n = asm.ndof
     if n == 0:
-        return None, None, 0, 0, None
+        return None, None, 0, 0, None, 0
     if n > dense_max:
         # above the dense limit: certified by Sylvester's law of inertia (microhom.spectral),
         # up to CERTIFIED_MAX_DOF unknowns (1e5 particles); two or three sparse factorisations
         from microhom import spectral
         from microhom.factor import FactorisationError, MemoryGuardError
-        none = (None, None, 0, 0, None)
+        none = (None, None, 0, 0, None, 0)
         if n > spectral.CERTIFIED_MAX_DOF:
             return none
-        M, _, S, n_bad = block_preconditioner(asm, floppy_shift=asm.Kgs is None)
+        if blocks is None or blocks[3]:     # a singular block: shifted on its null directions
+            blocks = block_preconditioner(asm, floppy_shift=asm.Kgs is None)
+        M, _, S, n_bad = blocks
         if n_bad:
             return none
         S = S if Minv_sqrt is None else Minv_sqrt
         psd = asm.Kgs is None                     # no pre-stress: H = B^T K B >= 0
+        # the global translations are exact null vectors (B t = 0): with a good guess one
+        # factorisation certifies (docs/theory.md section 9, "One factorisation"); M's blocks are
+        # positive definite (their eigenvalues, n_bad = 0); H <= 2M bounds the top without pre-stress
+        Z = near_null_space(asm)[:, :asm.net.dim] if psd and asm.pinned < 0 else None
         try:
-            b, fac = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=S, lam_max=2.0 if psd else None,
-                                              keep_factor=True)
+            b, fac = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=None if psd else S,
+                                              lam_max=2.0 if psd else None, keep_factor=True, guess=guess,
+                                              null_basis=Z, check_m=False, **(_LEAN_CERTIFICATE if lean else {}))
         except (FactorisationError, MemoryGuardError, ValueError):
             return none
         if fac is not None and not keep:
@@ -386,7 +410,7 @@ def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
         hi = b.upper if b.upper is not None else None
         if psd:   # H <= 2M without pre-stress (docs/theory.md section 9)
             hi = 2.0 + b.margin if hi is None else min(hi, 2.0 + b.margin)
-        return b.lower, hi, b.n_zero, b.n_negative, fac
+        return b.lower, hi, b.n_zero, b.n_negative, fac, b.n_factorisations
     S = block_preconditioner(asm)[2] if Minv_sqrt is None else Minv_sqrt   # M^-1/2
     A = (S @ asm.H @ S).toarray()
     lam = np.linalg.eigvalsh(0.5 * (A + A.T))
@@ -400,7 +424,7 @@ def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep):
     pos = lam[(lam > 0) & ~zero]
     hi = float(lam.max()) + margin
     lo = float(pos.min()) - margin if pos.size else -1.0
-    return (lo if lo > 0 else None), hi, int(zero.sum()), int(neg.sum()), None
+    return (lo if lo > 0 else None), hi, int(zero.sum()), int(neg.sum()), None, 0
 
 
 def lowest_modes(asm: Assembly, M=None, P=None, *, Minv=None, k: int = 6, maxiter: int = 40,
@@ -687,6 +711,10 @@ class MemoryPlan(Result):
     dense : int
         Dense spectral bound: 24 bytes x (3N)^2 (matrix, copy and eigen-solver workspace) [bytes];
         ``relaxation_hierarchy`` checks it after the assembly with the actual ndof.
+    factor : int
+        The sparse certificate's factorisation of ``H - s M``, kept for the factorised CG steps
+        (``microhom.factor.predicted_factor_bytes``: about 0.47 GB for 1e5 disks with PARDISO),
+        0 when no sparse certificate is made [bytes].
     total : int
         Sum of the parts [bytes].
     available : int or None
@@ -701,18 +729,21 @@ class MemoryPlan(Result):
     dense: int
     total: int
     available: int | None
+    factor: int = 0
 
 
 
 
 def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full: bool = True,
                 preconditioner: str = "amg", soft_modes: int = 3, dense: bool = True,
-                available: int | None = None, dim: int = 2) -> MemoryPlan:
+                available: int | None = None, dim: int = 2, factor: bool = False) -> MemoryPlan:
     """Predicted peak memory of :func:`relaxation_hierarchy` before anything is assembled (see
     :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
     disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
     figures of 2D are kept, with ``b^2 N + 2 b^2 N_c`` non-zeros and ``m = 6`` load columns
-    (checked against the measured peak by tests/test_hierarchy_3d.py)."""
+    (checked against the measured peak by tests/test_hierarchy_3d.py). ``factor``: the sparse
+    certificate's factorisation of ``H - s M`` is made and kept for the factorised steps
+    (``microhom.factor.predicted_factor_bytes`` of the back end it takes)."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     N, Nc = int(n_particles), int(n_contacts)
@@ -726,8 +757,13 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     basis = 16 * ndof * (_CHUNK * -(-cols // _CHUNK) if full else 12 * m)
     soft = 1000 * ndof * int(soft_modes) * 2
     dns = 24 * ndof * ndof if dense else 0
+    fac = 0
+    if factor:
+        from microhom.factor import AUTO_PARDISO_DOF_PENCIL, have_pardiso, predicted_factor_bytes
+        fac = int(predicted_factor_bytes(ndof, "pardiso" if have_pardiso() and ndof >= AUTO_PARDISO_DOF_PENCIL
+                                         else "splu"))
     return MemoryPlan(assembly=asm, preconditioner=prec, basis=basis, soft_modes=soft, dense=dns,
-                      total=asm + prec + basis + soft + dns, available=available)
+                      total=asm + prec + basis + soft + dns + fac, available=available, factor=fac)
 
 
 def _gb(b):
@@ -796,14 +832,18 @@ class _Run:
     max_order: int = 16
     certify_max_order: int = 200
     margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
+    blocks: tuple = None             # block_preconditioner(asm): (M, M^-1, M^-1/2, n_bad)
+    spectral_guess: float | None = None
+    n_cert_fact: int = 0             # numeric factorisations of the sparse certificate
+    no_certificate: bool = False     # its factor does not fit in memory (_memory_guard)
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
-                         max_order: int = 16, spectral_bound="auto", dense_max: int = 1000,
+                         max_order="auto", spectral_bound="auto", dense_max: int = 1000,
                          min_contacts=None, reorthogonalize="auto",
-                         preconditioner: str = "amg", soft_modes="auto",
+                         preconditioner: str = "auto", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
-                         factor_steps: int = 4) -> HierarchyResult:
+                         factor_steps: int = 4, spectral_guess=None) -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -831,9 +871,11 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     tol : float
         Target relative width of the interval of K and of G, in (0, 1). The iteration stops at
         the first order where both meet it, or at ``max_order``; the result says which.
-    max_order : int
+    max_order : int or "auto"
         Maximum number of CG steps (Gauss points) with the chosen preconditioner, 1..10000; order
-        k uses 2k moments. Without a certified spectral bound the iteration stops here (or earlier,
+        k uses 2k moments. "auto" (default): 1 where the sparse certificate kept its factorisation
+        (``dense_max < ndof <= CERTIFIED_MAX_DOF``, ``factor_steps > 0``, it fits in memory; its
+        steps close the interval: docs/results/hierarchy.md section 7), else 16. Without a certified spectral bound the iteration stops here (or earlier,
         where the calibrated extrapolation meets ``tol``). With one, only the rigorous interval
         stops it (issue 22): past ``max_order`` it goes on with ``factor_steps`` or
         ``certify_max_order``, and ``reasons`` says when even that cap was not enough.
@@ -844,11 +886,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     factor_steps : int
         Steps past ``max_order`` preconditioned by the sparse certificate's factorisation of
         ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
-        releases the factorisation at once and continues with the multilevel CG instead. The
-        spectrum of the preconditioned ``H`` is then 1 up to the few eigenvalues near ``s``, so
-        1-3 steps meet ``tol`` where the multilevel CG plateaus on the soft modes (the cheapest
-        certified interval at 1e5 disks: ``max_order=1, preconditioner="block"``, 1.7-2.2 times
-        the exact solve's CPU, docs/results/hierarchy.md section 7).
+        releases the factorisation at once and continues with the multilevel CG instead. 1-3
+        such steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
     spectral_bound : {"auto", "none"} or float
         "auto" (exact dense bound if ``ndof <= dense_max``, else the sparse certificate by
         Sylvester's inertia, ``microhom.spectral.certified_bound``, up to
@@ -856,9 +895,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
         responsibility).
     dense_max : int
-        Largest number of unknowns for the dense spectral bound (default 1000: at 2922 unknowns
-        the dense eigen-solve took 31 s against 0.8 s for the sparse certificate under load 16,
-        docs/results/hierarchy.md, section 7).
+        Largest number of unknowns for the dense spectral bound (default 1000: at 2922 unknowns it
+        took 31 s against 0.8 s for the sparse certificate, docs/results/hierarchy.md section 7).
     min_contacts : int, optional
         Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
     reorthogonalize : bool or "auto"
@@ -866,14 +904,13 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000
         unknowns when the basis fits in memory: exact-arithmetic behaviour when runs go to
         convergence on small systems).
-    preconditioner : {"amg", "block"}
-        Preconditioner of the conjugate gradients. "amg" (default): smoothed-aggregation
-        multilevel (``microhom.multilevel``), converges in a few steps even near isostaticity.
-        "block": the particle-block Jacobi ``M`` (each particle's own 3 x 3 block, 6 x 6 for a
-        sphere), for which
-        order k is the relaxation k contact shells carry (the local ladder of docs/theory.md,
-        section 9). The bounds are rigorous with either; the lower bound and the first-order
-        estimate always use ``M``.
+    preconditioner : {"auto", "amg", "block"}
+        Preconditioner of the conjugate gradients. "auto" (default): "block" where ``max_order``
+        "auto" resolved to 1, else "amg". "amg": smoothed-aggregation multilevel
+        (``microhom.multilevel``), converges in a few steps even near isostaticity. "block": the
+        particle-block Jacobi ``M`` (each particle's 3 x 3 block, 6 x 6 for a sphere): order k is
+        the relaxation k contact shells carry (the local ladder of docs/theory.md, section 9).
+        The bounds are rigorous with either; the lower bound and the first-order estimate use ``M``.
     soft_modes : int or "auto"
         Number of lowest modes of the pencil (H, M) to search per preconditioner (:func:`lowest_modes`,
         LOBPCG; 0..50), or "auto" (default): none when the automatic spectral bound of (H, M) is
@@ -889,7 +926,13 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Memory limit [bytes] for the predicted peak (:func:`plan_memory`); default the system's
         available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
-        is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
+        is tried first; a dense bound or a sparse certificate's factor that does not fit is
+        skipped; ``reasons`` says so).
+    spectral_guess : float, optional
+        Estimate of the smallest non-zero eigenvalue of (H, M) for the sparse certificate (e.g. the
+        ``spectral_bound`` of a similar network): at most twice it, with the translations as the
+        only null space, one numeric factorisation certifies half of it (docs/theory.md section 9,
+        "One factorisation"). Never trusted: a wrong guess costs a factorisation, not the bound.
 
     Returns
     -------
@@ -897,19 +940,19 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Moduli [unit of kn, N/m] with bounds, orders, flags and the validity.
     """
     t0 = time.perf_counter()
-    soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
-                                     preconditioner, max_memory)
-    for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
-            raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
+    auto_order, auto_prec = max_order == "auto", preconditioner == "auto"
+    max_order, prec0 = 16 if auto_order else max_order, "amg" if auto_prec else preconditioner
+    soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, prec0,
+                                     max_memory, spectral_guess, certify_max_order, factor_steps)
     run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
                max_order=int(max_order), certify_max_order=int(certify_max_order),
-               factor_steps=int(factor_steps))
-    full = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory)
+               factor_steps=int(factor_steps), spectral_guess=spectral_guess)
+    full = _memory_guard(run, max_order, reorthogonalize, prec0, soft_modes, max_memory,
+                         spectral_bound == "auto" and factor_steps > 0, dense_max)
     _setup(run, min_contacts)
-    t_asm = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    t_asm = (t1 := time.perf_counter()) - t0
     _spectral_step(run, user_lam, spectral_bound, dense_max)
+    max_order, preconditioner = _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner)
     soft = _soft_mode_step(run, soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
@@ -917,7 +960,27 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     return _finish(run, preconditioner, t_asm, t_solve)
 
 
-def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory):
+def _validate_caps(certify_max_order, factor_steps):
+    for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
+            raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
+
+
+def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
+    """``max_order="auto"``: 1 when the sparse certificate kept its factorisation (the factorised
+    steps close the interval), else 16; ``preconditioner="auto"``: "block" for that one step, else
+    "amg"."""
+    lean = run.factor is not None and auto_order
+    if auto_order:
+        max_order = 1 if lean else 16
+        run.max_order = max_order
+    if auto_prec:
+        preconditioner = "block" if lean else "amg"
+    return max_order, preconditioner
+
+
+def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory,
+              spectral_guess=None, certify_max_order=200, factor_steps=4):
     """Argument checks (each error names the parameter and its allowed range); returns
     (soft_modes with "auto" kept, the user's spectral bound or None)."""
     if not isinstance(network, ContactNetwork):
@@ -927,8 +990,8 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
                          "stiffness of a periodic cell")
     if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
         raise ValueError(f"tol must be a relative width in (0, 1), got {tol!r}")
-    if int(max_order) != max_order or not (1 <= max_order <= 10000):
-        raise ValueError(f"max_order must be an integer in [1, 10000], got {max_order!r}")
+    if isinstance(max_order, str) or int(max_order) != max_order or not (1 <= max_order <= 10000):
+        raise ValueError(f"max_order must be 'auto' or an integer in [1, 10000], got {max_order!r}")
     user_lam = None
     if isinstance(spectral_bound, str):
         if spectral_bound not in ("auto", "none"):
@@ -940,16 +1003,21 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
     if not (soft_modes == "auto" or (isinstance(soft_modes, (int, np.integer)) and 0 <= soft_modes <= 50)):
         raise ValueError(f"soft_modes must be 'auto' or an integer in [0, 50], got {soft_modes!r}")
     if preconditioner not in ("amg", "block"):
-        raise ValueError(f"preconditioner must be 'amg' or 'block', got {preconditioner!r}")
+        raise ValueError(f"preconditioner must be 'auto', 'amg' or 'block', got {preconditioner!r}")
     if prestress and network.fn is None:
         raise ValueError("prestress=True needs the normal forces fn of the network (ContactNetwork.fn)")
     if max_memory is not None and not (isinstance(max_memory, (int, float, np.integer, np.floating))
                                        and np.isfinite(max_memory) and max_memory > 0):
         raise ValueError(f"max_memory must be a positive number of bytes, got {max_memory!r}")
+    if spectral_guess is not None and not (isinstance(spectral_guess, (int, float, np.integer, np.floating))
+                                           and np.isfinite(spectral_guess) and spectral_guess > 0):
+        raise ValueError(f"spectral_guess must be a positive finite float, got {spectral_guess!r}")
+    _validate_caps(certify_max_order, factor_steps)
     return soft_modes, user_lam
 
 
-def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory):
+def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory, certify=False,
+                  dense_max=1000):
     """Refuse before allocating when the predicted peak (:func:`plan_memory`, from N and N_c
     alone) exceeds the limit; returns whether the basis is fully re-orthogonalised (with "auto",
     the recurrence is tried before refusing). The dense bound is checked after the assembly."""
@@ -960,16 +1028,24 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
     full = ndof <= 50_000 if reorthogonalize == "auto" else bool(reorthogonalize)
     soft = (3 if ndof <= SOFT_MODES_AUTO_MAX else 0) if soft_modes == "auto" else int(soft_modes)
 
-    def plan(f):
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    cert = bool(certify and dense_max < ndof <= CERTIFIED_MAX_DOF)
+
+    def plan(f, c=cert):
         return plan_memory(N, Nc, max_order=max_order, full=f, preconditioner=preconditioner,
-                           soft_modes=soft, dense=False, available=limit, dim=net.dim)
+                           soft_modes=soft, dense=False, available=limit, dim=net.dim, factor=c)
     p = plan(full)
+    if limit is not None and cert and p.total > limit and plan(full, False).total <= limit:
+        run.reasons.append(f"the sparse certificate's factor of {_gb(p.factor)} does not fit (available "
+                           f"{_gb(limit)}): no certified spectral bound")
+        run.no_certificate = True
+        p = plan(full, False)
     if limit is not None and p.total > limit and full and reorthogonalize == "auto" \
             and plan(False).total <= limit:
         run.reasons.append(f"re-orthogonalisation basis of {_gb(p.basis)} does not fit (available "
                            f"{_gb(limit)}): the block CG recurrence is used")
         full = False
-        p = plan(full)
+        p = plan(full, p.factor > 0)
     run.limit, run.planned = limit, p.total
     if limit is not None and p.total > limit:
         raise HierarchyMemoryError(
@@ -998,7 +1074,8 @@ def _setup(run, min_contacts):
     elif run.empty:
         run.reasons.append("not jammed: no load-bearing backbone, every particle is a rattler")
     if asm.ndof:
-        run.M, run.Minv, run.Msq, n_bad = block_preconditioner(asm)
+        run.blocks = block_preconditioner(asm)
+        run.M, run.Minv, run.Msq, n_bad = run.blocks
         if n_bad:
             run.reasons.append(f"{n_bad} particle block(s) of H singular or indefinite (floppy particle "
                                "or pre-stress larger than the contact stiffness)")
@@ -1022,9 +1099,11 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
         run.lam, run.src = user_lam, "user"
     elif spectral_bound == "auto" and 0 < asm.ndof <= dense_max and not _dense_fits(run, asm.ndof):
         pass
+    elif spectral_bound == "auto" and asm.ndof > dense_max and run.no_certificate:
+        pass
     elif spectral_bound == "auto" and asm.ndof:
-        run.lam, run.lam_hi, _, n_neg, run.factor = spectral_lower_bound(
-            asm, run.Msq, dense_max=dense_max, return_max=True, return_factor=True)
+        run.lam, run.lam_hi, _, n_neg, run.factor, run.n_cert_fact = _spectral_lower_bound(
+            asm, run.Msq, dense_max, True, run.spectral_guess, run.blocks, lean=True)
         if run.factor is not None and run.factor_steps == 0:
             run.factor.release()
             run.factor = None
@@ -1350,7 +1429,8 @@ def _finish(run, preconditioner, t_asm, t_solve):
         n_particles=network.n_particles, n_contacts=asm.net.n_contacts, prestress=bool(run.prestress),
         assembly_time=t_asm, solve_time=t_solve, bound_time=run.t_bound,
         preconditioner=preconditioner if not run.trivial else "none", preconditioner_time=run.t_prec,
-        n_soft_modes=int(run.n_soft), n_factor_steps=int(run.n_factor_steps), certified=bool(certified), calibrated=bool(run.calibrated),
+        n_soft_modes=int(run.n_soft), n_factor_steps=int(run.n_factor_steps),
+        certificate_factorisations=int(run.n_cert_fact), certified=bool(certified), calibrated=bool(run.calibrated),
         kt_over_kn=float(run.kt_over_kn), jammed=bool(jammed), floppy=bool(floppy), negative=bool(negative))
 
 

@@ -16,6 +16,16 @@ pivots of the ``LDL^T`` factorisation of ``H - s M`` (``H - s M = M^1/2 (A - s I
    the smallest eigenvalue above the null space, whatever the eigen-solver did. If not, the
    shift is lowered and counted again (the estimate missed an eigenvalue).
 
+**One factorisation** (``guess=``, ``null_basis=``; ``docs/theory.md`` section 9, "One
+factorisation"): when the caller has an estimate of the bound and vectors ``Z`` of the null space
+(the global translations), the first and only factorisation is at ``s1 = GUESS_FACTOR * guess``.
+If the Rayleigh-Ritz values of ``(Z^T H Z, Z^T M Z)`` lie below ``eps`` (with a round-off margin),
+Courant-Fischer gives at least ``g = Z.shape[1]`` eigenvalues below ``eps``; if the count at ``s1``
+is ``g``, none lies in ``[eps, s1)`` and ``s1`` is certified. Otherwise the count at ``eps`` follows
+on the same analysis (``s1`` is certified if it agrees), and only if an eigenvalue lies in
+``[eps, s1)`` the estimate and the lowered shift of step 2. The factorisations use PARDISO's
+minimum-degree ordering (its analysis costs half of METIS's at 1e5 disks; ``microhom.factor``).
+
 What "certified" rests on (``docs/stiffness.md``): (a) the factorisation is backward stable (a
 supernodal Bunch-Kaufman ``LDL^T``, PARDISO with no perturbed pivot, or SuperLU with symmetric
 diagonal pivoting), so its inertia is that of ``H - s M + E`` with ``|E|`` of the order of the
@@ -33,18 +43,21 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
-from microhom.factor import (AUTO_PARDISO_DOF, FactorisationError, _Pardiso, _Pencil, available_backends,
+from microhom.factor import (AUTO_PARDISO_DOF_PENCIL, FactorisationError, _Pardiso, _Pencil, available_backends,
                              factor)
 from microhom.results import Result
 
 __all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
-           "CERTIFIED_MAX_DOF"]
+           "CERTIFIED_MAX_DOF", "GUESS_FACTOR"]
 
 #: largest system certified by default (``microhom.hierarchy.spectral_lower_bound``, ``dem analyse``):
 #: 1e5 frictional disks (3 unknowns each)
 CERTIFIED_MAX_DOF = 300_000
 #: default zero threshold of the pencil (eigenvalues in (-eps, eps) are the null space)
 ZERO_EPS = 1e-12
+#: ``certified_bound(guess=)``: the first shift is this fraction of the guess (a guess up to twice
+#: the eigenvalue still certifies with one factorisation; the bound is then at least half of it)
+GUESS_FACTOR = 0.5
 _U = np.finfo(float).eps
 
 
@@ -115,7 +128,21 @@ def gershgorin_upper(H, Minv_sqrt):
     return r * (1.0 + 1e3 * _U * max(A.shape[0], 1))
 
 
-def _check_pencil(H, M, eps, rel_gap, backend):
+def _check_m(M, backend, max_memory):
+    """``M`` positive definite, by the inertia of its factorisation (else ValueError)."""
+    n = M.shape[0]
+    fm = factor(M, backend=backend, max_memory=max_memory)
+    try:
+        m_neg = _neg(fm)
+        m_pos = fm.inertia().n_pos
+    finally:
+        fm.release()
+    if m_neg or m_pos != n:
+        raise ValueError(f"M must be symmetric positive definite; its inertia is {m_pos} positive, "
+                         f"{m_neg} negative of {n}")
+
+
+def _check_pencil(H, M, eps, rel_gap, backend, guess=None):
     """Argument checks of :func:`certified_bound`; returns (H, M) as CSR."""
     H = sp.csr_matrix(H)
     M = sp.csr_matrix(M)
@@ -135,11 +162,14 @@ def _check_pencil(H, M, eps, rel_gap, backend):
     if backend == "cholmod":
         raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
                          "LL^T only)")
+    if guess is not None and not (np.isfinite(guess) and guess > 0):
+        raise ValueError(f"guess must be a positive finite estimate of the smallest eigenvalue, got {guess!r}")
     return H, M
 
 
 def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
-                    Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4, keep_factor=False):
+                    Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4, keep_factor=False,
+                    guess=None, null_basis=None, check_m=True, ncv=10):
     """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
     threshold ``eps``, with the counts of zero and negative eigenvalues (module docstring).
 
@@ -154,24 +184,23 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
     keep_factor : also return the factorisation of ``H - s M`` at the certified shift (a
     :class:`microhom.factor.Factor`, the caller releases it), or None when not certified:
     ``(SpectralBound, Factor or None)`` instead of the ``SpectralBound`` alone.
+    guess [-] : estimate of the smallest eigenvalue above ``eps`` (``psd`` only): one factorisation
+    at ``s1 = GUESS_FACTOR * guess`` certifies ``s1`` when its count equals the null dimension that
+    ``null_basis`` (n, g) proves (module docstring, "One factorisation"); else the count at
+    ``eps`` and, if needed, the usual path. check_m : factorise ``M`` to check that it is positive
+    definite (False: the caller has, e.g. from its particle blocks). ncv : Lanczos vectors.
 
-    Cost: two numeric factorisations (three when not ``psd``) and a few tens of solves."""
+    Cost: two numeric factorisations (three when not ``psd``) and about ``ncv`` solves; one
+    numeric factorisation and no solve when ``guess`` is good and ``null_basis`` spans the null
+    space."""
     t0 = time.perf_counter()
-    H, M = _check_pencil(H, M, eps, rel_gap, backend)
+    H, M = _check_pencil(H, M, eps, rel_gap, backend, guess)
     n = H.shape[0]
     nf = 0
-    fm = factor(M, backend=backend, max_memory=max_memory)
-    try:
-        m_neg = _neg(fm)
-        m_pos = fm.inertia().n_pos
-    finally:
-        fm.release()
-    if m_neg or m_pos != n:
-        raise ValueError(f"M must be symmetric positive definite; its inertia is {m_pos} positive, "
-                         f"{m_neg} negative of {n}")
+    if check_m:
+        _check_m(M, backend, max_memory)
     upper = gershgorin_upper(H, Minv_sqrt) if Minv_sqrt is not None else None
-    lmax = lam_max if lam_max is not None else (upper if upper is not None else
-                                                 _lam_max_estimate(H, M))
+    lmax = lam_max if lam_max is not None else (upper if upper is not None else _lam_max_estimate(H, M))
     margin = 1e3 * _U * np.sqrt(max(n, 1)) * abs(lmax)
 
     def out(lower, est, shift, nb, n_zero, n_neg, reason, name):
@@ -181,8 +210,8 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                              reason=reason)
 
     be = backend
-    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF unknowns (docs/stiffness.md)
-        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF else "splu"
+    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF_PENCIL unknowns (microhom.factor)
+        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF_PENCIL else "splu"
     pencil = _Pencil(H, M) if be == "pardiso" else None
     fac = None
 
@@ -194,24 +223,41 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                 fac.release()
             fac = factor((H - sh * M).tocsr(), backend=be, max_memory=max_memory)
         elif fac is None:    # matching only where H may be strongly indefinite (pre-stress)
-            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory, matching=not psd)
+            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory, matching=not psd,
+                           ordering="mmd")
         else:
             fac.refactor(pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
         return _neg(fac)
 
+    def certified_at(s, nb, n_zero, n_neg, est):
+        lower = s - margin
+        if lower <= eps:
+            return out(None, est, s, nb, n_zero, n_neg,
+                       f"the round-off margin {margin:.2g} swallows the bound {s:.3g}", be)
+        return out(float(lower), est, float(s), nb, n_zero, n_neg, "", be)
+
     def _run():
+        s1 = k1 = None
+        if guess is not None and psd and GUESS_FACTOR * guess - margin > eps:
+            s1 = GUESS_FACTOR * float(guess)      # one factorisation: the count at s1 ...
+            k1 = factor_at(s1)
+            if k1 < n and k1 == _proven_null(H, M, null_basis, eps):   # ... is the proven null space
+                return certified_at(s1, k1, k1, 0, None)
         n_neg = 0 if psd else factor_at(-eps)
         n_low = factor_at(eps)
         n_zero = n_low - n_neg
         if n_low >= n:
             return out(None, None, None, None, n_zero, n_neg, "no eigenvalue above eps", be)
-        k = 1          # the certificate (step 3) catches a missed eigenvalue; 10 Lanczos vectors
+        if s1 is not None and k1 == n_low:        # no eigenvalue in [eps, s1): s1 holds (the factor
+            _ = factor_at(s1) if keep_factor else None   # kept is that of H - s1 M)
+            return certified_at(s1, k1, n_zero, n_neg, None)
+        k = 1          # the certificate (step 3) catches a missed eigenvalue; ncv Lanczos vectors
         if n <= 50 or n - n_low <= k + 1:
             w = _dense_eigs(H, M)
             est = float(w[w > eps].min())
         else:
             op = LinearOperator((n, n), matvec=fac.solve, dtype=float)
-            w = eigsh(H, k=k, M=M, sigma=eps, which="LA", OPinv=op, tol=tol, ncv=min(n - 1, 10),
+            w = eigsh(H, k=k, M=M, sigma=eps, which="LA", OPinv=op, tol=tol, ncv=min(n - 1, int(ncv)),
                       return_eigenvectors=False)
             w = w[w > eps]
             if not w.size:
@@ -224,11 +270,7 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
                 break
             nb = factor_at(s)
             if nb == n_low:
-                lower = s - margin
-                if lower <= eps:
-                    return out(None, est, s, nb, n_zero, n_neg,
-                               f"the round-off margin {margin:.2g} swallows the bound {s:.3g}", be)
-                return out(float(lower), est, float(s), nb, n_zero, n_neg, "", be)
+                return certified_at(s, nb, n_zero, n_neg, est)
             s = np.sqrt(s * eps) if s > 1e4 * eps else 0.5 * (s + eps)   # missed eigenvalue(s)
         return out(None, est, None, None, n_zero, n_neg,
                    f"no shift above eps = {eps:g} certified in {max_tries} tries (eigenvalues crowd "
@@ -245,6 +287,36 @@ def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e
         if fac is not None:
             fac.release()
     return (res, kept) if keep_factor else res
+
+
+def _proven_null(H, M, Z, eps):
+    """Number of eigenvalues of the pencil ``(H, M)`` below ``eps`` proven by the basis ``Z``
+    (n, g): ``g`` when the largest Rayleigh-Ritz value of ``(Z^T H Z, Z^T M Z)``, plus a round-off
+    margin, lies below ``eps`` (Courant-Fischer: then ``lambda_g <= theta_g < eps``), else 0.
+
+    Margin: the computed ``Z^T H Z`` differs from the exact one entrywise by at most
+    ``D = (m + 1 + sqrt(n)) u |Z|^T |H| |Z|`` (``m`` non-zeros per row; the ``sqrt(n)`` estimate of
+    the dot products, as for the certificate's margin), so ``theta_g`` moves by at most the
+    largest row sum of ``D`` over the smallest eigenvalue of ``Z^T M Z`` (taken 1e-8 low for its
+    own round-off)."""
+    if Z is None:
+        return 0
+    Z = np.asarray(Z, dtype=float)
+    if Z.ndim != 2 or Z.shape[0] != H.shape[0] or Z.shape[1] == 0:
+        return 0
+    from scipy.linalg import eigh
+    GH = Z.T @ (H @ Z)
+    GM = Z.T @ (M @ Z)
+    GH, GM = 0.5 * (GH + GH.T), 0.5 * (GM + GM.T)
+    wm = np.linalg.eigvalsh(GM)
+    if not wm.size or wm.min() <= 1e-12 * max(wm.max(), 1e-300):
+        return 0                                  # dependent columns: no proof
+    m = int(np.diff(H.indptr).max(initial=0)) if sp.isspmatrix_csr(H) else H.shape[0]
+    aZ = np.abs(Z)
+    D = (m + 1 + np.sqrt(H.shape[0])) * _U * (aZ.T @ (abs(H) @ aZ))
+    theta = float(eigh(GH, GM, eigvals_only=True).max())
+    bound = theta + float(D.sum(axis=1).max()) / (wm.min() * (1 - 1e-8))
+    return int(Z.shape[1]) if bound < eps else 0
 
 
 def _dense_eigs(H, M):

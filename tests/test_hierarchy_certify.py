@@ -78,7 +78,11 @@ def test_interval_meets_tol_where_the_order_cap_left_it_wide(soft3000):
     assert old.order == 16 and not old.certified
     assert max(old.K.rel_width, old.G.rel_width) > 0.01
     assert any("wider than tol after the cap of 16" in r for r in old.reasons)
-    new = relaxation_hierarchy(net)
+    lean = relaxation_hierarchy(net)             # the default above dense_max: 1 block step + factorised
+    assert lean.preconditioner == "block" and lean.certified and lean.valid and lean.n_factor_steps >= 1
+    assert lean.K.lower <= ex.K <= lean.K.upper and lean.G.lower <= ex.G <= lean.G.upper
+    _inside(lean, ex)
+    new = relaxation_hierarchy(net, max_order=16)  # the former default: 16 multilevel steps first
     assert new.certified and new.valid and new.n_factor_steps >= 1
     assert new.K.rel_width <= 0.01 and new.G.rel_width <= 0.01
     assert new.K.error_rigorous and abs(new.K.value - ex.K) <= new.K.error

@@ -655,7 +655,7 @@ def _closure(net):
 
 def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
     t0 = time.perf_counter()
-    h = relaxation_hierarchy(net, prestress=prestress, tol=tol, max_order=16, min_contacts=min_contacts)
+    h = relaxation_hierarchy(net, prestress=prestress, tol=tol, min_contacts=min_contacts)   # max_order="auto"
     return h, time.perf_counter() - t0
 
 
