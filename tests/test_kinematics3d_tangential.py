@@ -187,11 +187,13 @@ def test_energy_second_differences_give_the_symmetric_part(case):
     Sq = np.zeros((6, 6 * N))
     Sq[:, full] = np.asarray(asm.Bs.T @ (asm.Ks @ Df) + asm.Bcs.T @ ((asm.Kgs + asm.Gts).T @ Df)).T[:, idx]
     Se = Df.T @ ((asm.Ks + asm.Kgs + asm.Gts) @ Df)
-    for _ in range(4):
+    Hq0 = np.zeros((6 * N, 6 * N))                              # without the tangential terms
+    Hq0[np.ix_(full, full)] = asm.H.toarray()[np.ix_(idx, idx)]
+    for _ in range(3):
         z = rng.normal(size=6 * N + 6)
         z[6 * N:] *= 3.0
         d2 = []
-        for nsteps in (200, 400):
+        for nsteps in (100, 200):
             h = 1e-4
             U = [_path(net, arm, *_direction(N, z), sg * h, nsteps)[2] for sg in (1, -1)]
             U0 = _path(net, arm, *_direction(N, z), 0.0, 1)[2]
@@ -199,7 +201,47 @@ def test_energy_second_differences_give_the_symmetric_part(case):
         d2U = 2 * d2[1] - d2[0]                                  # Richardson in the step count
         zq, ze = z[:6 * N], z[6 * N:]
         form = zq @ H @ zq + zq @ F @ ze + ze @ Sq @ zq + ze @ Se @ ze
-        assert d2U == pytest.approx(form, rel=1e-6)
+        assert d2U == pytest.approx(form, rel=1e-6)                # measured 5e-8
+
+
+@pytest.mark.parametrize("arm", ["radius", "contact"])
+@pytest.mark.parametrize("beta", [0.3, 0.6])
+def test_the_turn_of_a_two_contact_sphere_costs_nothing(arm, beta):
+    """A periodic zigzag chain of two-force spheres (docs/spheres.md, "Rattlers in 3D"): every
+    contact force F e_x along the chords (normal part kn overlap, tangential part fn tan b).
+    Turning sphere 1 about its chord (neighbours held) moves neither contact point: along that
+    straight path LAMMPS's update changes the energy at third order only, and the assembled
+    tangent gives the turn zero curvature, where the normal forces' terms alone give
+    -rho^2 sum fn/l; the full block has one zero eigenvalue (the turn its left null vector) and no
+    eigenvalue with a negative real part."""
+    l = 0.999
+    x = np.array([[k * l * np.cos(beta), (k % 2) * l * np.sin(beta), 1.0] for k in range(4)]) + 2.0
+    net = from_overlaps(x, np.full(4, 0.5), np.diag([4 * l * np.cos(beta), 6.0, 6.0]), kn=1.0, kt=0.8,
+                        tolerance=0.0)
+    n = net.normals
+    fn = net.kn * net.overlaps
+    f = (fn / np.abs(n[:, 0]))[:, None] * np.sign(n[:, :1]) * np.array([1.0, 0, 0])   # along x
+    net = dataclasses.replace(net, fn=fn, ft=f - fn[:, None] * n)
+    a = l / 2 if arm == "contact" else 0.5
+    u, w = np.zeros((4, 3)), np.zeros((4, 3))
+    u[1], w[1] = [0.0, 0.0, a * np.sin(beta)], [1.0, 0.0, 0.0]
+    d2 = []
+    for nsteps in (100, 200):
+        U = [_path(net, arm, u, w, np.zeros((3, 3)), sg * 1e-4, nsteps)[2] for sg in (1, 0, -1)]
+        d2.append((U[0] - 2 * U[1] + U[2]) / 1e-8)
+    d2U = 2 * d2[1] - d2[0]
+    rho = a * np.sin(beta)
+    normal_only = -rho ** 2 * 2 * fn[0] / l
+    asm = assemble(net, prestress=True, pin=False, spin_arm=arm)
+    ix = asm.dof_map[np.r_[3 + np.arange(3), 12 + 3 + np.arange(3)]]
+    Hf = (asm.H + asm.Hn).toarray()[np.ix_(ix, ix)]
+    q = np.r_[u[1], w[1]]
+    assert q @ asm.H.toarray()[np.ix_(ix, ix)] @ q == pytest.approx(normal_only, rel=1e-10)
+    assert abs(q @ Hf @ q) < 1e-12 * abs(normal_only)
+    assert abs(d2U) < 1e-6 * abs(normal_only)
+    assert np.abs(q @ Hf).max() < 1e-12 * np.abs(Hf).max()            # left null vector
+    ev = np.linalg.eigvals(Hf)
+    assert np.sum(np.abs(ev) < 1e-12) == 1 and ev.real.min() > -1e-12
 
 
 def test_the_relaxed_cauchy_tensor_against_the_dense_relaxation_of_lammps_update(case):
