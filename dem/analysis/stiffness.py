@@ -34,8 +34,11 @@ of the rotating normal force, acting on the centre-to-centre relative displaceme
 and the result is the Cauchy stress increment of the pre-stressed packing,
 ``d sigma = sym(dP) + sym(sigma0 dE) - sigma0 tr(dE)``, whose isotropic part is
 ``K = B + p/2``, ``G = G_U - p/2`` in terms of the moduli ``B``, ``G_U`` of the energy density
-(the jax-md ``athermal_moduli`` convention). Exact for frictionless disks; for frictional contacts the
-geometric terms of ``ft`` (rotation of the tangential force, rolling) are not included.
+(the jax-md ``athermal_moduli`` convention). Exact for frictionless disks; for frictional disks the
+geometric terms of ``ft`` (rotation of the tangential force, rolling) are not included. On spheres
+with tangential forces they are, under LAMMPS's history update (``microhom.kinematics``,
+``docs/spheres.md``): the tangent is then not symmetric and is solved by SuperLU
+(:func:`relax_tangential`), the tensor in the stress form.
 """
 from __future__ import annotations
 
@@ -586,7 +589,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     ----------
     network : periodic ContactNetwork.
     prestress : include the geometric stiffness of the normal forces ``fn`` and the pre-stress
-        terms of the Cauchy stress increment (needs ``network.fn``).
+        terms of the Cauchy stress increment (needs ``network.fn``); on spheres with ``ft``, also
+        the rate terms of the tangential forces (LAMMPS's history update, ``docs/spheres.md``;
+        negative modes are then those of the symmetric part of the non-symmetric tangent).
     min_contacts : rattler threshold (particles with fewer contacts are removed, iteratively);
         None = per particle 2 if it has a contact with kt_eff > 0, else 3.
     solver : ``"auto"`` (default: PARDISO where the ``mkl`` wheel loads, else CHOLMOD if
