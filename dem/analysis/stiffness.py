@@ -444,7 +444,11 @@ def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA):
     if red.H.shape[0] == 0:
         return np.zeros((0, red.F.shape[1])), 0.0, 0
     A = (asm.H + asm.Hn).tocsr()[red.idx][:, red.idx].tocsc()
-    lu = splu((A + sp.diags(eta * red.d)).tocsc())
+    M = (A + sp.diags(eta * red.d)).tocsc()
+    try:            # the pattern is symmetric: diagonal pivots first (3-5x less fill than COLAMD)
+        lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    except RuntimeError:                  # a zero diagonal pivot: partial pivoting
+        lu = splu(M)
     Xr = lu.solve(-red.F)
     fn_ = F_scale if F_scale > 0 else 1.0
     n_ref = 0
