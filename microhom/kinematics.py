@@ -278,7 +278,11 @@ class Assembly:
     local-to-reduced map (-1 = fixed or absent); net : the network without rattlers' contacts;
     rattlers : (N,) bool; n_spins : particles whose rotations are unknowns; pinned : pinned
     particle or -1; ndof : number of unknowns; dof_map : ((d + r) N,) full-to-reduced map
-    (-1 = not an unknown).
+    (-1 = not an unknown). Spheres with tangential forces under pre-stress (else None):
+    Hn : (ndof, ndof) CSC, the non-symmetric rate terms of the tangential forces [N/m] (the tangent
+    of the equilibrium is ``H + Hn``); Fn : (ndof, m) their load [N/m * m]; Gts : (3C, 3C)
+    block-diagonal ``G_t`` [N/m] (the stress rate gains ``D^T G_t c'``); Ns : (ndof, 3C)
+    ``Bc^T G_t + X_t`` on the centre displacements (``Hn = Ns Bc``, ``Fn = Ns Df``).
     """
 
     H: sp.csc_matrix
