@@ -83,7 +83,9 @@ class StiffnessResult(Result):
     and the two global translations); ``n_unstable`` negative modes of the Hessian (pre-stress
     only); ``n_dof`` the number of unknowns solved for. ``solve_time`` is factorisation + mode
     count + solves [s]; ``assembly_time`` the assembly [s]. ``solver`` the back end that ran
-    (``"pardiso"``, ``"cholmod"`` or ``"splu"``). ``flags``: the reasons the result is degenerate, one
+    (``"pardiso"``, ``"cholmod"`` or ``"splu"``; ``"splu"`` for the non-symmetric solve of
+    spheres with tangential forces under pre-stress, whose modes are counted on the symmetric
+    part). ``flags``: the reasons the result is degenerate, one
     sentence each (not jammed, floppy, unstable, ill-conditioned); empty for a rigid, stable
     network. ``stiffness_scale``: the power of two the contact stiffnesses were divided by
     before the solve (exact; the tensor is scaled back).
@@ -185,6 +187,8 @@ def affine_stiffness(network, prestress=False, spin_arm="contact") -> np.ndarray
     c = affine_tensor(network, prestress, tangential=True, spin_arm=spin_arm)
     if prestress:
         c = c + prestress_correction(stress0(network))
+        if network.dim == 3 and network.ft is not None and np.any(network.ft != 0):
+            c = c + skew_stress_correction(network)
     return 0.5 * (c + c.T) if not prestress else c
 
 
@@ -654,7 +658,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     else:
         Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
     steps["relax"] = time.perf_counter() - tc
-    used = factor.name if factor is not None else "none"
+    used = "splu" if tangential else factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
     del factor
