@@ -460,6 +460,79 @@ def numeric_matches_symbolic():
                  f"max rel err {err:.2e}", f"rho err {err_rho:.2e}")
 
 
+def _lammps_history_step(arm):
+    """The rate of the generalized forces of one sphere contact under LAMMPS's
+    ``gran/hooke/history`` update, by sympy: frame with ``n = e_z`` at ``t = 0``, branch
+    ``c = (0, 0, l) + (v_j - v_i) t``, turns ``w t``; the history ``s0 = (s1, s2, 0)`` gets the
+    increment ``vtr dt`` (tangential relative velocity of the contact points at the new normal)
+    and is projected on the new tangent plane; forces ``f = kn (R - |c|) n - kt s`` on ``j``,
+    ``-f`` on ``i``, torques ``-a n x f``. Returns (d/dt of the 12 generalized forces, the
+    12 unknown rates, symbols)."""
+    l, R, kn, kt, ri, rj, dt, s1, s2 = sp.symbols("l R k_n k_t r_i r_j dt s_1 s_2", positive=True)
+    vi, vj, wi, wj = (sp.Matrix(sp.symbols(f"{k}1:4", real=True)) for k in ("vi", "vj", "wi", "wj"))
+    c = sp.Matrix([0, 0, l]) + (vj - vi) * dt
+    L = sp.sqrt(c.dot(c))
+    n = c / L
+
+    def first_order(e):                      # e(0) + e'(0) dt: the rates need no more
+        return e.subs(dt, 0) + sp.diff(e, dt).subs(dt, 0) * dt
+    L, n = first_order(L), n.applyfunc(first_order)
+    ai, aj = (ri, rj) if arm == "radius" else (L * ri / (ri + rj), L * rj / (ri + rj))
+    vt = (vj - vi) - n * n.dot(vj - vi)
+    s = sp.Matrix([s1, s2, 0]) + (vt - (ai * wi + aj * wj).cross(n)) * dt
+    s = s - n * n.dot(s)
+    f = kn * (R - L) * n - kt * s
+    Q = sp.Matrix.vstack(-f, -ai * n.cross(f), f, -aj * n.cross(f))
+    rate = Q.diff(dt).subs(dt, 0)
+    return rate, sp.Matrix.vstack(vi, wi, vj, wj), (l, R, kn, kt, ri, rj, s1, s2)
+
+
+def _history_closed_form(arm, z, syms):
+    """The same rate from the assembly's closed forms (docs/spheres.md): ``-(B^T K B +
+    Bc^T (K_g + G_t) Bc + X Bc) z`` with ``K = kn n n + kt P``, ``K_g = -(fn/l) P``,
+    ``G_t = n ft^T / l``, ``X_i = -a_i [ft]x P / l + kappa_i (n x ft) n^T``."""
+    l, R, kn, kt, ri, rj, s1, s2 = syms
+    n = sp.Matrix([0, 0, 1])
+    P = sp.eye(3) - n * n.T
+    ft = -kt * sp.Matrix([s1, s2, 0])
+    fn = kn * (R - l)
+    ai, aj = (ri, rj) if arm == "radius" else (l * ri / (ri + rj), l * rj / (ri + rj))
+    kap = (0, 0) if arm == "radius" else (ri / (ri + rj), rj / (ri + rj))
+
+    def cross(v):
+        return sp.Matrix([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    Z = sp.zeros(3)
+    B = sp.Matrix.hstack(-sp.eye(3), ai * cross(n), sp.eye(3), aj * cross(n))
+    Bc = sp.Matrix.hstack(-sp.eye(3), Z, sp.eye(3), Z)
+    K = kn * n * n.T + kt * P
+    Kg = -(fn / l) * P
+    Gt = n * ft.T / l
+    X = sp.Matrix.vstack(Z, -ai * cross(ft) * P / l + kap[0] * n.cross(ft) * n.T,
+                         Z, -aj * cross(ft) * P / l + kap[1] * n.cross(ft) * n.T)
+    return -(B.T * K * B + Bc.T * (Kg + Gt) * Bc + X * Bc) * z
+
+
+@check
+def tangential_history_rates():
+    ok = True
+    shown = []
+    for arm in ("radius", "contact"):
+        rate, z, syms = _lammps_history_step(arm)
+        closed = _history_closed_form(arm, z, syms)
+        ok = ok and all(sp.expand(sp.cancel(a - b)) == 0 for a, b in zip(rate, closed))
+        shown.append((arm, sp.expand(rate[5]), sp.expand(closed[5])))
+    return Check("3D contact with a tangential history: the rates of its forces and torques under "
+                 "LAMMPS's update are the assembly's K, K_g, G_t and X_i (radius and contact arms)",
+                 "spheres", ok,
+                 "d/dt of the forces and torques after one LAMMPS gran/hooke/history step (increment "
+                 "vtr dt, projection on the new tangent plane, f = kn overlap n - kt s), n = e_z",
+                 "-(B^T K B + Bc^T (K_g + G_t) Bc + X Bc) z with G_t = n ft^T/l, "
+                 "X_i = -a_i [ft]x P/l + kappa_i (n x ft) n^T (docs/spheres.md)", "closed form",
+                 ("LAMMPS gran/hooke/history update",), (),
+                 f"z torque rate on i (radius arm): {shown[0][1]}",
+                 f"closed form: {shown[0][2]}")
+
+
 def run(verbose=True, out=None):
     """Run every check, print what was derived and what it was compared with; return the list of Check.
 

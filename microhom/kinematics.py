@@ -29,6 +29,17 @@ With pre-stress, the normal forces ``fn`` (compression positive) add the geometr
 ``K_g = -(fn/|c|) (I - n n)`` acting on the centre-to-centre displacement (``B`` without its spin
 columns), and the Cauchy stress increment gains ``prestress_correction(sigma0)``
 (``microhom.tensors``).
+
+Spheres with tangential forces (3D, pre-stress, ``ft`` not zero): the tangential force is a spring
+on the history ``s`` (``ft = -kt s`` on ``j``) updated as LAMMPS's ``gran/hooke/history`` does,
+``ds/dt = P (dDelta/dt) - (s . dn/dt) n`` (the history increment projected on the turning tangent
+plane, no turn about the normal; ``docs/spheres.md``, "Tangential forces under pre-stress"). Its
+rate on the centre displacement ``c' = Bc q' + D eps'`` adds the force ``-G_t c'``,
+``G_t = n ft^T / |c|``, and the torques of the turning and stretching arms,
+``-X_i c'``, ``X_i = -a_i [ft]x (I - n n)/|c| + kappa_i (n x ft) n^T`` (``kappa_i = r_i/(r_i + r_j)``
+for the contact arm, 0 for the radius arm). These terms are not symmetric: they are assembled
+apart (``Assembly.Hn``, ``Assembly.Fn``), and ``H`` keeps its meaning (the symmetric Hessian of
+the normal pre-stress) for the relaxation hierarchy, which leaves them out.
 """
 from __future__ import annotations
 
@@ -44,7 +55,7 @@ from .structural_sums import rattlers
 SPIN_ARMS = ("contact", "radius")
 
 __all__ = ["SPIN_ARMS", "ContactMatrices", "Assembly", "contact_matrices", "contact_forces",
-           "rotational_dofs", "assemble", "stress0",
+           "rotational_dofs", "assemble", "stress0", "skew_stress_correction",
            "affine_tensor", "sparse_rows", "block_diag"]
 
 _SQ2 = np.sqrt(2.0)
@@ -83,12 +94,21 @@ class ContactMatrices:
         Contact stiffness tensors ``kn n n + kt_eff (I - n n)`` [N/m].
     Kg : (C, d, d) array or None
         Geometric stiffness ``-(fn/|c|)(I - n n)`` [N/m], or None without pre-stress.
+    Gt : (C, 3, 3) array or None
+        Geometric force rate of the tangential force on the centre displacement,
+        ``n ft^T/|c|`` [N/m] (the force rate on ``j`` gains ``-Gt c'``); 3D with pre-stress and a
+        non-zero ``ft`` only, else None.
+    Xt : (C, 2, 3, 3) array or None
+        The torque rates of the tangential force's turning and stretching arms on the centre
+        displacement, for ``i`` and ``j`` [N] (the torque rates gain ``-Xt c'``); with ``Gt``.
     """
 
     B: np.ndarray
     D: np.ndarray
     K: np.ndarray
     Kg: np.ndarray | None
+    Gt: np.ndarray | None = None
+    Xt: np.ndarray | None = None
 
 
 def _check_spin_arm(spin_arm):
@@ -140,10 +160,31 @@ def contact_matrices(net: ContactNetwork, prestress: bool = False,
         else:                    # E_pq = E_qp = 1/sqrt2
             D[:, p, a] = c[:, q] / _SQ2
             D[:, q, a] = c[:, p] / _SQ2
-    Kg = None
+    Kg = Gt = Xt = None
     if prestress:
         Kg = (-(net.fn / L))[:, None, None] * (eye - nn)
-    return ContactMatrices(B=B, D=D, K=K, Kg=Kg)
+        if dim == 3 and net.ft is not None and np.any(net.ft != 0):
+            Gt, Xt = _tangential_geometric(net.ft, n, L, (ai, aj), ri / (ri + rj), spin_arm)
+    return ContactMatrices(B=B, D=D, K=K, Kg=Kg, Gt=Gt, Xt=Xt)
+
+
+def _tangential_geometric(ft, n, L, arms, wi, spin_arm):
+    """``(Gt, Xt)`` of :class:`ContactMatrices` for tangential forces ``ft`` (C, 3) on ``j``
+    (docs/spheres.md, "Tangential forces under pre-stress"). Force on ``j``
+    ``f = fn n + ft``, torques ``T_i = -a_i n x ft``, ``T_j = -a_j n x ft``; under LAMMPS's history
+    law ``d ft/dt = -kt P dDelta/dt - (ft . dn/dt) n`` with ``dn/dt = P c'/|c|``, the rates not in
+    ``K`` and ``K_g`` are ``-n (ft . c')/|c|`` (force) and, per arm,
+    ``-a dn/dt x ft - (da/dt) n x ft`` (torque; ``da/dt = w n . c'`` for the contact arm)."""
+    P = np.eye(3) - n[:, :, None] * n[:, None, :]
+    Gt = n[:, :, None] * ft[:, None, :] / L[:, None, None]
+    fxP = _cross_matrix(ft) @ P / L[:, None, None]                # [ft]x P / |c|
+    nxf = np.cross(n, ft)
+    Xt = np.empty((n.shape[0], 2, 3, 3))
+    for k, (a, w) in enumerate(zip(arms, (wi, 1.0 - wi))):
+        Xt[:, k] = -a[:, None, None] * fxP
+        if spin_arm == "contact":                                  # the arm a = w |c| stretches
+            Xt[:, k] += w[:, None, None] * nxf[:, :, None] * n[:, None, :]
+    return Gt, Xt
 
 
 def contact_forces(net: ContactNetwork) -> np.ndarray:
@@ -169,11 +210,35 @@ def stress0(net: ContactNetwork) -> np.ndarray:
     return 0.5 * (s + s.T)
 
 
-def affine_tensor(net: ContactNetwork, prestress: bool = False) -> np.ndarray:
+def skew_stress_correction(net: ContactNetwork) -> np.ndarray:
+    """(6, 6) Mandel matrix of ``dE -> (dE A - A dE)/2`` with ``A = -(P - P^T)/2``,
+    ``P = (1/V) sum c f^T`` [Pa]: what the rate of the Cauchy stress ``-sym(P)`` gains over
+    ``tensors.prestress_correction(stress0)`` when ``P`` is not symmetric (spheres whose torques
+    balance with arms other than ``|c|/2``-splits of the branch, e.g. LAMMPS's radius arm:
+    ``P - P^T = -(1/V) sum overlap (n ft^T - ft n^T)``). Zero when ``P`` is symmetric."""
+    f = contact_forces(net)
+    P = (net.branch[:, :, None] * f[:, None, :]).sum(axis=0) / net.volume
+    A = -0.5 * (P - P.T)
+    m = np.empty((6, 6))
+    for b in range(6):
+        e = np.zeros((3, 3))
+        p, q = _MANDEL[3][b]
+        e[p, q] = e[q, p] = 1.0 if p == q else 1.0 / _SQ2
+        d = 0.5 * (e @ A - A @ e)
+        m[:, b] = [d[a, c] * (1.0 if a == c else _SQ2) for a, c in _MANDEL[3]]
+    return m
+
+
+def affine_tensor(net: ContactNetwork, prestress: bool = False, tangential: bool = False,
+                  spin_arm: str = "contact") -> np.ndarray:
     """(m, m) Mandel affine stiffness ``(1/V) sum D^T (K + K_g) D`` [N/m in 2D, Pa in 3D], without
-    the pre-stress correction of the Cauchy increment (add ``tensors.prestress_correction``)."""
-    m = contact_matrices(net, prestress)
+    the pre-stress correction of the Cauchy increment (add ``tensors.prestress_correction``).
+    ``tangential``: with ``prestress`` on spheres, add the tangential forces' term
+    ``D^T G_t D`` (:class:`ContactMatrices`; not symmetric); ``spin_arm`` only matters there."""
+    m = contact_matrices(net, prestress, spin_arm)
     KK = m.K if m.Kg is None else m.K + m.Kg
+    if tangential and m.Gt is not None:
+        KK = KK + m.Gt
     nm = m.D.shape[2]
     return m.D.reshape(-1, nm).T @ (KK @ m.D).reshape(-1, nm) / net.volume
 
@@ -213,7 +278,11 @@ class Assembly:
     local-to-reduced map (-1 = fixed or absent); net : the network without rattlers' contacts;
     rattlers : (N,) bool; n_spins : particles whose rotations are unknowns; pinned : pinned
     particle or -1; ndof : number of unknowns; dof_map : ((d + r) N,) full-to-reduced map
-    (-1 = not an unknown).
+    (-1 = not an unknown). Spheres with tangential forces under pre-stress (else None):
+    Hn : (ndof, ndof) CSC, the non-symmetric rate terms of the tangential forces [N/m] (the tangent
+    of the equilibrium is ``H + Hn``); Fn : (ndof, m) their load [N/m * m]; Gts : (3C, 3C)
+    block-diagonal ``G_t`` [N/m] (the stress rate gains ``D^T G_t c'``); Ns : (ndof, 3C)
+    ``Bc^T G_t + X_t`` on the centre displacements (``Hn = Ns Bc``, ``Fn = Ns Df``).
     """
 
     H: sp.csc_matrix
@@ -232,6 +301,10 @@ class Assembly:
     pinned: int
     ndof: int
     dof_map: np.ndarray
+    Hn: sp.csc_matrix | None = None
+    Fn: np.ndarray | None = None
+    Gts: sp.csr_matrix | None = None
+    Ns: sp.csr_matrix | None = None
 
 
 def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=None,
@@ -295,6 +368,16 @@ def assemble(network: ContactNetwork, *, prestress: bool = False, min_contacts=N
         H = (H + Bcs.T @ (Kgs @ Bcs)).tocsc()
         F = F + np.asarray(Bcs.T @ (Kgs @ Df))
     H.sum_duplicates()
+    tang = {}
+    if m.Gt is not None:                    # spheres: the tangential forces' rate terms
+        Gts = block_diag(m.Gt)
+        X = np.zeros((nc, 2 * (dim + rot), dim))               # torque rows only
+        X[:, dim:dim + rot] = m.Xt[:, 0]
+        X[:, 2 * dim + rot:] = m.Xt[:, 1]
+        Ns = (Bcs.T @ Gts + sparse_rows(np.swapaxes(X, 1, 2), ldof, ndof).T).tocsr()
+        Hn = (Ns @ Bcs).tocsc()
+        Hn.sum_duplicates()
+        tang = dict(Hn=Hn, Fn=np.asarray(Ns @ Df), Gts=Gts, Ns=Ns)
     return Assembly(H=H, F=F, F_scale=F_scale, Bs=Bs, Ks=Ks, Bcs=Bcs, Kgs=Kgs, Df=Df, matrices=m,
                     ldof=ldof, net=net, rattlers=ratt, n_spins=int((has_s & has_t).sum()),
-                    pinned=pinned, ndof=ndof, dof_map=dof)
+                    pinned=pinned, ndof=ndof, dof_map=dof, **tang)

@@ -28,10 +28,13 @@ LAMMPS's own ``sigma0``) is removed from the measured increment, so that the cen
 
 is the Cauchy stiffness of ``dem.analysis.stiffness.stiffness(network, prestress=True,
 spin_arm="radius")`` (``gran/hooke/history`` turns the contact point with the sphere's radius as
-arm). On frictionless spheres the two agree to the probes' accuracy (3e-8 of the largest entry on
-300 spheres); with friction the geometric terms of the tangential forces (LAMMPS projects the
-shear history on the new tangent plane; the exact solver has no such term) leave a difference of
-the order of the tangential-force stress ``(1/V) sum |f_t| |c|``: the figures are in
+arm), which includes the geometric terms of the tangential forces under LAMMPS's history update
+(the history projected on the turning tangent plane). On frictionless spheres the two agree to the
+probes' accuracy (3e-8 of the largest entry on 300 spheres). With friction the probes differ from
+it by the response to their rotations ``W`` beyond the turn of the stress (LAMMPS's history does
+not follow a turn about the normal, and the radius arm slips by overlap x turn) and by reading the
+non-symmetric ``P`` from its upper triangle: :func:`probe_tangent` computes both exactly, and the
+probes agree with it to their own accuracy (1e-8 on 300 spheres). The figures are in
 ``docs/spheres.md``. Packings are prepared at ``mu_prep = min(mu, 0.05)``, then ``mu``.
 """
 from __future__ import annotations
@@ -54,7 +57,7 @@ from microhom.results import Result
 from microhom.tensors import isotropic_moduli, mandel_to_strain, strain_to_mandel
 
 __all__ = ["ProbesResult", "ProbeComparison", "pack_with_restart", "relax_base", "lammps_probes",
-           "compare", "report", "main"]
+           "probe_tangent", "compare", "report", "main"]
 
 _PCOMP = ("pxx", "pyy", "pzz", "pyz", "pxz", "pxy")   # Mandel order of LAMMPS's 6 components
 _RESULT_LINE = "PROBE_RESULT"
@@ -146,14 +149,25 @@ class ProbeComparison(Result):
         the pre-stress terms (without them the difference would be about this large).
     tangential_scale : float
         ``(1/V) sum_c |f_t| |c|`` over ``max |C_exact|``: the order of the geometric terms of the
-        tangential forces that the exact solver leaves out (0 on frictionless spheres).
+        tangential forces (0 on frictionless spheres).
+    C_lammps : (6, 6) array
+        :func:`probe_tangent`: what the probes measure, computed exactly from the network [Pa]
+        (LAMMPS's history law under the probes' gradients ``E_b + W_b``, the upper triangle of
+        ``P`` read as LAMMPS prints it).
+    difference_lammps : float
+        ``max |C_probes - C_lammps| / max |C_exact|``, all 36 entries.
+    difference_lammps_by_amplitude : dict
+        amplitude -> the same figure at each amplitude.
+    rotation_size : float
+        ``max |C_lammps - C_exact| / max |C_exact|``: how much the probes' rotations and the
+        upper-triangle reading move the measurement off the Cauchy tensor of a pure strain.
     spin_arm : str
         The spin arm of the exact solve (``"radius"``, LAMMPS's).
     min_contacts : int or None
-        The exact solve's rattler threshold (None: the solver's rule, 3 contacts with friction).
+        The exact solve's rattler threshold (None: the solver's rule, 2 contacts with friction).
     n_unstable : int
-        Negative modes of the exact solve's Hessian under the pre-stress (the rolling modes of
-        kept 2-contact spheres appear here).
+        Negative modes of the exact solve's Hessian under the pre-stress (with tangential forces:
+        of the symmetric part of its non-symmetric tangent, docs/spheres.md).
     n_contacts, n_rattlers, n_sliding : int
         Of the network read back.
     exact_time : float
@@ -173,6 +187,10 @@ class ProbeComparison(Result):
     tangential_scale: float
     spin_arm: str
     min_contacts: object
+    C_lammps: np.ndarray
+    difference_lammps: float
+    difference_lammps_by_amplitude: dict
+    rotation_size: float
     n_unstable: int
     n_contacts: int
     n_rattlers: int
@@ -439,6 +457,57 @@ def lammps_probes(folder, prm, base_log, *, amplitudes=(1e-6, 1e-5), ramp_steps=
                         wall_time=time.perf_counter() - t0)
 
 
+def _upper(M):
+    """The symmetric matrix of the upper triangle of M (LAMMPS's six pressure components)."""
+    return np.triu(M) + np.triu(M, 1).T
+
+
+def probe_tangent(net, min_contacts=None, *, rotation=True, upper=True) -> np.ndarray:
+    """(6, 6) [Pa]: what the probes measure, computed exactly from the network -- the relaxed
+    first-order response under LAMMPS's history law (``microhom.kinematics``, pre-stress, radius
+    arm) to the probes' displacement gradients ``L_b = triu(E_b) + triu(E_b, 1)`` (strain plus
+    rotation ``W_b``), of the symmetric stress built from the upper triangle of
+    ``-P = -(1/V) sum c f^T``, with ``W_b sigma0 - sigma0 W_b`` removed as the probes do. Differs
+    from the Cauchy tensor of ``stiffness`` by the response to ``W_b`` beyond the rotation of the
+    stress (LAMMPS's history does not follow a turn about the normal, and the radius arm slips by
+    overlap x turn) and by the upper-triangle reading of the non-symmetric ``P``. ``rotation=False``
+    applies the strains alone (``L_b = E_b``), ``upper=False`` reads ``sym(P)``: the two parts of
+    that difference apart."""
+    from dataclasses import replace
+
+    from dem.analysis.stiffness import reduce_system, relax_tangential
+    from microhom.kinematics import assemble, contact_forces
+
+    asm = assemble(net, prestress=True, min_contacts=min_contacts, spin_arm="radius")
+    n = asm.net
+    c, f, V = n.branch, contact_forces(n), n.volume
+    Pi0 = c.T @ f
+    part = _upper if upper else (lambda M: 0.5 * (M + M.T))
+    s0 = -part(Pi0) / V
+    A = (asm.Kgs + asm.Gts) if asm.Gts is not None else asm.Kgs
+    Hs = asm.H if asm.Hn is None else (asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc()
+    asm_t = asm if asm.Hn is not None else replace(asm, Hn=asm.H * 0.0)
+    C = np.empty((6, 6))
+    for b in range(6):
+        E = mandel_to_strain(np.eye(6)[b])
+        L = np.triu(E) + np.triu(E, 1) if rotation else E
+        DL = (c @ L.T).ravel()
+        FL = asm.Bs.T @ (asm.Ks @ DL) + asm.Bcs.T @ (asm.Kgs @ DL)
+        if asm.Ns is not None:
+            FL = FL + asm.Ns @ DL
+        red = reduce_system(replace(asm, H=Hs, F=np.asarray(FL)[:, None]))
+        X, _, _ = relax_tangential(asm_t, red, asm.F_scale)
+        q = np.zeros(asm.ndof)
+        q[red.idx] = X[:, 0]
+        delta, dc = asm.Bs @ q + DL, asm.Bcs @ q + DL
+        fdot = -(asm.Ks @ delta + A @ dc).reshape(-1, 3)
+        Pidot = dc.reshape(-1, 3).T @ f + c.T @ fdot
+        sdot = -part(Pidot - np.trace(L) * Pi0) / V
+        W = L - E
+        C[:, b] = strain_to_mandel(sdot - (W @ s0 - s0 @ W))
+    return C
+
+
 def compare(base_run, probes: ProbesResult, min_contacts=None) -> ProbeComparison:
     """The exact tensor of the base state's network (``prestress=True``, ``spin_arm="radius"``,
     the rattler threshold ``min_contacts``: None is the solver's rule, 2 keeps the frictional
@@ -458,6 +527,8 @@ def compare(base_run, probes: ProbesResult, min_contacts=None) -> ProbeCompariso
     amps = probes.amplitudes
     V = abs(np.linalg.det(net.cell))
     Kp, Gp = isotropic_moduli(probes.C_mandel)
+    Cl = probe_tangent(net, min_contacts)
+    diff_l = {a: float(np.abs(C - Cl).max() / scale) for a, C in probes.C_by_amplitude.items()}
     tscale = float(np.sum(np.linalg.norm(net.ft, axis=1) * net.lengths) / V / scale)
     return ProbeComparison(
         C_exact=Ce, C_probes=probes.C_mandel, difference=diff[amps[0]], difference_by_amplitude=diff,
@@ -465,7 +536,9 @@ def compare(base_run, probes: ProbesResult, min_contacts=None) -> ProbeCompariso
                                / scale),
         K_exact=float(ex.K), G_exact=float(ex.G), K_probes=Kp, G_probes=Gp,
         prestress_size=float(np.abs(prestress_correction(probes.stress0)).max() / scale),
-        tangential_scale=tscale, spin_arm="radius", min_contacts=min_contacts, n_unstable=int(ex.n_unstable),
+        tangential_scale=tscale, spin_arm="radius", min_contacts=min_contacts, C_lammps=Cl,
+        difference_lammps=diff_l[amps[0]], difference_lammps_by_amplitude=diff_l,
+        rotation_size=float(np.abs(Cl - Ce).max() / scale), n_unstable=int(ex.n_unstable),
         n_contacts=int(net.n_contacts),
         n_rattlers=int(ex.n_rattlers), n_sliding=int(np.sum(net.sliding)), exact_time=t_ex)
 
@@ -481,7 +554,10 @@ def report(probes: ProbesResult, cmp: ProbeComparison) -> str:
     lines = [f"exact tensor (prestress, spin arm {cmp.spin_arm}) [Pa]:", _matrix(cmp.C_exact),
              f"LAMMPS probes at amplitude {a0:g} minus exact [Pa]:", _matrix(cmp.C_probes - cmp.C_exact),
              "difference max|C_probes - C_exact| / max|C_exact| per amplitude: "
-             + ", ".join(f"{a:g}: {cmp.difference_by_amplitude[a]:.2e}" for a in amps)]
+             + ", ".join(f"{a:g}: {cmp.difference_by_amplitude[a]:.2e}" for a in amps),
+             "difference from the exact probe tangent (LAMMPS's law under E + W, upper triangle of P) "
+             "per amplitude: " + ", ".join(f"{a:g}: {cmp.difference_lammps_by_amplitude[a]:.2e}" for a in amps)
+             + f"; probe tangent minus Cauchy tensor {cmp.rotation_size:.2e}"]
     for a, b in zip(amps[:-1], amps[1:]):
         d = np.abs(probes.C_by_amplitude[b] - probes.C_by_amplitude[a]).max() / np.abs(cmp.C_exact).max()
         lines.append(f"probes' amplitude spread {a:g} -> {b:g}: {d:.2e}")
@@ -532,6 +608,7 @@ def main(argv=None):
             cmp = compare(base, pr)
             print(report(pr, cmp), flush=True)
             rows.append(dict(N=a.n, p_over_kn=pk, mu=mu, difference=cmp.difference,
+                             difference_lammps=cmp.difference_lammps, rotation_size=cmp.rotation_size,
                              **{f"difference_{k:g}": v for k, v in cmp.difference_by_amplitude.items()},
                              asymmetry=pr.asymmetry, residual=pr.residual,
                              prestress_size=cmp.prestress_size, tangential_scale=cmp.tangential_scale,

@@ -34,8 +34,11 @@ of the rotating normal force, acting on the centre-to-centre relative displaceme
 and the result is the Cauchy stress increment of the pre-stressed packing,
 ``d sigma = sym(dP) + sym(sigma0 dE) - sigma0 tr(dE)``, whose isotropic part is
 ``K = B + p/2``, ``G = G_U - p/2`` in terms of the moduli ``B``, ``G_U`` of the energy density
-(the jax-md ``athermal_moduli`` convention). Exact for frictionless disks; for frictional contacts the
-geometric terms of ``ft`` (rotation of the tangential force, rolling) are not included.
+(the jax-md ``athermal_moduli`` convention). Exact for frictionless disks; for frictional disks the
+geometric terms of ``ft`` (rotation of the tangential force, rolling) are not included. On spheres
+with tangential forces they are, under LAMMPS's history update (``microhom.kinematics``,
+``docs/spheres.md``): the tangent is then not symmetric and is solved by SuperLU
+(:func:`relax_tangential`), the tensor in the stress form.
 """
 from __future__ import annotations
 
@@ -46,7 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from microhom.kinematics import affine_tensor, assemble, rotational_dofs, stress0
+from microhom.kinematics import affine_tensor, assemble, rotational_dofs, skew_stress_correction, stress0
 from microhom.network import ContactNetwork
 from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
@@ -60,7 +63,7 @@ from microhom.factor import (AUTO_PARDISO_DOF, COUNTS, MemoryGuardError, NotPosi
 _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
 __all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
-           "factorise", "count_modes", "relax", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
+           "factorise", "count_modes", "relax", "relax_tangential", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
            "have_pardiso", "particle_ordering", "predicted_memory", "Reduced", "ModeCount",
            "MemoryGuardError"]
 # the tensor-notation helpers (mandel_to_tensor, isotropic_moduli, ...) live in microhom.tensors and
@@ -80,7 +83,9 @@ class StiffnessResult(Result):
     and the two global translations); ``n_unstable`` negative modes of the Hessian (pre-stress
     only); ``n_dof`` the number of unknowns solved for. ``solve_time`` is factorisation + mode
     count + solves [s]; ``assembly_time`` the assembly [s]. ``solver`` the back end that ran
-    (``"pardiso"``, ``"cholmod"`` or ``"splu"``). ``flags``: the reasons the result is degenerate, one
+    (``"pardiso"``, ``"cholmod"`` or ``"splu"``; ``"splu"`` for the non-symmetric solve of
+    spheres with tangential forces under pre-stress, whose modes are counted on the symmetric
+    part). ``flags``: the reasons the result is degenerate, one
     sentence each (not jammed, floppy, unstable, ill-conditioned); empty for a rigid, stable
     network. ``stiffness_scale``: the power of two the contact stiffnesses were divided by
     before the solve (exact; the tensor is scaled back).
@@ -175,12 +180,15 @@ def _ratio(a, b):
 
 
 # ---- affine tensor ---------------------------------------------------------------------------
-def affine_stiffness(network, prestress=False) -> np.ndarray:
-    """(3, 3) Mandel affine (no relaxation) stiffness of all contacts of ``network`` [N/m]."""
+def affine_stiffness(network, prestress=False, spin_arm="contact") -> np.ndarray:
+    """(3, 3) Mandel affine (no relaxation) stiffness of all contacts of ``network`` [N/m]
+    ((6, 6) [Pa] in 3D; with ``prestress`` on spheres, the tangential forces' terms included)."""
     _check(network, prestress)
-    c = affine_tensor(network, prestress)
+    c = affine_tensor(network, prestress, tangential=True, spin_arm=spin_arm)
     if prestress:
         c = c + prestress_correction(stress0(network))
+        if network.dim == 3 and network.ft is not None and np.any(network.ft != 0):
+            c = c + skew_stress_correction(network)
     return 0.5 * (c + c.T) if not prestress else c
 
 
@@ -431,11 +439,57 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50):
     return Xr, resid, n_ref
 
 
+def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA):
+    """:func:`relax` for spheres with tangential forces under pre-stress: solve the
+    non-symmetric ``(H + Hn) Q = -(F + Fn)`` (``microhom.kinematics.Assembly``) on the unknowns of
+    ``red`` with SuperLU of ``H + Hn + eta diag`` and refinement against the unshifted matrix.
+    Returns (Q (m, k), residual, n_refine) as :func:`relax`."""
+    from scipy.sparse.linalg import splu
+    if red.H.shape[0] == 0:
+        return np.zeros((0, red.F.shape[1])), 0.0, 0
+    A = (asm.H + asm.Hn).tocsr()[red.idx][:, red.idx].tocsc()
+    M = (A + sp.diags(eta * red.d)).tocsc()
+    try:            # the pattern is symmetric: diagonal pivots first (3-5x less fill than COLAMD)
+        lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    except RuntimeError:                  # a zero diagonal pivot: partial pivoting
+        lu = splu(M)
+    Xr = lu.solve(-red.F)
+    fn_ = F_scale if F_scale > 0 else 1.0
+    n_ref = 0
+    for n_ref in range(1, max_refine + 1):
+        R = -red.F - A @ Xr
+        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+        if resid <= rtol or not np.isfinite(resid):
+            break
+        Xr = Xr + lu.solve(R)
+    else:
+        R = -red.F - A @ Xr
+        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+    return Xr, resid, n_ref
+
+
 # ---- step 6: the tensor ----------------------------------------------------------------------
+def _tangential_tensor(asm, Q, area):
+    """The stress form with the tangential forces' rate terms (``Assembly.Gts``, ``Ns``) and the
+    relative difference of the work form, which equals it where ``(H + Hn) Q = -(F + Fn)``."""
+    Df = asm.Df
+    delta = asm.Bs @ Q + Df
+    dc = asm.Bcs @ Q + Df
+    Kd, Gd = asm.Ks @ delta, (asm.Kgs + asm.Gts) @ dc
+    c_str = (Df.T @ (Kd + Gd)) / area
+    work = (delta.T @ Kd + dc.T @ (asm.Kgs @ dc) + Df.T @ (asm.Gts @ dc) + Q.T @ (asm.Ns @ dc)) / area
+    scale = max(np.abs(c_str).max(), 1e-300)
+    return c_str, float(np.abs(work - c_str).max() / scale)
+
+
 def relaxed_tensor(asm, Q, area):
     """(C, consistency): the relaxed tensor in the energy form ``(1/A) Delta^T K Delta`` at the
     relaxed unknowns ``Q`` (ndof, 3) (without the pre-stress correction) and the relative
-    difference of the stress form ``(1/A) D^T K Delta``."""
+    difference of the stress form ``(1/A) D^T K Delta``. Spheres with tangential forces under
+    pre-stress (``asm.Gts`` set): the stress form with their rate terms (not symmetric), and the
+    difference of the work form."""
+    if asm.Gts is not None:
+        return _tangential_tensor(asm, Q, area)
     Df = asm.Df
     delta = asm.Bs @ Q + Df                                  # (2C, 3) contact displacements
     Kd = asm.Ks @ delta
@@ -543,7 +597,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     ----------
     network : periodic ContactNetwork.
     prestress : include the geometric stiffness of the normal forces ``fn`` and the pre-stress
-        terms of the Cauchy stress increment (needs ``network.fn``).
+        terms of the Cauchy stress increment (needs ``network.fn``); on spheres with ``ft``, also
+        the rate terms of the tangential forces (LAMMPS's history update, ``docs/spheres.md``;
+        negative modes are then those of the symmetric part of the non-symmetric tangent).
     min_contacts : rattler threshold (particles with fewer contacts are removed, iteratively);
         None = per particle 2 if it has a contact with kt_eff > 0, else 3.
     solver : ``"auto"`` (default: PARDISO where the ``mkl`` wheel loads, else CHOLMOD if
@@ -575,13 +631,15 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                                   solver=solver),
                  f"exact stiffness of {net.n_particles} particles ({solver} solver)", max_memory)
     asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
-    c_aff = affine_stiffness(net, prestress=prestress)
+    c_aff = affine_stiffness(net, prestress=prestress, spin_arm=spin_arm)
     sigma0 = stress0(net) if prestress else None
     t_asm = time.perf_counter() - t0
 
     t1 = time.perf_counter()
     steps = {"assemble": t_asm}
-    red = reduce_system(asm)
+    tangential = asm.Hn is not None        # spheres, pre-stress, tangential forces: modes of sym(H + Hn)
+    red = reduce_system(asm if not tangential else
+                        replace(asm, H=(asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc(), F=asm.F + asm.Fn))
     steps["reduce"] = time.perf_counter() - t1
     factor = None
     tc = time.perf_counter()
@@ -595,9 +653,12 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
-    Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+    if tangential:
+        Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
+    else:
+        Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
     steps["relax"] = time.perf_counter() - tc
-    used = factor.name if factor is not None else "none"
+    used = "splu" if tangential else factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
     del factor
@@ -613,6 +674,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     steps["tensor"] = time.perf_counter() - tc
     if prestress:
         c_rel = c_rel + prestress_correction(sigma0)
+    if tangential:                      # the rate of -sym(P) where P = sum c f^T / V is not symmetric
+        c_rel = c_rel + skew_stress_correction(net)
     flags += degeneracy_flags(c_rel, c_aff, modes, net.n_particles, int(asm.rattlers.sum()),
                               red.H.shape[0])
     for msg in flags:   # a floppy direction is a property of the network, flagged but not warned
