@@ -797,7 +797,7 @@ def _rigidity_check(f, z, R, eta):
     for it in range(_MAX_SUBSPACE_IT):
         X = f.solve(sq[:, None] * Z)
         Q, _ = np.linalg.qr(sq[:, None] * X)
-        U, sv, Vt = np.linalg.svd(np.asarray((Rs @ Q)), full_matrices=False)
+        _, sv, Vt = np.linalg.svd(np.asarray(Rs @ Q), full_matrices=False)
         sv = np.concatenate([sv, np.zeros(Q.shape[1] - sv.size)])
         Z = Q @ Vt.T if Vt.shape[0] == Q.shape[1] else Q
         cand = sv ** 2 < eta
