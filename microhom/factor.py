@@ -44,7 +44,8 @@ from scipy.sparse.linalg import eigsh, splu
 
 from microhom.results import Result
 
-__all__ = ["BACKENDS", "COUNTS", "ETA", "ZERO_PIVOT", "AMBIGUOUS_PIVOTS", "RESCALE", "Inertia", "ZeroModes",
+__all__ = ["BACKENDS", "COUNTS", "ETA", "ZERO_PIVOT", "AMBIGUOUS_PIVOTS", "RESCALE", "RIGID_SV", "Inertia",
+           "ZeroModes",
            "Factor", "factor", "inertia", "count_zero_modes", "available_backends", "have_pardiso",
            "have_cholmod", "NotPositiveDefinite", "FactorisationError", "MemoryGuardError",
            "memory_check", "predicted_factor_bytes"]
@@ -63,6 +64,12 @@ ZERO_PIVOT = 1e-8
 AMBIGUOUS_PIVOTS = (1e-10, 1e-6)
 #: ``count="rescale"``: the second factorisation's shift, as a fraction of the first
 RESCALE = 1e-2
+#: the rigidity check of :func:`count_zero_modes`: a candidate zero mode is floppy iff its singular
+#: value in the column-scaled rigidity factor ``R diag(d)^-1/2`` (``A = R^T R``; largest singular
+#: value between 1 and the square root of the unknowns per row) is below this. The pencil's
+#: eigenvalues are these singular values squared: a rigid mode at 4e-8 sits at 1.4e-15, below
+#: ``ETA`` and at the rounding level of ``A`` itself, while ``R`` resolves it (docs/stiffness.md)
+RIGID_SV = 1e-9
 #: smallest system for which ``"auto"`` takes PARDISO, in the exact solver and the certified bound
 #: (measured, one thread, CPU time of analysis + factorisation + solve: 8.8e3 unknowns PARDISO
 #: 0.09 s, SuperLU 0.06 s; 2.9e4 unknowns 0.28 s against 0.25 s; 3e5 unknowns 4.1 s against 9.1 s;
@@ -173,13 +180,20 @@ class ZeroModes(Result):
     ``method``: ``"inertia"`` (PARDISO), ``"pivots"``, ``"rescale"`` (CHOLMOD, SuperLU) or
     ``"eig"`` (dense / shift-invert fallback when SuperLU left the diagonal); ``factor``: the
     factor to solve with when the count replaced its input (CHOLMOD's in-place rescaled factor,
-    or SuperLU's after PARDISO perturbed pivots), else None (keep using the input)."""
+    or SuperLU's after PARDISO perturbed pivots), else None (keep using the input).
+
+    With the rigidity check (``rigidity=`` given): ``n_zero`` is the check's count, ``n_pencil``
+    the pencil rule's count before it (-1 without the check), ``sv_gap`` (largest singular value
+    counted zero, smallest candidate kept) [-] of the column-scaled rigidity factor on the
+    candidate space (NaN without the check)."""
 
     n_zero: int
     n_negative: int
     gap: tuple
     method: str
     factor: object = field(default=None, repr=False, compare=False, metadata={"export": False})
+    n_pencil: int = -1
+    sv_gap: tuple = (np.nan, np.nan)
 
 
 # ---- memory guard ----------------------------------------------------------------------------
@@ -655,7 +669,7 @@ def inertia(A, *, backend="auto", max_memory=None) -> Inertia:
 
 
 # ---- zero and negative modes of the pencil (A, diag scale) -----------------------------------
-def count_zero_modes(f, count="auto", *, eta=None, psd=False, max_memory=None) -> ZeroModes:
+def count_zero_modes(f, count="auto", *, eta=None, psd=False, max_memory=None, rigidity=None) -> ZeroModes:
     """Zero and negative eigenvalues of the pencil ``(A, diag d)`` from a shifted factor ``f``
     made by ``factor(A, shift=, scale=d)`` (Sylvester's law of inertia: ``A + s diag d`` is
     congruent to the diagonal of its ``LDL^T``). ``eta`` [-]: the zero threshold (default
@@ -671,24 +685,44 @@ def count_zero_modes(f, count="auto", *, eta=None, psd=False, max_memory=None) -
     CHOLMOD and SuperLU (``f`` the factor of ``A + eta diag d``), by the rule ``count``:
     ``"pivots"``: a relative pivot below ``ZERO_PIVOT`` (1e-8) is a zero mode. ``"rescale"``: a
     second factorisation with the shift ``RESCALE * eta``; a pivot belongs to a zero mode iff it
-    scales with the shift (below 1e-4 and shrunk below a tenth: no threshold to tune). With
+    scales with the shift (shrunk below a tenth: no threshold to tune). With
     CHOLMOD the second factorisation replaces the first in place (memory reused): solve with
     ``ZeroModes.factor`` then. ``"auto"``: ``"pivots"``, switching to ``"rescale"`` when a relative
     pivot falls in the ambiguous band ``AMBIGUOUS_PIVOTS`` (1e-10..1e-6). Negative pivots not
     counted as zero are negative modes. When SuperLU left the diagonal (no symmetric pivots), a
-    dense (n <= 3000) or shift-invert eigen-solve of the pencil counts instead (a warning)."""
+    dense (n <= 3000) or shift-invert eigen-solve of the pencil counts instead (a warning).
+
+    ``rigidity`` (r, n) sparse, with ``A = R^T R`` (a Gram matrix, e.g. the stiffness-weighted
+    compatibility of a network without pre-stress; needs ``psd``): the **rigidity check**. The
+    pencil's eigenvalues are the squared singular values of ``R diag(d)^-1/2``, so a rigid mode
+    whose singular value is below ``sqrt(eta)`` (1e-6) counts as zero by any rule on ``A``, and
+    one below about 1e-7 is at the rounding level of ``A``. The check finds every eigenvalue of
+    the pencil below ``eta`` by subspace iteration with the factor, and counts the singular
+    values of ``R`` on that space below ``RIGID_SV`` (1e-9): the zero modes of ``R`` itself, as
+    a dense SVD of the rigidity matrix counts them (``docs/stiffness.md``)."""
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if f.scale is None:
         raise ValueError("count_zero_modes needs a factor made with a diagonal shift: "
                          "factor(A, shift=, scale=)")
+    if rigidity is not None and not psd:
+        raise ValueError("rigidity= needs psd=True (A = R^T R is positive semi-definite)")
     eta = abs(f.shift) if eta is None else eta
     if f.name == "pardiso":
-        return _count_inertia(f, count, eta, psd, max_memory)
+        z = _count_inertia(f, count, eta, psd, max_memory)
+    else:
+        z = _count_pivots(f, count, eta)
+    if rigidity is None:
+        return z
+    return _rigidity_check(z.factor or f, z, rigidity, eta)
+
+
+def _count_pivots(f, count, eta):
+    """The CHOLMOD and SuperLU branch of :func:`count_zero_modes` (pivot rules)."""
     piv, ok = f.pivots()
     if not ok:
         warnings.warn("SuperLU did not pivot symmetrically: mode counts from an eigen-solver "
-                      "fallback", RuntimeWarning, stacklevel=4)
+                      "fallback", RuntimeWarning, stacklevel=5)
         nz, nn = _count_eig(f.A, f.scale)
         return ZeroModes(nz, nn, (np.nan, np.nan), "eig")
     small = np.abs(piv) < ZERO_PIVOT
@@ -701,7 +735,9 @@ def count_zero_modes(f, count="auto", *, eta=None, psd=False, max_memory=None) -
         if f2 is not None:
             piv2, ok2 = f2.pivots()
             if ok2:
-                small = (np.abs(piv) < 1e-4) & (np.abs(piv2) < 0.1 * np.abs(piv))
+                # the scaling alone decides: a zero mode's pivot is eta times its delocalisation,
+                # measured up to 1.3e-2 on corpus packings (the former cap |piv| < 1e-4 lost it)
+                small = np.abs(piv2) < 0.1 * np.abs(piv)
         if f2 is not None and not f2.reshifts_in_place:   # a separate object: the input stays valid
             f2 = None
     gap = (float(np.abs(piv[small]).max()) if small.any() else 0.0,
@@ -730,6 +766,84 @@ def _count_inertia(f, count, eta, psd, max_memory):
         n_neg = f2.inertia().n_neg
         f2.release()
     return ZeroModes(n_below - n_neg, n_neg, (np.nan, np.nan), "inertia")
+
+
+#: the rigidity check: dense SVD of the scaled rigidity factor up to this many unknowns
+_DENSE_RIGIDITY = 400
+#: the rigidity check: subspace iterations at most (measured: the counts settle after 2)
+_MAX_SUBSPACE_IT = 12
+
+
+def _rigidity_operand(R, A, d):
+    """``R diag(d)^-1/2`` (CSR), after checking ``A = R^T R`` on two random vectors (relative
+    1e-8 of the diagonal energy): a wrong factor is refused, not silently counted."""
+    if not sp.issparse(R):
+        R = sp.csr_matrix(R)
+    n = A.shape[0]
+    if R.ndim != 2 or R.shape[1] != n:
+        raise ValueError(f"rigidity must have shape (rows, {n}) (A = R^T R), got {R.shape}")
+    x = np.random.default_rng(1).standard_normal((n, 2))
+    lhs = np.einsum("ij,ij->j", R @ x, R @ x)
+    rhs = np.einsum("ij,ij->j", x, A @ x)
+    if not np.all(np.abs(lhs - rhs) <= 1e-8 * np.einsum("ij,i,ij->j", x, d, x)):
+        raise ValueError("rigidity: R^T R differs from A (relative energy difference "
+                         f"{float(np.abs(lhs - rhs).max() / (d @ (x ** 2)).max()):.2g} > 1e-8); "
+                         "pass R with A = R^T R, no pre-stress")
+    return sp.csr_matrix(R @ sp.diags(1.0 / np.sqrt(d)))
+
+
+def _rigidity_check(f, z, R, eta):
+    """Recount ``z.n_zero`` on the rigidity factor (see :func:`count_zero_modes`): subspace
+    iteration ``Z <- (A + s D)^-1 D^1/2 Z`` (scaled coordinates, ``s = f.shift``) with a
+    Rayleigh-Ritz step done as an SVD of ``R D^-1/2 Q``: its singular values are the square roots
+    of the Ritz values, computed without squaring. The candidates are the Ritz values below
+    ``eta``; the space is enlarged until it holds one Ritz value above ``2 eta`` (so every
+    eigenvalue below ``eta`` is inside) and the counts repeat."""
+    d = f.scale
+    Rs = _rigidity_operand(R, f.A, d)
+    n = Rs.shape[1]
+    if n <= _DENSE_RIGIDITY:
+        sv = _padded_sv(Rs.toarray(), n)
+        return _with_sv(z, sv, sv ** 2 < eta)
+    sq = np.sqrt(d)
+    rng = np.random.default_rng(0)
+    k = min(n, z.n_zero + max(8, z.n_zero // 4))
+    Z = rng.standard_normal((n, k))
+    last = None
+    for it in range(_MAX_SUBSPACE_IT):
+        X = f.solve(sq[:, None] * Z)
+        Q, _ = np.linalg.qr(sq[:, None] * X)
+        _, sv, Vt = np.linalg.svd(np.asarray(Rs @ Q), full_matrices=False)
+        sv = np.concatenate([sv, np.zeros(Q.shape[1] - sv.size)])
+        Z = Q @ Vt.T if Vt.shape[0] == Q.shape[1] else Q
+        cand = sv ** 2 < eta
+        key = (int(cand.sum()), int((sv[cand] < RIGID_SV).sum()))
+        if sv.max() ** 2 <= 2 * eta and k < n:        # every Ritz value a candidate: enlarge
+            k = min(n, 2 * k)
+            Z = np.hstack([Z, rng.standard_normal((n, k - Z.shape[1]))])
+            last = None
+            continue
+        if key == last and it >= 2:
+            break
+        last = key
+    else:
+        warnings.warn(f"rigidity check: the counts did not settle in {_MAX_SUBSPACE_IT} subspace "
+                      f"iterations (last {key}); counted as they stand", RuntimeWarning, stacklevel=4)
+    return _with_sv(z, sv, cand)
+
+
+def _padded_sv(M, n):
+    """All n singular values of M (r, n), zeros added when r < n."""
+    sv = np.linalg.svd(M, compute_uv=False) if M.size else np.zeros(0)
+    return np.concatenate([sv, np.zeros(n - sv.size)])
+
+
+def _with_sv(z, sv, cand):
+    """``z`` with the rigidity check's count from the singular values ``sv`` of the candidates."""
+    c = sv[cand]
+    zero = c < RIGID_SV
+    gap = (float(c[zero].max()) if zero.any() else 0.0, float(c[~zero].min()) if (~zero).any() else np.inf)
+    return replace(z, n_zero=int(zero.sum()), n_pencil=z.n_zero, sv_gap=gap)
 
 
 def _count_eig(A, d):

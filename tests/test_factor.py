@@ -243,3 +243,86 @@ def test_shifted_factor_keeps_the_memory_guard(monkeypatch):
         with pytest.raises(MemoryGuardError, match="predicted"):
             factor(A, backend=b, shift=-1e-12 if b == "pardiso" else 1e-12, scale=A.diagonal(),
                    perm=np.arange(50) if b == "cholmod" else None)
+
+
+# ---- the rigidity check: the zero modes of R, not of R^T R ----------------------------------
+def _incidence(edges, w, n):
+    """Rows sqrt(w_e) (e_a - e_b) per edge (a, b): a network of scalar springs, A = R^T R its
+    Laplacian (nullity = number of connected components)."""
+    r = np.repeat(np.arange(len(edges)), 2)
+    v = (np.sqrt(np.asarray(w, float))[:, None] * np.array([1.0, -1.0])).ravel()
+    return sp.csr_matrix((v, (r, np.asarray(edges).ravel())), shape=(len(edges), n))
+
+
+def _weakly_joined_rings(n, weight):
+    """Two rings of n unit springs joined by one spring of stiffness ``weight``."""
+    edges = [(i, (i + 1) % n) for i in range(n)] + [(n + i, n + (i + 1) % n) for i in range(n)]
+    return _incidence(edges + [(0, n)], [1.0] * (2 * n) + [weight], 2 * n)
+
+
+@pytest.mark.parametrize("backend", ALL)
+@pytest.mark.parametrize("n", [120, 300])       # 240 unknowns: dense SVD; 600: subspace iteration
+def test_rigidity_check_counts_a_soft_rigid_mode_as_rigid(backend, n):
+    """Two rings joined by a spring of stiffness 1e-12: connected, so exactly one zero mode (the
+    translation; rank-nullity of the Laplacian). The other mode (the rings against each other)
+    has the pencil eigenvalue eps^2 / n = 1e-12 / n (first order, trial vector +1 / -1), below
+    eta: every rule on A counts 2 (the floppy count's over-count on the identical-disk corpus
+    rows); its singular value in R is 1e-6 / sqrt(n), and the check counts 1."""
+    eps = 1e-6
+    R = _weakly_joined_rings(n, eps ** 2)
+    A = (R.T @ R).tocsr()
+    d = A.diagonal()
+    def fac():      # a new factor per count: CHOLMOD's rescaling count refactors in place
+        return factor(A, backend=backend, shift=-fm.ETA if backend == "pardiso" else fm.ETA, scale=d)
+    assert fm.count_zero_modes(fac(), "auto", psd=True).n_zero == 2          # the pencil alone
+    f = fac()
+    z = fm.count_zero_modes(f, "auto", psd=True, rigidity=R)
+    assert (z.n_zero, z.n_pencil, z.n_negative) == (1, 2, 0), z
+    assert z.sv_gap[0] < 1e-11
+    assert z.sv_gap[1] == pytest.approx(eps / np.sqrt(n), rel=1e-3)
+    (z.factor or f).release()
+
+
+@pytest.mark.parametrize("backend", ALL)
+def test_rigidity_check_keeps_exact_zero_modes(backend):
+    """Three disjoint rings of 200 (the closed form of test_count_zero_modes_of_disjoint_rings):
+    the check keeps the 3 zero modes; with the rings joined by springs of 1e-30 (singular value
+    1e-15 / sqrt(n), below RIGID_SV) they stay floppy."""
+    k, n = 3, 200
+    edges = [(j * n + i, j * n + (i + 1) % n) for j in range(k) for i in range(n)]
+    for extra, w, expected in (([], [], 3), ([(0, n), (n, 2 * n)], [1e-30, 1e-30], 3)):
+        R = _incidence(edges + extra, [1.0] * (k * n) + w, k * n)
+        A = (R.T @ R).tocsr()
+        f = factor(A, backend=backend, shift=-fm.ETA if backend == "pardiso" else fm.ETA,
+                   scale=A.diagonal())
+        z = fm.count_zero_modes(f, "rescale", psd=True, rigidity=R)
+        assert (z.n_zero, z.n_pencil) == (expected, 3), z
+        (z.factor or f).release()
+
+
+@pytest.mark.skipif("cholmod" not in available_backends(), reason="scikit-sparse not installed")
+def test_rescale_counts_a_zero_pivot_far_above_eta():
+    """A wheel: a hub joined by unit springs to 10 rim nodes that a ring of 1e9 springs joins.
+    One zero mode (connected). With the hub eliminated last its zero pivot is
+    eta * sum(d) / d_hub = 2e-3 relative (the delocalised zero modes of the corpus packings had
+    up to 1.3e-2): it scales with the shift, and the rescaling rule counts it (it used to ask
+    for a pivot below 1e-4 as well, and missed it)."""
+    m = 10
+    edges = [(0, 1 + i) for i in range(m)] + [(1 + i, 1 + (i + 1) % m) for i in range(m)]
+    R = _incidence(edges, np.r_[np.ones(m), np.full(m, 1e9)], m + 1)
+    A = (R.T @ R).tocsr()
+    f = factor(A, backend="cholmod", shift=fm.ETA, scale=A.diagonal(), perm=np.arange(m + 1)[::-1])
+    z = fm.count_zero_modes(f, "rescale", psd=True)
+    assert z.n_zero == 1 and z.gap[0] > 1e-4, z
+
+
+def test_rigidity_check_bad_input_names_the_parameter():
+    R = _weakly_joined_rings(20, 1.0)
+    A = (R.T @ R).tocsr()
+    f = factor(A, backend="splu", shift=fm.ETA, scale=A.diagonal())
+    with pytest.raises(ValueError, match="rigidity= needs psd=True"):
+        fm.count_zero_modes(f, psd=False, rigidity=R)
+    with pytest.raises(ValueError, match=r"rigidity must have shape \(rows, 40\)"):
+        fm.count_zero_modes(f, psd=True, rigidity=R[:, :39])
+    with pytest.raises(ValueError, match="R\\^T R differs from A"):
+        fm.count_zero_modes(f, psd=True, rigidity=2 * R)

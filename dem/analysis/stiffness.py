@@ -49,7 +49,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from microhom.kinematics import affine_tensor, assemble, rotational_dofs, skew_stress_correction, stress0
+from microhom.kinematics import (affine_tensor, assemble, rotational_dofs, skew_stress_correction, sparse_rows,
+                                 stress0)
 from microhom.network import ContactNetwork
 from microhom.results import Result
 from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
@@ -388,7 +389,21 @@ class ModeCount:
     factor: object = field(default=None, repr=False, compare=False)
 
 
-def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=None) -> ModeCount:
+def rigidity_factor(asm, red):
+    """The stiffness-weighted compatibility ``R`` (rows, m) of the reduced unknowns with
+    ``red.H = R^T R`` (no pre-stress): per contact ``Lambda^1/2 Q^T B`` from the eigen-decomposition
+    ``K = Q Lambda Q^T`` of its stiffness tensor (``kn`` along the normal, ``kt_eff`` across; a
+    zero stiffness, kt = 0 or sliding, gives an exact zero row). For the rigidity check of the
+    floppy count (:func:`microhom.factor.count_zero_modes`)."""
+    w, Q = np.linalg.eigh(asm.matrices.K)
+    # eigenvalues at the rounding level of kn are zero stiffness (kt = 0), not sqrt(1e-16) weights
+    w = np.where(w > 64 * np.finfo(float).eps * np.abs(w).max(axis=1, keepdims=True), w, 0.0)
+    Rc = np.sqrt(w)[:, :, None] * np.einsum("cji,cjk->cik", Q, asm.matrices.B)
+    return sparse_rows(Rc, asm.ldof, asm.ndof)[:, red.idx].tocsr()
+
+
+def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=None,
+                rigidity=None) -> ModeCount:
     """Count zero (floppy) and negative modes of the reduced Hessian from the factor made by
     :func:`factorise`: :func:`microhom.factor.count_zero_modes` on the pencil ``(H, diag H)``
     (Sylvester's law of inertia), plus the ``red.n_zero`` unknowns dropped with no stiffness.
@@ -407,12 +422,16 @@ def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=No
     it replaces the first in place, so solve with ``ModeCount.factor`` then) or ``"auto"``
     (default: ``"pivots"``, switching to ``"rescale"`` when a relative pivot falls in the
     ambiguous band 1e-10..1e-6; measured: a zero mode spread over a 1e5-disk network had a
-    pivot of 1.2e-8, above the 1e-8 threshold)."""
+    pivot of 1.2e-8, above the 1e-8 threshold).
+
+    ``rigidity`` (:func:`rigidity_factor`, no pre-stress): the floppy count is checked on ``R``
+    itself, whose singular values the Hessian squares (``docs/stiffness.md``)."""
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if red.H.shape[0] == 0:
         return ModeCount(red.n_zero, 0, (np.nan, np.nan), count)
-    z = _factor.count_zero_modes(factor, count, eta=eta, psd=psd, max_memory=max_memory)
+    z = _factor.count_zero_modes(factor, count, eta=eta, psd=psd, max_memory=max_memory,
+                                 rigidity=rigidity)
     return ModeCount(red.n_zero + z.n_zero, z.n_negative, z.gap, z.method, factor=z.factor)
 
 
@@ -648,7 +667,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                            ordering=ordering, max_memory=max_memory, psd=not prestress)
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
-    modes = count_modes(factor, red, count, psd=not prestress, max_memory=max_memory)
+    modes = count_modes(factor, red, count, psd=not prestress, max_memory=max_memory,
+                        rigidity=None if prestress else rigidity_factor(asm, red))
     if modes.factor is not None:      # CHOLMOD refactored in place with the smaller shift
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
