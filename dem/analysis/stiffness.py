@@ -601,6 +601,20 @@ def _fluctuation_fields(asm, Q, N, dim):
     return u_f, w_f
 
 
+def _relax_and_release(factor, asm, red, tangential, rtol, max_refine):
+    """The relaxation step of :func:`stiffness`: the symmetric solve on ``factor`` (or, for spheres
+    with pre-stress and tangential forces, the non-symmetric one), then the factor's memory freed.
+    Returns ``(Xr, residual, n_refine, solver name)``."""
+    if tangential:
+        Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
+    else:
+        Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+    used = "splu" if tangential else factor.name if factor is not None else "none"
+    if factor is not None and hasattr(factor, "release"):
+        factor.release()
+    return Xr, resid, n_ref, used
+
+
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
               max_refine=50, count="auto", ordering="auto", spin_arm="contact",
               max_memory=None) -> StiffnessResult:
@@ -673,14 +687,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
-    if tangential:
-        Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
-    else:
-        Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+    Xr, resid, n_ref, used = _relax_and_release(factor, asm, red, tangential, rtol, max_refine)
     steps["relax"] = time.perf_counter() - tc
-    used = "splu" if tangential else factor.name if factor is not None else "none"
-    if factor is not None and hasattr(factor, "release"):
-        factor.release()
     del factor
     Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
     Q[red.idx] = Xr
