@@ -63,7 +63,7 @@ from microhom.factor import (AUTO_PARDISO_DOF, COUNTS, MemoryGuardError, NotPosi
 
 _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
-__all__ = ["StiffnessResult", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
+__all__ = ["StiffnessResult", "RIGIDITY_CHECK_MAX_DOF", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
            "factorise", "count_modes", "relax", "relax_tangential", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
            "have_pardiso", "particle_ordering", "predicted_memory", "Reduced", "ModeCount",
            "MemoryGuardError"]
@@ -389,6 +389,14 @@ class ModeCount:
     factor: object = field(default=None, repr=False, compare=False)
 
 
+#: largest reduced system on which :func:`stiffness` runs the rigidity check of the floppy count
+#: (no pre-stress). Measured, one thread, CPU time of the whole exact solve on the benchmark network
+#: (``studies.bench_stiffness.diluted_triangular``): 1e4 disks (3e4 unknowns) 0.21-0.25 s without
+#: the check, 0.39-0.51 s with it; 1e5 disks 13.9-14.9 s without, 29-36 s with (the same 24 floppy
+#: modes); the corpus packings where it mattered have 3e3-1.2e4 unknowns (docs/stiffness.md)
+RIGIDITY_CHECK_MAX_DOF = 15_000
+
+
 def rigidity_factor(asm, red):
     """The stiffness-weighted compatibility ``R`` (rows, m) of the reduced unknowns with
     ``red.H = R^T R`` (no pre-stress): per contact ``Lambda^1/2 Q^T B`` from the eigen-decomposition
@@ -681,8 +689,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                            ordering=ordering, max_memory=max_memory, psd=not prestress)
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
+    check = not prestress and red.H.shape[0] <= RIGIDITY_CHECK_MAX_DOF
     modes = count_modes(factor, red, count, psd=not prestress, max_memory=max_memory,
-                        rigidity=None if prestress else rigidity_factor(asm, red))
+                        rigidity=rigidity_factor(asm, red) if check else None)
     if modes.factor is not None:      # CHOLMOD refactored in place with the smaller shift
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
