@@ -795,6 +795,7 @@ class _Run:
     n_factor_steps: int = 0          # taken
     max_order: int = 16
     certify_max_order: int = 200
+    spin_arm: str = "contact"
     margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
 
 
@@ -803,7 +804,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
-                         factor_steps: int = 4) -> HierarchyResult:
+                         factor_steps: int = 4, spin_arm: str = "contact") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -890,6 +891,10 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
         is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
+    spin_arm : ``"contact"`` or ``"radius"``
+        Spin kinematics of the assembly (:mod:`microhom.kinematics`, as ``dem.analysis.stiffness``):
+        the distance to the contact point (default) or the radius (LAMMPS ``gran/*``). The bounds
+        hold for the tensor of the kinematics chosen; pass the exact solver's to compare them.
 
     Returns
     -------
@@ -904,7 +909,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
             raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
     run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
                max_order=int(max_order), certify_max_order=int(certify_max_order),
-               factor_steps=int(factor_steps))
+               factor_steps=int(factor_steps), spin_arm=spin_arm)
     full = _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory)
     _setup(run, min_contacts)
     t_asm = time.perf_counter() - t0
@@ -984,7 +989,7 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
 def _setup(run, min_contacts):
     """Assembly, affine and first-order tensors, particle blocks."""
     net, prestress = run.network, run.prestress
-    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False)
+    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm)
     run.asm, run.area = asm, net.volume          # area of a 2D cell [m^2], volume of a 3D one [m^3]
     nm = _n_mandel(net.dim)
     run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((nm, nm))
@@ -1104,7 +1109,8 @@ def _companion_bound(run, dense_max):
         return            # spectral_lower_bound certifies no larger system: no twin
     kmin = np.where(stick, np.minimum(kn, kt), kn)
     twin = net.with_stiffness(kn=kmin, kt=np.where(stick, kmin, 0.0))
-    asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False)
+    asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False,
+                    spin_arm=run.spin_arm)
     if asm2.ndof != run.asm.ndof or not np.array_equal(asm2.dof_map, run.asm.dof_map):
         return                                            # not the same unknowns: no companion
     lam_n, _, n_neg = spectral_lower_bound(asm2, dense_max=dense_max)
