@@ -138,3 +138,20 @@ def test_the_hierarchy_brackets_the_exact_tensor_of_its_own_spin_arms():
     np.testing.assert_array_equal(hr.C_orders[0], hc.C_orders[0])
     with pytest.raises(ValueError, match="spin_arm"):
         relaxation_hierarchy(net, spin_arm="surface")
+
+
+def test_contacts_of_a_lammps_3d_file_are_lammps_s(tmp_path):
+    """A pair at a gap of 5e-10 D is no contact for LAMMPS (compute contact/atom: d <= r_i + r_j)
+    and none for dem analyse on a 3D LAMMPS file; an overlap of 1e-12 D is one."""
+    from dem.analysis.analyse import load_network
+    rows = [(1, 0.5, 1.0, 1.0, 1.0), (2, 0.5, 2.0 + 5e-10, 1.0, 1.0),       # gap 5e-10
+            (3, 0.5, 1.0, 3.0, 2.0), (4, 0.5, 1.0, 4.0 - 1e-12, 2.0)]       # overlap 1e-12
+    text = ("ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n4\nITEM: BOX BOUNDS pp pp pp\n"
+            + "0 5\n" * 3 + "ITEM: ATOMS id type radius x y z\n"
+            + "".join(f"{i} 1 {r!r} {x!r} {y!r} {z!r}\n" for i, r, x, y, z in rows))
+    path = tmp_path / "pair.dump"
+    path.write_text(text)
+    net, info = load_network(path, kn=1.0, kt=1.0)
+    assert net.dim == 3 and net.n_contacts == 1
+    assert sorted(net.pairs[0].tolist()) == [2, 3]
+    assert any("LAMMPS's own test" in n for n in info["notes"])

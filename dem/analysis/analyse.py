@@ -554,7 +554,9 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     ``kn_convention`` as :meth:`dem.io.Configuration.network`; ``branch_length`` ``"distance"`` or
     ``"radii"``; ``frame``: dump frame (default the last; the notes say which); ``radius``: a
     constant radius for dumps without a radius column; ``mu``: friction for sliding flags of a
-    LAMMPS run folder (default: the run's).
+    LAMMPS run folder (default: the run's). Contacts of a 3D LAMMPS dump or data file are LAMMPS's
+    own, centre distance <= r_i + r_j exactly (2D files and other formats: the default tolerance
+    of :func:`microhom.network.from_overlaps`, 1e-9 of r_i + r_j).
     Raises :class:`dem.io.FormatError` / ``ValueError`` / ``FileNotFoundError``.
     """
     path = Path(path)
@@ -623,9 +625,17 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
         elif kt is None:
             notes.append("kt not given: kt = kn assumed (LAMMPS gran/hooke/history defaults to "
                          "kt = 2/7 kn: give --kt or --kt-ratio 0.2857 for such a run)")
+        kw = {}
+        if cfg.dim == 3 and format.startswith("lammps"):
+            # LAMMPS's own contact test (compute contact/atom, the pair style): d <= r_i + r_j,
+            # no tolerance. from_overlaps' default 1e-9 (for exactly touching lattices) would add
+            # pairs at a gap below 1e-9 D with no force (7 of 19 641 on 1e4 LAMMPS spheres)
+            kw["tolerance"] = 0.0
+            notes.append("contacts: centre distance <= r_i + r_j, LAMMPS's own test (compute "
+                         "contact/atom), no tolerance")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            net = cfg.network(kn=kn, kt=kt, kn_convention=kn_convention)
+            net = cfg.network(kn=kn, kt=kt, kn_convention=kn_convention, **kw)
         notes += [str(w.message) for w in caught]
     net = _with_branch_length(net, branch_length)
     info = {"source": str(path), "format": format, "forces": forces, "notes": notes,
