@@ -891,10 +891,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
         is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
-    spin_arm : ``"contact"`` or ``"radius"``
-        Spin kinematics of the assembly (:mod:`microhom.kinematics`, as ``dem.analysis.stiffness``):
-        the distance to the contact point (default) or the radius (LAMMPS ``gran/*``). The bounds
-        hold for the tensor of the kinematics chosen; pass the exact solver's to compare them.
+    spin_arm : ``"contact"`` (default) or ``"radius"``
+        Spin arms of the assembly (:mod:`microhom.kinematics`); the bounds are of that tensor.
 
     Returns
     -------
