@@ -831,6 +831,7 @@ class _Run:
     n_factor_steps: int = 0          # taken
     max_order: int = 16
     certify_max_order: int = 200
+    spin_arm: str = "contact"
     margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
     blocks: tuple = None             # block_preconditioner(asm): (M, M^-1, M^-1/2, n_bad)
     spectral_guess: float | None = None
@@ -843,7 +844,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "auto", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
-                         factor_steps: int = 4, spectral_guess=None) -> HierarchyResult:
+                         factor_steps: int = 4, spectral_guess=None,
+                         spin_arm: str = "contact") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -933,6 +935,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         ``spectral_bound`` of a similar network): at most twice it, with the translations as the
         only null space, one numeric factorisation certifies half of it (docs/theory.md section 9,
         "One factorisation"). Never trusted: a wrong guess costs a factorisation, not the bound.
+    spin_arm : ``"contact"`` (default) or ``"radius"``
+        Spin arms of the assembly (:mod:`microhom.kinematics`); the bounds are of that tensor.
 
     Returns
     -------
@@ -946,7 +950,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                                      max_memory, spectral_guess, certify_max_order, factor_steps)
     run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
                max_order=int(max_order), certify_max_order=int(certify_max_order),
-               factor_steps=int(factor_steps), spectral_guess=spectral_guess)
+               factor_steps=int(factor_steps), spectral_guess=spectral_guess, spin_arm=spin_arm)
     full = _memory_guard(run, max_order, reorthogonalize, prec0, soft_modes, max_memory,
                          spectral_bound == "auto" and factor_steps > 0, dense_max)
     _setup(run, min_contacts)
@@ -1060,7 +1064,7 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
 def _setup(run, min_contacts):
     """Assembly, affine and first-order tensors, particle blocks."""
     net, prestress = run.network, run.prestress
-    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False)
+    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm)
     run.asm, run.area = asm, net.volume          # area of a 2D cell [m^2], volume of a 3D one [m^3]
     nm = _n_mandel(net.dim)
     run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((nm, nm))
@@ -1183,7 +1187,8 @@ def _companion_bound(run, dense_max):
         return            # spectral_lower_bound certifies no larger system: no twin
     kmin = np.where(stick, np.minimum(kn, kt), kn)
     twin = net.with_stiffness(kn=kmin, kt=np.where(stick, kmin, 0.0))
-    asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False)
+    asm2 = assemble(twin, prestress=run.prestress, min_contacts=run.min_contacts, pin=False,
+                    spin_arm=run.spin_arm)
     if asm2.ndof != run.asm.ndof or not np.array_equal(asm2.dof_map, run.asm.dof_map):
         return                                            # not the same unknowns: no companion
     lam_n, _, n_neg = spectral_lower_bound(asm2, dense_max=dense_max)

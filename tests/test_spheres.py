@@ -288,14 +288,25 @@ def test_exact_solver_on_spheres_matches_closed_forms_and_the_dense_relaxation()
 
 
 def test_dem_analyse_on_a_lammps_3d_dump(capsys):
-    """dem analyse on a 3D file written by LAMMPS: the exact (6, 6) tensor in Pa, and the 2D-only
-    sections refused with the reason (never a 2D formula on a 3D network)."""
+    """dem analyse on a 3D file written by LAMMPS: the exact (6, 6) tensor in Pa, the 3D statistics
+    with the Voigt mean field, and the 2D-only sections refused with the reason (never a 2D formula
+    on a 3D network). The end-to-end run on a LAMMPS packing is tests/test_analyse_3d.py."""
     from pathlib import Path
 
     from dem.analysis.analyse import ONLY_2D, SectionError, analyse_file, format_table
+    from microhom.structural_sums import SphereStatistics
     res = analyse_file(Path(__file__).parent / "data" / "sph3d_tri.dump", hierarchy=False)
     assert np.shape(res.stiffness.C_mandel) == (6, 6) and res.stiffness.K > 0 and res.stiffness.G > 0
-    for section in (res.structural, res.theory, res.closure, res.stress):
+    for section in (res.theory, res.closure, res.stress):
         assert isinstance(section, SectionError) and section.message == ONLY_2D
+    assert isinstance(res.structural, SphereStatistics)
+    # the two affine routes agree (the fabric's over every contact, the per-contact matrices'); the
+    # mean field is over the load-bearing contacts, and here 7 rattlers hold a contact each
+    st = res.structural
+    assert st.K_affine_all == pytest.approx(res.stiffness.K_affine, rel=1e-12)
+    assert st.G_affine_all == pytest.approx(res.stiffness.G_affine, rel=1e-12)
+    assert st.n_rattlers == 7 and st.K_affine < st.K_affine_all
+    assert res.comparison.K_mf_over_exact == pytest.approx(res.structural.K_affine / res.stiffness.K, rel=1e-15)
     text = format_table(res)
-    assert "moduli (3D, force/area)" in text and "K [Pa]" in text
+    assert "moduli (3D, force/area)" in text and "K [Pa]" in text and "mean field (Voigt, fabric)" in text
+    assert "hierarchy: n/a (not computed)" in text

@@ -42,7 +42,8 @@ from microhom.closure import ClosurePrediction, closure_inputs, predict_closure
 from microhom.hierarchy import DEFAULT_TOL, HierarchyResult, relaxation_hierarchy
 from microhom.moduli import Prediction, predict_from_network
 from microhom.results import Result, to_plain
-from microhom.structural_sums import NetworkStatistics, network_statistics
+from microhom.structural_sums import (NetworkStatistics, SphereStatistics, network_statistics,
+                                      sphere_statistics)
 
 from .. import io
 from ..io.lammps_run import read_run
@@ -264,7 +265,9 @@ class Comparison(Result):
     Attributes
     ----------
     K_mf_over_exact, K_rho_over_exact, K_alpha_over_exact : float or None
-        The theory's mean field (37) and its corrections with the measured rho and with alpha.
+        The theory's mean field (37) and its corrections with the measured rho and with alpha;
+        on spheres (3D) ``K_mf_over_exact`` is the affine (Voigt) mean field of the fabric
+        (``structural.K_affine``) and the corrections are not defined.
     K_closure_over_exact, K_hierarchy_over_exact : float or None
         The closure and the hierarchy's best value.
     G_mf_over_exact, G_rho_over_exact, G_alpha_over_exact : float or None
@@ -306,10 +309,13 @@ class AnalysisResult(Result):
     coordination : dem.analysis.measure.Coordination or SectionError
         Mean contacts per particle with (``z_all``) and without (``z``) rattlers, histograms,
         rattlers. ``z`` is NaN (JSON null) when every particle is a rattler.
-    structural : microhom.structural_sums.NetworkStatistics or SectionError
+    structural : microhom.structural_sums.NetworkStatistics, SphereStatistics or SectionError
         Nc, r, rho with and without rattlers, phi, Nbar(phi), mean diameter [m], sliding
         fraction, vbar, ebar measured and of (37) [N m], odd-sum norm; :data:`NOT_JAMMED` when no
-        contact is left between non-rattlers.
+        contact is left between non-rattlers. On spheres (3D) the
+        :class:`~microhom.structural_sums.SphereStatistics`: Z and r with and without rattlers,
+        phi, the sliding and rattler fractions, and the mean field, the affine (Voigt) moduli of
+        the fabric ``K_affine``, ``G_affine`` [Pa] with their (6, 6) tensor ``C_affine``.
     stress : StressResult or SectionError
         Love-Weber stress [N/m], when the network has contact forces.
     theory : TheoryResult or SectionError
@@ -327,7 +333,9 @@ class AnalysisResult(Result):
         steps, then up to 4 steps preconditioned by the certificate's factorisation while the
         certified interval is wider than tol): ``hierarchy.K.value``, ``.upper`` (rigorous upper bound), ``.lower`` (rigorous
         lower bound or None), ``.error`` (stated) [N/m], ``order``, ``converged``, ``unstable``,
-        ``valid``, ``certified``, ``calibrated``, ``reasons``.
+        ``valid``, ``certified``, ``calibrated``, ``reasons``. On spheres (3D) with the exact
+        stiffness's spin arms (its tensor then lies in the rigorous interval); the JSON adds its
+        first order ``K_first_order``, ``G_first_order`` (every sphere relaxed alone) [Pa].
     hierarchy_s : float or None
         Wall time of the hierarchy [s] (None when not computed).
     stiffness : dem.analysis.stiffness.StiffnessResult or SectionError
@@ -350,7 +358,7 @@ class AnalysisResult(Result):
 
     network: NetworkSummary
     coordination: Coordination | SectionError
-    structural: NetworkStatistics | SectionError
+    structural: NetworkStatistics | SphereStatistics | SectionError
     stress: StressResult | SectionError
     theory: TheoryResult | SectionError
     closure: ClosurePrediction | SectionError
@@ -378,6 +386,8 @@ class AnalysisResult(Result):
             for k in ("K", "G"):
                 if exact[k] == 0:
                     continue
+                if isinstance(self.structural, SphereStatistics):    # 3D: the Voigt mean field
+                    out[f"{k}_mf_over_exact"] = float(getattr(self.structural, f"{k}_affine")) / exact[k]
                 if _ok(th):
                     p, pa = th.rho_prediction, th.alpha_prediction
                     est = {"mf": float(getattr(p, f"{k}_mf")), "rho": float(getattr(p, k)),
@@ -404,7 +414,8 @@ class AnalysisResult(Result):
             "network": _network_view(self.network),
             "coordination": warned(_view(self.coordination, _coordination_view), "coordination"),
             "structural": warned(_view(self.structural,
-                                       lambda st: _statistics_view(st, self.rho_neighbours)),
+                                       lambda st: _sphere_view(st) if isinstance(st, SphereStatistics)
+                                       else _statistics_view(st, self.rho_neighbours)),
                                  "structural"),
             "stress": warned(_view(self.stress, _stress_view), "stress"),
             "theory": warned(_view(self.theory, _theory_view), "theory"),
@@ -460,6 +471,16 @@ def _statistics_view(st: NetworkStatistics, rho_neighbours: str) -> dict:
     return out
 
 
+def _sphere_view(st: SphereStatistics) -> dict:
+    out = {k.name: getattr(st, k.name) for k in fields(st) if k.name not in ("C_affine", "not_defined")}
+    out["C_affine"] = np.asarray(st.C_affine).tolist()
+    if not out["nc_all"]:
+        out["r_all"] = None
+    if not out["nc"]:
+        out["r"] = None
+    return out
+
+
 def _stress_view(s: StressResult) -> dict:
     return {k.name: getattr(s, k.name) for k in fields(s)}
 
@@ -480,11 +501,14 @@ def _closure_view(p: ClosurePrediction, x: ClosureInputs) -> dict:
 
 
 def _hierarchy_view(h: HierarchyResult, time_s) -> dict:
-    return {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
-            "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
-            "order": h.order, "converged": h.converged, "unstable": h.unstable,
-            "valid": h.valid, "certified": h.certified, "calibrated": h.calibrated,
-            "reasons": list(h.reasons), "time_s": time_s}
+    out = {"K": h.K.value, "G": h.G.value, "K_upper": h.K.upper, "G_upper": h.G.upper,
+           "K_lower": h.K.lower, "G_lower": h.G.lower, "K_error": h.K.error, "G_error": h.G.error,
+           "order": h.order, "converged": h.converged, "unstable": h.unstable,
+           "valid": h.valid, "certified": h.certified, "calibrated": h.calibrated,
+           "reasons": list(h.reasons), "time_s": time_s}
+    if np.shape(h.C_upper) == (6, 6):      # spheres: the 3D mean field beyond Voigt (2D JSON unchanged)
+        out.update(K_first_order=h.K_first_order, G_first_order=h.G_first_order)
+    return out
 
 
 def _stiffness_view(r: StiffnessResult) -> dict:
@@ -530,7 +554,9 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
     ``kn_convention`` as :meth:`dem.io.Configuration.network`; ``branch_length`` ``"distance"`` or
     ``"radii"``; ``frame``: dump frame (default the last; the notes say which); ``radius``: a
     constant radius for dumps without a radius column; ``mu``: friction for sliding flags of a
-    LAMMPS run folder (default: the run's).
+    LAMMPS run folder (default: the run's). Contacts of a 3D LAMMPS dump or data file are LAMMPS's
+    own, centre distance <= r_i + r_j exactly (2D files and other formats: the default tolerance
+    of :func:`microhom.network.from_overlaps`, 1e-9 of r_i + r_j).
     Raises :class:`dem.io.FormatError` / ``ValueError`` / ``FileNotFoundError``.
     """
     path = Path(path)
@@ -599,9 +625,17 @@ def load_network(path, format=None, *, kn=None, kt=None, kt_ratio=None, kn_conve
         elif kt is None:
             notes.append("kt not given: kt = kn assumed (LAMMPS gran/hooke/history defaults to "
                          "kt = 2/7 kn: give --kt or --kt-ratio 0.2857 for such a run)")
+        kw = {}
+        if cfg.dim == 3 and format.startswith("lammps"):
+            # LAMMPS's own contact test (compute contact/atom, the pair style): d <= r_i + r_j,
+            # no tolerance. from_overlaps' default 1e-9 (for exactly touching lattices) would add
+            # pairs at a gap below 1e-9 D with no force (7 of 19 641 on 1e4 LAMMPS spheres)
+            kw["tolerance"] = 0.0
+            notes.append("contacts: centre distance <= r_i + r_j, LAMMPS's own test (compute "
+                         "contact/atom), no tolerance")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            net = cfg.network(kn=kn, kt=kt, kn_convention=kn_convention)
+            net = cfg.network(kn=kn, kt=kt, kn_convention=kn_convention, **kw)
         notes += [str(w.message) for w in caught]
     net = _with_branch_length(net, branch_length)
     info = {"source": str(path), "format": format, "forces": forces, "notes": notes,
@@ -619,8 +653,8 @@ def _elastic_normal_forces(net):
 
 #: the sections written for disks, on a 3D network (spheres: docs/spheres.md)
 ONLY_2D = ("2D only: the seed paper's theory, its structural sums, the closure and this stress "
-           "section are written for disks; this is a 3D network (its exact stiffness is below; "
-           "docs/spheres.md)")
+           "section are written for disks; this is a 3D network (its statistics, mean field, "
+           "hierarchy and exact stiffness are below; docs/spheres.md)")
 
 
 def _section(fn, *args, **kwargs):
@@ -653,9 +687,10 @@ def _closure(net):
     return predict_closure(**kw), x
 
 
-def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL):
+def _hierarchy(net, prestress, min_contacts, tol=DEFAULT_TOL, spin_arm="contact"):
     t0 = time.perf_counter()
-    h = relaxation_hierarchy(net, prestress=prestress, tol=tol, min_contacts=min_contacts)   # max_order="auto"
+    h = relaxation_hierarchy(net, prestress=prestress, tol=tol, min_contacts=min_contacts,   # max_order="auto"
+                             spin_arm=spin_arm)
     return h, time.perf_counter() - t0
 
 
@@ -683,7 +718,9 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     spin_arm : ``"contact"`` or ``"radius"``
         Spin kinematics of the exact stiffness (:mod:`microhom.kinematics`): the distance to the
         contact point (default, the theory's) or the radius (LAMMPS ``gran/*``, the disk engine's
-        default law). :func:`analyse_file` matches it to the file's code.
+        default law). :func:`analyse_file` matches it to the file's code. On spheres (3D) the
+        hierarchy uses it too, so that the exact tensor lies in its rigorous interval; on disks
+        the hierarchy keeps contact arms (the 2D report is unchanged).
     hierarchy_tol : float
         Target relative width of the hierarchy's interval, in (0, 1); default
         :data:`microhom.hierarchy.DEFAULT_TOL` (the library's own default).
@@ -711,13 +748,13 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
         coord = replace(coord, z=float("nan"))   # the mean over no particle
     not_jammed = SectionError(NOT_JAMMED)
     disks = net.dim == 2
-    if not disks:
-        structural = SectionError(ONLY_2D)
-    elif jammed:
+    if not jammed:
+        structural = not_jammed
+    elif not disks:      # spheres: the 3D statistics and the Voigt mean field (docs/spheres.md)
+        structural, w["structural"] = _section(sphere_statistics, net, min_contacts)
+    else:
         structural, w["structural"] = _section(network_statistics, net, min_contacts,
                                                rho_neighbours=rho_neighbours)
-    else:
-        structural = not_jammed
     if not disks:
         stress_ = SectionError(ONLY_2D)
     elif net.fn is not None and net.n_contacts:
@@ -727,7 +764,9 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     theory = not_jammed if disks else SectionError(ONLY_2D)
     if jammed and disks:
         theory, w["theory"] = _section(_theory, net, alpha, min_contacts, rho_neighbours)
-    if jammed and _ok(structural):
+    if not disks:
+        closure = closure_in = SectionError(ONLY_2D)
+    elif jammed and _ok(structural):
         cl, w["closure"] = _section(_closure, net)
         closure, closure_in = cl if _ok(cl) else (cl, cl)
     else:
@@ -744,7 +783,10 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     elif net.cell is None:
         hier = SectionError("open packing: the hierarchy estimates the stiffness of a periodic cell")
     else:
-        h, w["hierarchy"] = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol)
+        # spheres: the exact solver's spin arms, so that its tensor lies in the interval (the 2D
+        # report keeps contact arms: its output is pinned, tests/data/analyse_expected.json)
+        h, w["hierarchy"] = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol,
+                                     "contact" if disks else spin_arm)
         hier, hier_s = h if _ok(h) else (h, None)
     if not exact:
         stiff = SectionError("not computed")
@@ -755,7 +797,7 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
                                          min_contacts=min_contacts, spin_arm=spin_arm)
     if not jammed:
         notes.append(NOT_JAMMED)
-    if net.n_particles and net.radii.max() > DISPERSITY_NOTE * net.radii.min():
+    if disks and net.n_particles and net.radii.max() > DISPERSITY_NOTE * net.radii.min():
         notes.append(f"the radii differ (max/min = {net.radii.max() / net.radii.min():.3g}, "
                      f"relative spread {np.std(net.radii) / np.mean(net.radii):.3g}): the theory "
                      "is for identical disks, its moduli are a reference for this packing")
@@ -946,7 +988,9 @@ def analyse_file(path, options=None, **overrides) -> AnalysisResult:
             f"spin arms of the exact stiffness: {spin_arm!r} ({why}; "
             + ("the radius r_i, as LAMMPS gran/*" if spin_arm == "radius" else
                "the distance to the contact point |c| r_i/(r_i + r_j)")
-            + "; --spin-arm contact|radius chooses; the theory and the hierarchy use contact arms)")
+            + "; --spin-arm contact|radius chooses; "
+            + ("the hierarchy uses the same arms)" if net.dim == 3 else
+               "the theory and the hierarchy use contact arms)"))
     res = analyse(net, alpha=o.alpha, prestress=o.prestress, min_contacts=o.min_contacts,
                   exact=o.exact, hierarchy=o.hierarchy, spin_arm=spin_arm,
                   hierarchy_tol=o.hierarchy_tol, rho_neighbours=o.rho_neighbours)
@@ -993,9 +1037,156 @@ def _g(x, fmt=".6g"):
     return format(x, fmt) if isinstance(x, (int, float, np.floating, np.integer)) else str(x)
 
 
+def _spheres(res: AnalysisResult) -> bool:
+    """True when the report is of a sphere network (3D)."""
+    if isinstance(res.structural, SphereStatistics):
+        return True
+    for sec, key in ((res.stiffness, "C_mandel"), (res.hierarchy, "C_upper")):
+        if _ok(sec):
+            return np.shape(getattr(sec, key)) == (6, 6)
+    return _ok(res.theory) is False and res.theory.message == ONLY_2D
+
+
+def _coordination_lines(res: AnalysisResult) -> list:
+    c, s = res.coordination, res.structural
+    L = ["", "coordination"]
+    if not _ok(c):
+        L.append(f"  n/a: {c.message}")
+        return L
+    L.append(f"  {'':28}{'all particles':>16}{'no rattlers':>16}")
+    L.append(f"  {'mean Z':28}{_g(c.z_all, '.5f'):>16}{_g(c.z, '.5f'):>16}")
+    if _ok(s):
+        L.append(f"  {'r = var(Z)/Z^2':28}{_g(s.r_all, '.5f'):>16}{_g(s.r, '.5f'):>16}")
+    if _ok(s) and not isinstance(s, SphereStatistics):
+        hood = ("V over contacts" if res.rho_neighbours == "contacts"
+                else f"V over Nbar = {_g(s.rho_nbar, '.3g')}")
+        L.append(f"  {'rho (' + hood + ')':28}{_g(s.rho_all, '.5f'):>16}{_g(s.rho, '.5f'):>16}")
+        if s.rho_note:
+            L.append(f"  rho: {s.rho_note}")
+    L.append(f"  rattlers: {c.n_rattlers} ({100 * c.rattler_fraction:.2f} %); "
+             f"contact-count histogram (0, 1, 2, ...): {np.asarray(c.hist_all).tolist()}")
+    return L
+
+
+def _structural_lines(res: AnalysisResult) -> list:
+    s = res.structural
+    if isinstance(s, SphereStatistics):
+        return ["", "statistics (3D, docs/spheres.md)",
+                f"  phi = {_g(s.phi, '.5f')}, mean D = {_g(s.diameter, '.5g')}, sliding fraction = "
+                f"{_g(s.sliding_fraction, '.4f')}, rattlers {s.n_rattlers} (fewer than 2 contacts "
+                "with friction, 4 without)",
+                f"  mean field: affine (Voigt) moduli of the fabric, K = sum kn l^2/(9V), "
+                f"G = sum (2kn + 3kt) l^2/(30V)"]
+    L = ["", "structural sums (mean A4 over non-rattlers, isotropic fit) vs (37)"]
+    if not _ok(s):
+        L.append(f"  n/a: {s.message}")
+        return L
+    L.append(f"  {'':10}{'measured':>14}{'(37)':>14}{'ratio':>10}")
+    for k, m, t in (("vbar", s.vbar, s.vbar_theory), ("ebar", s.ebar, s.ebar_theory)):
+        ratio = (m / t) if (m is not None and t) else None
+        L.append(f"  {k + ' [N m]':10}{_g(m):>14}{_g(t):>14}{_g(ratio, '.4f'):>10}")
+    L.append(f"  phi = {_g(s.phi, '.5f')}, Nbar(phi) = {_g(s.nbar_phi, '.4f')}, "
+             f"mean D = {_g(s.diameter, '.5g')}, sliding fraction = {_g(s.sliding_fraction, '.4f')}, "
+             f"odd-sum norm |A3|/(kn D) = {_g(s.odd_norm, '.4g')}")
+    return L
+
+
+def _ratios(cmp, lab):
+    return (f"{_g(getattr(cmp, f'K_{lab}_over_exact'), '.4f'):>10}"
+            f"{_g(getattr(cmp, f'G_{lab}_over_exact'), '.4f'):>10}")
+
+
+def _flag(p):
+    return "" if bool(p.valid) else "  FLAGGED: " + str(p.reason)
+
+
+def _estimate_lines(res: AnalysisResult, spheres: bool) -> list:
+    """The mean field and the theory's rows (2D), or the Voigt mean field and the hierarchy's
+    first order (3D); then the closure's."""
+    th, cmp, st, hi = res.theory, res.comparison, res.structural, res.hierarchy
+    L = []
+    if spheres:
+        if isinstance(st, SphereStatistics):
+            L.append(f"  {'mean field (Voigt, fabric)':44}{_g(st.K_affine):>14}{_g(st.G_affine):>14}"
+                     f"{_ratios(cmp, 'mf')}")
+        else:
+            L.append(f"  mean field: n/a ({st.message})")
+        if _ok(hi):
+            ex = res.stiffness
+            rk = [hi.K_first_order / ex.K if _ok(ex) and ex.K else None,
+                  hi.G_first_order / ex.G if _ok(ex) and ex.G else None]
+            L.append(f"  {'hierarchy first order (spheres relaxed alone)':44}{_g(hi.K_first_order):>14}"
+                     f"{_g(hi.G_first_order):>14}{_g(rk[0], '.4f'):>10}{_g(rk[1], '.4f'):>10}")
+    elif not _ok(th):
+        L.append(f"  theory: n/a ({th.message})")
+    else:
+        p, pa = th.rho_prediction, th.alpha_prediction
+        rows = [("mean field (37)", "mf", float(p.K_mf), float(p.G_mf), ""),
+                (f"corrected, measured rho = {float(p.rho):.4f}", "rho", float(p.K), float(p.G), _flag(p)),
+                (f"corrected, alpha = {th.alpha:.4g} (rho = {float(pa.rho):.4f})", "alpha",
+                 float(pa.K), float(pa.G), _flag(pa))]
+        for name, lab, K, G, fl in rows:
+            L.append(f"  {name:44}{_g(K):>14}{_g(G):>14}{_ratios(cmp, lab)}{fl}")
+    cl = res.closure
+    if _ok(cl):
+        L.append(f"  {'closure (statistics only)':44}{_g(float(cl.K)):>14}{_g(float(cl.G)):>14}"
+                 f"{_ratios(cmp, 'closure')}{_flag(cl)}")
+        L.append(f"  {'  stated error (this prediction)':44}{_g(float(cl.error_K), '.3g'):>14}"
+                 f"{_g(float(cl.error_G), '.3g'):>14}")
+    elif not spheres:
+        L.append(f"  closure: n/a ({cl.message})")
+    return L
+
+
+def _containment(res: AnalysisResult) -> str:
+    """Whether the exact K and G lie in the hierarchy's rigorous interval (3D report)."""
+    hi, ex = res.hierarchy, res.stiffness
+    out = []
+    for k in ("K", "G"):
+        e, v = getattr(hi, k), getattr(ex, k)
+        if e.lower is None:
+            out.append(f"{k} {'<=' if v <= e.upper else 'ABOVE'} upper bound (no certified lower bound)")
+        else:
+            out.append(f"{k} {'yes' if e.lower <= v <= e.upper else 'NO'}")
+    return "  exact inside the hierarchy's interval: " + ", ".join(out)
+
+
+def _hierarchy_exact_lines(res: AnalysisResult, spheres: bool) -> list:
+    hi, ex, cmp = res.hierarchy, res.stiffness, res.comparison
+    L = []
+    if _ok(hi):
+        fl = "" if hi.valid else "  FLAGGED: not valid (see notes)"
+        L.append(f"  {'hierarchy (%d CG steps), value' % hi.order:44}{_g(hi.K.value):>14}{_g(hi.G.value):>14}"
+                 f"{_ratios(cmp, 'hierarchy')}{fl}")
+        L.append(f"  {'  rigorous upper bound':44}{_g(hi.K.upper):>14}{_g(hi.G.upper):>14}")
+        L.append(f"  {'  rigorous lower bound':44}{_g(hi.K.lower):>14}{_g(hi.G.lower):>14}")
+        L.append(f"  {'  stated error':44}{_g(hi.K.error, '.3g'):>14}{_g(hi.G.error, '.3g'):>14}"
+                 f"  ({'converged' if hi.converged else 'tolerance not met'}"
+                 f"{', UNSTABLE' if hi.unstable else ''}, {res.hierarchy_s:.3f} s)")
+    else:
+        L.append(f"  hierarchy: n/a ({hi.message})")
+    if not _ok(ex):
+        L.append(f"  exact: n/a ({ex.message})")
+        return L
+    L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex.K_affine):>14}{_g(ex.G_affine):>14}")
+    L.append(f"  {'exact' + (' with prestress' if ex.prestress else '') + ' (dem.analysis.stiffness)':44}"
+             f"{_g(ex.K):>14}{_g(ex.G):>14}")
+    if spheres and _ok(hi):
+        L.append(_containment(res))
+    L.append("  exact C (Mandel [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy]):" if spheres
+             else "  exact C (Mandel [xx, yy, sqrt2 xy]):")
+    for row in np.asarray(ex.C_mandel).tolist():
+        L.append("    " + "".join(f"{v:>14.6g}" for v in row))
+    L.append(f"  rattlers removed {ex.n_rattlers}, floppy modes {ex.n_floppy}, dof {ex.n_dof}, "
+             f"residual {ex.residual:.1e}, solve {ex.assembly_time + ex.solve_time:.3f} s")
+    return L
+
+
 def format_table(res: AnalysisResult) -> str:
     """The readable report of :func:`analyse_file` (an :class:`AnalysisResult`), read from its
-    typed results."""
+    typed results. On a sphere network (3D) the moduli section has the Voigt mean field, the
+    hierarchy's first order and interval, the exact tensor and whether the exact K and G lie in the
+    interval."""
     if not isinstance(res, AnalysisResult):
         raise TypeError(f"format_table needs an AnalysisResult, got {type(res).__name__}")
     L = []
@@ -1008,35 +1199,8 @@ def format_table(res: AnalysisResult) -> str:
              f"{'periodic' if nw.periodic else 'open'}, kn = {_g(nw.kn_mean)}, kt = {_g(nw.kt_mean)}, "
              f"branch = {f.branch_length if f is not None else 'distance'}, "
              f"forces: {'yes' if nw.forces else 'no'}")
-    c, s = res.coordination, res.structural
-    L.append("")
-    L.append("coordination")
-    if not _ok(c):
-        L.append(f"  n/a: {c.message}")
-    else:
-        L.append(f"  {'':28}{'all particles':>16}{'no rattlers':>16}")
-        L.append(f"  {'mean Z':28}{_g(c.z_all, '.5f'):>16}{_g(c.z, '.5f'):>16}")
-        if _ok(s):
-            L.append(f"  {'r = var(Z)/Z^2':28}{_g(s.r_all, '.5f'):>16}{_g(s.r, '.5f'):>16}")
-            hood = ("V over contacts" if res.rho_neighbours == "contacts"
-                    else f"V over Nbar = {_g(s.rho_nbar, '.3g')}")
-            L.append(f"  {'rho (' + hood + ')':28}{_g(s.rho_all, '.5f'):>16}{_g(s.rho, '.5f'):>16}")
-            if s.rho_note:
-                L.append(f"  rho: {s.rho_note}")
-        L.append(f"  rattlers: {c.n_rattlers} ({100 * c.rattler_fraction:.2f} %); "
-                 f"contact-count histogram (0, 1, 2, ...): {np.asarray(c.hist_all).tolist()}")
-    L.append("")
-    L.append("structural sums (mean A4 over non-rattlers, isotropic fit) vs (37)")
-    if not _ok(s):
-        L.append(f"  n/a: {s.message}")
-    else:
-        L.append(f"  {'':10}{'measured':>14}{'(37)':>14}{'ratio':>10}")
-        for k, m, t in (("vbar", s.vbar, s.vbar_theory), ("ebar", s.ebar, s.ebar_theory)):
-            ratio = (m / t) if (m is not None and t) else None
-            L.append(f"  {k + ' [N m]':10}{_g(m):>14}{_g(t):>14}{_g(ratio, '.4f'):>10}")
-        L.append(f"  phi = {_g(s.phi, '.5f')}, Nbar(phi) = {_g(s.nbar_phi, '.4f')}, "
-                 f"mean D = {_g(s.diameter, '.5g')}, sliding fraction = {_g(s.sliding_fraction, '.4f')}, "
-                 f"odd-sum norm |A3|/(kn D) = {_g(s.odd_norm, '.4g')}")
+    L += _coordination_lines(res)
+    L += _structural_lines(res)
     st = res.stress
     L.append("")
     if not _ok(st):
@@ -1045,67 +1209,20 @@ def format_table(res: AnalysisResult) -> str:
         L.append(f"stress (Love-Weber, tension positive, force/length): sxx = {_g(st.sxx)}, "
                  f"syy = {_g(st.syy)}, sxy = {_g(st.sxy)}; pressure = {_g(st.pressure)} "
                  f"(p/kn = {_g(st.p_over_kn, '.4g')})")
-    th, ex, cmp = res.theory, res.stiffness, res.comparison
     L.append("")
-    spheres = _ok(res.stiffness) and np.shape(res.stiffness.C_mandel) == (6, 6)
+    spheres = _spheres(res)
     if spheres:
         L.append("moduli (3D, force/area)")
         L.append(f"  {'estimate':44}{'K [Pa]':>14}{'G [Pa]':>14}{'K/exact':>10}{'G/exact':>10}")
     else:
         L.append("moduli (2D, force/length)")
         L.append(f"  {'estimate':44}{'K [N/m]':>14}{'G [N/m]':>14}{'K/exact':>10}{'G/exact':>10}")
-
-    def ratios(lab):
-        return (f"{_g(getattr(cmp, f'K_{lab}_over_exact'), '.4f'):>10}"
-                f"{_g(getattr(cmp, f'G_{lab}_over_exact'), '.4f'):>10}")
-
-    def flag(p):
-        return "" if bool(p.valid) else "  FLAGGED: " + str(p.reason)
-
-    if not _ok(th):
-        L.append(f"  theory: n/a ({th.message})")
-    else:
-        p, pa = th.rho_prediction, th.alpha_prediction
-        rows = [("mean field (37)", "mf", float(p.K_mf), float(p.G_mf), ""),
-                (f"corrected, measured rho = {float(p.rho):.4f}", "rho", float(p.K), float(p.G), flag(p)),
-                (f"corrected, alpha = {th.alpha:.4g} (rho = {float(pa.rho):.4f})", "alpha",
-                 float(pa.K), float(pa.G), flag(pa))]
-        for name, lab, K, G, fl in rows:
-            L.append(f"  {name:44}{_g(K):>14}{_g(G):>14}{ratios(lab)}{fl}")
-    cl, hi = res.closure, res.hierarchy
-    if _ok(cl):
-        L.append(f"  {'closure (statistics only)':44}{_g(float(cl.K)):>14}{_g(float(cl.G)):>14}"
-                 f"{ratios('closure')}{flag(cl)}")
-        L.append(f"  {'  stated error (this prediction)':44}{_g(float(cl.error_K), '.3g'):>14}"
-                 f"{_g(float(cl.error_G), '.3g'):>14}")
-    else:
-        L.append(f"  closure: n/a ({cl.message})")
-    if _ok(hi):
-        fl = "" if hi.valid else "  FLAGGED: not valid (see notes)"
-        L.append(f"  {'hierarchy (%d CG steps), value' % hi.order:44}{_g(hi.K.value):>14}{_g(hi.G.value):>14}"
-                 f"{ratios('hierarchy')}{fl}")
-        L.append(f"  {'  rigorous upper bound':44}{_g(hi.K.upper):>14}{_g(hi.G.upper):>14}")
-        L.append(f"  {'  rigorous lower bound':44}{_g(hi.K.lower):>14}{_g(hi.G.lower):>14}")
-        L.append(f"  {'  stated error':44}{_g(hi.K.error, '.3g'):>14}{_g(hi.G.error, '.3g'):>14}"
-                 f"  ({'converged' if hi.converged else 'tolerance not met'}"
-                 f"{', UNSTABLE' if hi.unstable else ''}, {res.hierarchy_s:.3f} s)")
-    else:
-        L.append(f"  hierarchy: n/a ({hi.message})")
-    if not _ok(ex):
-        L.append(f"  exact: n/a ({ex.message})")
-    else:
-        L.append(f"  {'affine (dem.analysis.stiffness)':44}{_g(ex.K_affine):>14}{_g(ex.G_affine):>14}")
-        L.append(f"  {'exact' + (' with prestress' if ex.prestress else '') + ' (dem.analysis.stiffness)':44}"
-                 f"{_g(ex.K):>14}{_g(ex.G):>14}")
-        L.append("  exact C (Mandel [xx, yy, zz, sqrt2 yz, sqrt2 xz, sqrt2 xy]):" if spheres
-                 else "  exact C (Mandel [xx, yy, sqrt2 xy]):")
-        for row in np.asarray(ex.C_mandel).tolist():
-            L.append("    " + "".join(f"{v:>14.6g}" for v in row))
-        L.append(f"  rattlers removed {ex.n_rattlers}, floppy modes {ex.n_floppy}, dof {ex.n_dof}, "
-                 f"residual {ex.residual:.1e}, solve {ex.assembly_time + ex.solve_time:.3f} s")
+    L += _estimate_lines(res, spheres)
+    L += _hierarchy_exact_lines(res, spheres)
     notes = list(res.notes)
     for sec in ("coordination", "structural", "stress", "theory", "closure", "hierarchy", "stiffness"):
         notes += [f"{sec}: {w}" for w in getattr(res.warnings, sec)]
+    hi = res.hierarchy
     notes += [f"hierarchy: {r}" for r in hi.reasons] if _ok(hi) else []
     if notes:
         L.append("")
