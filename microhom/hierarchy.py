@@ -855,12 +855,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     why in ``reasons``. Outside the calibrated regime the estimate is the rigorous interval itself
     (midpoint, half-width; ``upper`` and an infinite error without a spectral bound).
 
-    Far from kt = kn the spectrum of ``(H, M)`` splits into two clusters and CG resolves the stiff
-    one first, so the extrapolation is trusted only where it was calibrated; CG run to the rigorous
-    tolerance reaches the exact value at every ratio from 1e-6 to 1e9 (docs/theory.md, section 9,
-    "Stiffness ratios far from 1"; docs/results/hierarchy.md, section 6). With a certified spectral
-    bound only the rigorous interval stops CG (issue 22; docs/theory.md, section 9, "Certified
-    intervals that meet the tolerance").
+    Why the extrapolation is trusted only where calibrated, and why with a certified spectral bound
+    only the rigorous interval stops CG: docs/theory.md section 9, docs/results/hierarchy.md §6-7.
 
     Parameters
     ----------
@@ -876,8 +872,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     max_order : int or "auto"
         Maximum number of CG steps (Gauss points) with the chosen preconditioner, 1..10000; order
         k uses 2k moments. "auto" (default): 1 where the sparse certificate kept its factorisation
-        (``dense_max < ndof <= CERTIFIED_MAX_DOF``, ``factor_steps > 0``, it fits in memory; its
-        steps close the interval: docs/results/hierarchy.md section 7), else 16. Without a certified spectral bound the iteration stops here (or earlier,
+        (``dense_max < ndof <= CERTIFIED_MAX_DOF``, ``factor_steps > 0``, it fits in memory), else
+        16. Without a certified spectral bound the iteration stops here (or earlier,
         where the calibrated extrapolation meets ``tol``). With one, only the rigorous interval
         stops it (issue 22): past ``max_order`` it goes on with ``factor_steps`` or
         ``certify_max_order``, and ``reasons`` says when even that cap was not enough.
@@ -919,9 +915,9 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         certified (its inertia proves stability and only the rigorous interval stops CG; if that
         interval misses ``tol`` the extrapolation is then not calibrated and ``reasons`` says so),
         else 3 up to ``SOFT_MODES_AUTO_MAX`` unknowns (0.2-1 s for 1000-8000 unknowns), 0 above
-        (then the extrapolation is not calibrated: ``reasons`` says so). A negative Rayleigh quotient proves that the (pre-stressed) network is unstable: the
-        result is flagged ``unstable`` with the eigenvalue (finding none is not a proof of
-        stability). The soft modes found are deflated: the CG space is augmented with them, so that
+        (then the extrapolation is not calibrated: ``reasons`` says so). A negative Rayleigh
+        quotient proves that the (pre-stressed) network is unstable: it is flagged ``unstable``
+        with the eigenvalue. The soft modes found are deflated: the CG space is augmented with them, so that
         a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
         extrapolation would take for convergence (docs/results/hierarchy.md, the sweep).
     max_memory : int, optional
