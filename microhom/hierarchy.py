@@ -162,10 +162,12 @@ class HierarchyResult(Result):
         Certified lower bound of the non-zero spectrum of ``M^-1 H`` used for the lower bounds
         [unit of kn], or None.
     spectral_bound_source : str
-        ``"dense"`` (the certified bound of (H, M): a dense eigen-decomposition up to ``dense_max``
-        unknowns, Sylvester's inertia above), ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
+        The certified bound of (H, M): ``"dense"`` (a dense eigen-decomposition, up to ``dense_max``
+        unknowns), ``"inertia"`` (Sylvester's inertia of sparse factorisations above),
+        ``"user"``, ``"companion"`` (only the bound of the min-stiffness twin network,
         docs/theory.md section 9, "Stiffness ratios far from 1"; ``spectral_bound`` is then None),
-        ``"dense+companion"`` (both; each order keeps the better lower bound) or ``"none"``.
+        ``"dense+companion"`` / ``"inertia+companion"`` (both; each order keeps the better lower
+        bound) or ``"none"``.
     reasons : tuple of str
         Every condition that limits the result (empty = none).
     unstable : bool
@@ -1107,7 +1109,7 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
         if run.factor is not None and run.factor_steps == 0:
             run.factor.release()
             run.factor = None
-        run.src = "dense" if run.lam is not None else "none"
+        run.src = ("dense" if asm.ndof <= dense_max else "inertia") if run.lam is not None else "none"
         run.unstable = n_neg > 0
         if n_neg and run.factor is not None:
             run.factor.release()
@@ -1127,7 +1129,7 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
                                    f"{_TRUST_RATIO:g} (its soft cluster reaches the zero threshold)"
                                    + ("; the companion bound is used" if run.lam_n is not None else ""))
             if run.lam_n is not None:
-                run.src = "companion" if run.lam is None else "dense+companion"
+                run.src = "companion" if run.lam is None else run.src + "+companion"
         if run.lam is None and run.lam_n is None and asm.ndof > dense_max:
             run.reasons.append(f"no certified spectral bound (ndof = {asm.ndof} > dense_max = {dense_max} and "
                                "the sparse certificate failed or the system is above its limit "
