@@ -2,6 +2,7 @@
 kernels they replaced, fused against separate integration, history layout, the rolling-resistance
 law added as one sub-model, and bad coefficients named."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from dem.engine.contact_laws import (ContactLaw, Frictionless, HertzMindlin, Her
 from dem.engine.cell import PressureServo
 from dem.engine.integrate import Simulation, critical_dt
 from dem.engine.state import State
+import arms_reference_cases as aref
 import engine_reference_cases as eref
 import law_reference_cases as ref
 
@@ -47,6 +49,7 @@ STRATEGY_LAWS = {
     "lammps": lambda: LammpsHookeHistory(kn=1e4, kt=8e3, gamma_n=30.0, gamma_t=15.0, mu=0.4),
     "rolling": lambda: HertzRolling(kh=3e5, mu=0.4, delta_ref=0.02, mu_r=0.05, restitution=0.5),
     "massgamma_linear": lambda: ContactLaw(cm.Hooke(1e4), cm.MassGamma(30.0, 15.0), cm.LinearHistory(8e3, 0.4)),
+    "linear_arms": lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3, restitution=0.7, contact_arms=True),
 }
 
 
@@ -225,6 +228,41 @@ def test_engine_refactors_reproduce_the_recorded_runs_bit_for_bit(name):
     """The LAMMPS law, rolling resistance, a sheared cell and the fused kick against runs recorded
     with the engine before the throughput refactors (tests/engine_reference_cases.py)."""
     ref.assert_reproduces(ENGINE_REF, name, eref.run_case, eref.FIELDS)
+
+
+ARMS_REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "arms_reference.npz")
+
+
+@pytest.mark.parametrize("name", list(aref.CASES))
+def test_contact_arms_reproduce_the_recorded_runs_bit_for_bit(name):
+    """Contact-point spin arms, a compile-time choice since, against runs recorded when they were a
+    flag read at run time (tests/arms_reference_cases.py): both loops, fused kick, three laws."""
+    ref.assert_reproduces(ARMS_REF, name, aref.run_case, aref.FIELDS)
+
+
+def test_arms_reference_tells_the_arms_apart():
+    """The recorded arms runs are not those of radius arms: the test above fails if the arms are dropped."""
+    law_f, kw_f = aref.CASES["linear_arms_fused"]
+    law = replace(law_f(), contact_arms=False)
+    st = ref.initial_state(True)
+    Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f()).run(aref.STEPS)
+    assert not np.array_equal(st.x, ARMS_REF["linear_arms_fused/x"])
+
+
+def test_contact_arms_are_a_numba_type():
+    """numba types a scalar-history model with contact arms as its arms subclass (the pair loop is
+    compiled for each choice, the radius arms without the arm division); Python sees one class
+    and a bool, and a law's Models bundle carries the choice."""
+    import numba
+    for m, arms_cls in ((cm.LinearHistory(1e4, 0.5), cm._LinearHistoryArms), (cm.Mindlin(0.5, 0.5), cm._MindlinArms)):
+        on = m._replace(contact_arms=True)
+        assert type(on) is type(m) and on.contact_arms is True and on != m
+        assert numba.typeof(m).instance_class is type(m)
+        assert numba.typeof(on).instance_class is arms_cls
+        assert numba.typeof(on).types == numba.typeof(m).types
+    law = LinearFriction(kn=1e4, kt=5e3, mu=0.3, contact_arms=True)
+    assert numba.typeof(law.models).types[2].instance_class is cm._LinearHistoryArms
+    assert type(law.models.tangential) is cm.LinearHistory
 
 
 def test_contact_arms_torque_and_slip_closed_form():

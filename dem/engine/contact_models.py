@@ -59,9 +59,9 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 from numba.core.errors import NumbaIRAssumptionWarning
-from numba.extending import overload
+from numba.extending import overload, typeof_impl
 
 # numba's SSA check flags the branches of the hooks it inlines into the pair loops ("variable ...
 # is not in scope"); it is a pedantic internal check, the compiled code is right (the loops are
@@ -519,6 +519,45 @@ class Mindlin(NamedTuple):
         return self.kt_ratio * normal.tangent(delta)
 
 
+# The spin arms are a compile-time choice, as LAMMPS GRANULAR makes them a sub-model: numba types
+# a LinearHistory or Mindlin whose ``contact_arms`` is True as the private subclass below (the
+# instance class of its numba NamedTuple type; the fields and their types are the same), so the
+# pair loop is compiled once per choice and the default, radius arms, does not execute the arm
+# division ``|l| / (r_i + r_j)``: the vectorised loop used to compute it for every pair and select
+# (measured in docs/dem.md). The Python objects do not change: ``type(model)`` is still
+# LinearHistory or Mindlin, ``model.contact_arms`` a bool. Only numba sees the subclasses, and
+# every hook of the scalar models is registered for them too (``_implements`` matches exact classes).
+class _LinearHistoryArms(LinearHistory):
+    """numba's type of a :class:`LinearHistory` with ``contact_arms=True`` (never built in Python)."""
+    __slots__ = ()
+
+
+class _MindlinArms(Mindlin):
+    """numba's type of a :class:`Mindlin` with ``contact_arms=True`` (never built in Python)."""
+    __slots__ = ()
+
+
+_WITH_ARMS = {LinearHistory: _LinearHistoryArms, Mindlin: _MindlinArms}
+#: the scalar-history tangential models as numba sees them (with and without contact arms)
+_SCALAR = (LinearHistory, Mindlin, _LinearHistoryArms, _MindlinArms)
+
+
+def _typeof_scalar_tangential(val, c):
+    """numba's type of a :class:`LinearHistory` or :class:`Mindlin`: the NamedTuple of its
+    fields, whose instance class is the arms subclass when ``contact_arms`` is True."""
+    cls = type(val)
+    if val.contact_arms:
+        cls = _WITH_ARMS.get(cls, cls)
+    tys = [typeof_impl(v, c) for v in val]
+    if any(t is None for t in tys):
+        return None
+    return types.BaseTuple.from_types(tys, cls)
+
+
+typeof_impl.register(LinearHistory)(_typeof_scalar_tangential)
+typeof_impl.register(Mindlin)(_typeof_scalar_tangential)
+
+
 @njit(cache=True, inline="always")
 def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     """Scalar Coulomb cap. Returns (spring force kept in the history, total tangential force)."""
@@ -535,7 +574,8 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
 
 def _scalar_tangential(model, damping, c, load, hist, slots, dt, fast):
     tdamp = bool(_cls(damping).TANGENTIAL)
-    mindlin = _cls(model) is Mindlin
+    mindlin = issubclass(_cls(model), Mindlin)
+    arms = _cls(model) in (_LinearHistoryArms, _MindlinArms)  # compile-time: see _typeof_scalar_tangential
 
     def impl(model, damping, c, load, hist, slots, dt, fast):
         tx = -c.ny
@@ -544,7 +584,7 @@ def _scalar_tangential(model, damping, c, load, hist, slots, dt, fast):
         rj = c.rj
         ai = ri
         aj = rj
-        if model.contact_arms:
+        if arms:
             s = c.d / (ri + rj)
             ai = s * ri
             aj = s * rj
@@ -656,8 +696,8 @@ def _lammps_tangential(model, damping, c, load, hist, slots, dt, fast):
     return impl
 
 
-_implements(tangential_force, LinearHistory, Mindlin)(_scalar_tangential)
-_implements(force_magnitude, LinearHistory, Mindlin, LammpsHistory)(_frictional_mag)
+_implements(tangential_force, *_SCALAR)(_scalar_tangential)
+_implements(force_magnitude, *_SCALAR, LammpsHistory)(_frictional_mag)
 
 
 def _history_slots(model, rolling):
@@ -668,7 +708,7 @@ def _history_slots(model, rolling):
     return impl
 
 
-_implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_history_slots)
+_implements(history_slots, NoTangential, *_SCALAR, LammpsHistory)(_history_slots)
 
 
 def _tangential_slots(model):
@@ -679,7 +719,7 @@ def _tangential_slots(model):
     return impl
 
 
-_implements(tangential_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_tangential_slots)
+_implements(tangential_slots, NoTangential, *_SCALAR, LammpsHistory)(_tangential_slots)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1090,7 +1130,7 @@ def _torque_terms(model, rolling):
     return impl
 
 
-_implements(torque_terms, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_torque_terms)
+_implements(torque_terms, NoTangential, *_SCALAR, LammpsHistory)(_torque_terms)
 
 #: pairs per chunk of :func:`pair_forces_chunked` (its scratch rows stay in the L1 cache)
 CHUNK = 128
