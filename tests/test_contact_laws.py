@@ -249,20 +249,30 @@ def test_arms_reference_tells_the_arms_apart():
     assert not np.array_equal(st.x, ARMS_REF["linear_arms_fused/x"])
 
 
-def test_contact_arms_are_a_numba_type():
-    """numba types a scalar-history model with contact arms as its arms subclass (the pair loop is
-    compiled for each choice, the radius arms without the arm division); Python sees one class
-    and a bool, and a law's Models bundle carries the choice."""
+def test_contact_arms_are_a_compiled_type():
+    """A law with contact arms gives the loops its scalar-history model as the arms subclass (equal
+    as a tuple, an instance of the public class), so numba's dispatcher, which keys a tuple on its
+    class and field types, compiles a loop per choice in one process (the radius arms without the
+    arm division); pair_forces converts a Models built by hand the same way."""
     import numba
     for m, arms_cls in ((cm.LinearHistory(1e4, 0.5), cm._LinearHistoryArms), (cm.Mindlin(0.5, 0.5), cm._MindlinArms)):
         on = m._replace(contact_arms=True)
-        assert type(on) is type(m) and on.contact_arms is True and on != m
-        assert numba.typeof(m).instance_class is type(m)
-        assert numba.typeof(on).instance_class is arms_cls
-        assert numba.typeof(on).types == numba.typeof(m).types
+        models = cm.Models(cm.Hooke(1.0), cm.NoDamping(), on, cm.NoRolling())
+        typed = cm.with_arm_types(models)
+        assert type(typed.tangential) is arms_cls and isinstance(typed.tangential, type(m))
+        assert typed == models and typed.tangential.contact_arms is True
+        off = cm.Models(cm.Hooke(1.0), cm.NoDamping(), m, cm.NoRolling())
+        assert cm.with_arm_types(off) is off and cm.with_arm_types(typed) is typed
+
+        @numba.njit
+        def kt_ratio_or_kt(models):
+            return models.tangential[0]
+        kt_ratio_or_kt(off), kt_ratio_or_kt(typed), kt_ratio_or_kt(off)
+        assert len(kt_ratio_or_kt.signatures) == 2
     law = LinearFriction(kn=1e4, kt=5e3, mu=0.3, contact_arms=True)
-    assert numba.typeof(law.models).types[2].instance_class is cm._LinearHistoryArms
-    assert type(law.models.tangential) is cm.LinearHistory
+    assert type(law.models.tangential) is cm._LinearHistoryArms
+    assert type(LinearFriction(kn=1e4, kt=5e3, mu=0.3).models.tangential) is cm.LinearHistory
+    assert law_from_meta(law.to_meta()) == law and law.to_meta()["contact_arms"] is True
 
 
 def test_contact_arms_torque_and_slip_closed_form():
