@@ -2,6 +2,8 @@
 
     python -m studies.bench_throughput [--quick] [--repeats 3] [--ns 10000 100000]
                                        [--no-lammps] [--no-pack] [--work DIR] [--threads N]
+    python -m studies.bench_throughput --against REV [--laws default lammps] [--ab-n 100000]
+                                       [--repeats 4] [--chunks 200] [--chunk-steps 10]
 
 Scene (LJ-like units: mean diameter d = 1, a d = 1 disk has mass 1): 10 000 disks, diameters
 uniform in [0.9, 1.1], periodic square cell at solid fraction 0.84, prepared here (random gas at
@@ -28,16 +30,31 @@ time of the same runs (ours: process time; LAMMPS: loop time x its "CPU use") is
 since on a loaded machine it is the steadier of the two. Also times :func:`dem.engine.packing.pack` of
 1e4 disks at p/kn = 1e-4 against LAMMPS' ``in.prep`` of 1e4 disks, interleaved (1e3 and no
 ``in.prep`` with --quick). Figures are printed, never asserted.
+
+``--against REV`` compares this code with a git revision of this repository instead (no LAMMPS):
+the revision is extracted with ``git archive`` into the work folder (``--against-dir DIR`` takes
+a checkout instead), the same tiled state (``--ab-n`` disks) is written once, and
+``studies/bench_ab_worker.py`` times each law in separate processes, one per code and repeat,
+interleaved (this code, the revision, the revision, this code, ...: the order alternates so that a
+drift in the machine's load hits both alike), each code with its own numba cache. Per process: the
+CPU time per step of the fastest and of the median of ``--chunks`` chunks of ``--chunk-steps``
+steps (the fastest chunk is the steadier figure under load), and the CPU rates of the whole run
+(particle-steps/s and contact-steps/s). Printed per law: every process, the medians with their
+spread, the median of the paired ratios (this code over the revision), and whether the two codes
+ended on the same positions and velocities bit for bit.
 """
 from __future__ import annotations
 
 import argparse
+import io as _io
+import json
 import math
 import os
 import re
 import statistics
 import subprocess
 import sys
+import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -54,6 +71,8 @@ from dem.engine.state import State
 from studies.common import add_out, cli_out_dir, report_to
 
 INPUTS = Path(__file__).resolve().parent / "lammps_bench"
+ROOT = Path(__file__).resolve().parent.parent
+WORKER = Path(__file__).resolve().parent / "bench_ab_worker.py"
 KN = 1e4
 DT = 0.1 * 2.0 * math.sqrt(1.0 / KN)
 ZETA = 0.05
@@ -72,6 +91,17 @@ def bench_law():
 def lammps_law():
     """LAMMPS' ``gran/hooke/history 1e4 1e4 gamma gamma 0.5 1`` of ``in.bench``."""
     return LammpsHookeHistory(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.5)
+
+
+#: the laws of ``--against``: (class name, keywords, start-up); ``arms`` is the default law with
+#: contact-point spin arms
+AB_LAWS = {
+    "default": ("LinearFriction", dict(kn=KN, kt=KN, mu=0.5, restitution=E_REST, tangential_damping=True),
+                "leapfrog"),
+    "arms": ("LinearFriction", dict(kn=KN, kt=KN, mu=0.5, restitution=E_REST, tangential_damping=True,
+                                    contact_arms=True), "leapfrog"),
+    "lammps": ("LammpsHookeHistory", dict(kn=KN, kt=KN, gamma_n=GAMMA, gamma_t=GAMMA, mu=0.5), "lammps"),
+}
 
 
 def dense_base(n=10000, seed=4242, ncomp=20000, nrelax=3000):
@@ -165,6 +195,80 @@ def _stats(vals):
     return statistics.median(vals), min(vals), max(vals)
 
 
+def checkout_revision(rev, folder):
+    """Extract git revision ``rev`` of this repository into ``folder`` (``git archive``: the
+    repository's own state is not touched). Returns the folder."""
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", rev], check=True,
+                         capture_output=True).stdout
+    os.makedirs(folder, exist_ok=True)
+    with tarfile.open(fileobj=_io.BytesIO(tar)) as t:
+        t.extractall(folder, filter="data")
+    return folder
+
+
+def run_worker(checkout, state, spec, chunks, chunk_steps, cache):
+    """One :mod:`studies.bench_ab_worker` process on ``checkout`` (its numba cache in ``cache``,
+    one thread); returns its JSON line as a dict."""
+    env = dict(os.environ, PYTHONPATH=str(checkout), NUMBA_CACHE_DIR=str(cache), NUMBA_NUM_THREADS="1",
+               OMP_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, str(WORKER), str(state), str(spec), str(WARM), str(chunks),
+                        str(chunk_steps)], cwd=str(checkout), env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"benchmark worker failed on {checkout}:\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _ab_summary(name, runs):
+    """Print the medians, spreads and paired ratios of one law's runs ({side: [dict, ...]})."""
+    ours, old = runs["this code"], runs["revision"]
+    for key, unit in (("cpu_ps", "particle-steps/s"), ("cpu_cs", "contact-steps/s"), ("min_ms", "ms/step"),
+                      ("median_ms", "ms/step")):
+        parts = []
+        for side in ("revision", "this code"):
+            m, lo, hi = _stats([r[key] for r in runs[side]])
+            parts.append(f"{side} {m:.4g} [{lo:.4g}, {hi:.4g}]")
+        print(f"  {name:8s} {key:9s} median [min, max] {unit}: " + "; ".join(parts), flush=True)
+    pr = [a["cpu_ps"] / b["cpu_ps"] for a, b in zip(ours, old)]
+    fast = [b["min_ms"] / a["min_ms"] for a, b in zip(ours, old)]
+    best = min(r["min_ms"] for r in old) / min(r["min_ms"] for r in ours)
+    same = len({r["hash"] for r in ours + old}) == 1
+    print(f"  {name:8s} this code / revision (speed, > 1 faster): CPU rate, median of paired ratios "
+          f"{statistics.median(pr):.3f} [{min(pr):.3f}, {max(pr):.3f}]; fastest chunk, median of paired "
+          f"ratios {statistics.median(fast):.3f} [{min(fast):.3f}, {max(fast):.3f}], fastest of all {best:.3f}; "
+          f"trajectories {'bit-identical' if same else 'DIFFER'} ({len(ours) + len(old)} runs)", flush=True)
+
+
+def compare_revision(a, base, work):
+    """``--against``: this code against a git revision (or a checkout), interleaved processes."""
+    other = Path(a.against_dir) if a.against_dir else Path(checkout_revision(a.against, os.path.join(work, "rev")))
+    label = a.against_dir or a.against
+    st = tile(base, *tiling(a.ab_n, base.n))
+    state = os.path.join(work, "ab_state.npz")
+    np.savez(state, x=st.x, r=st.radius, h=st.h, rho=RHO)
+    sides = {"this code": (ROOT, os.path.join(work, "numba_this")), "revision": (other, os.path.join(work, "numba_rev"))}
+    print(f"\n--against {label}: N={a.ab_n}, {a.chunks} chunks of {a.chunk_steps} steps after {WARM} "
+          f"(CPU time, one thread, separate processes, order alternating)", flush=True)
+    runs = {name: {side: [] for side in sides} for name in a.laws}
+    for rep in range(a.repeats):
+        for name in a.laws:
+            cls, kw, startup = AB_LAWS[name]
+            spec = os.path.join(work, f"law_{name}.json")
+            with open(spec, "w") as fh:
+                json.dump({"law": cls, "kwargs": kw, "startup": startup, "dt": DT, "skin": SKIN}, fh)
+            order = list(sides) if rep % 2 == 0 else list(sides)[::-1]
+            for side in order:
+                path, cache = sides[side]
+                res = run_worker(path, state, spec, a.chunks, a.chunk_steps, cache)
+                runs[name][side].append(res)
+                print(f"  rep {rep + 1} {name:8s} {side:9s} fastest {res['min_ms']:.3f} median {res['median_ms']:.3f} "
+                      f"ms/step, cpu {res['cpu_ps']:.4e} particle-steps/s {res['cpu_cs']:.4e} contact-steps/s "
+                      f"contacts={res['contacts']} hash={res['hash']} load={res['load']:.1f}", flush=True)
+    print(f"\nsummary, this code against {label}:")
+    for name in a.laws:
+        _ab_summary(name, runs[name])
+    return runs
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="short runs (a few minutes)")
@@ -176,8 +280,18 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1,
                     help="also time the default law with this many threads (multi-core; reported apart from "
                          "the per-core ratios, against the same serial LAMMPS runs)")
+    ap.add_argument("--against", default=None, metavar="REV",
+                    help="compare this code with git revision REV instead of LAMMPS (see the module doc)")
+    ap.add_argument("--against-dir", default=None, metavar="DIR", help="as --against, with a checkout DIR")
+    ap.add_argument("--laws", nargs="+", default=["default", "lammps"], choices=sorted(AB_LAWS),
+                    help="laws of --against")
+    ap.add_argument("--ab-n", type=int, default=100000, help="disks of --against (a multiple of 10000)")
+    ap.add_argument("--chunks", type=int, default=200, help="timed chunks per process of --against")
+    ap.add_argument("--chunk-steps", type=int, default=10, help="steps per chunk of --against")
     add_out(ap, "bench_throughput")
     a = ap.parse_args(argv)
+    if a.against or a.against_dir:
+        return _main_against(a)
     report_to(cli_out_dir(a.out, cache=False))   # the printed figures, also in OUT/report.txt
     steps_of = {n: (max(100, int(3e6 / n)) if a.quick else max(150, int(3e7 / n))) for n in a.ns}
     print(f"loadavg at start {os.getloadavg()} (2-core machine shared with other jobs: see the spread)")
@@ -249,6 +363,19 @@ def main(argv=None):
                             "-screen", "none"], check=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
             print(f"lammps-prep N=10000 wall_s={time.perf_counter() - t0:.1f} loadavg={os.getloadavg()[0]:.1f}",
                   flush=True)
+    tmp.cleanup()
+    return 0
+
+
+def _main_against(a):
+    report_to(cli_out_dir(a.out, cache=False))
+    tiling(a.ab_n)   # a clear error before the preparation
+    print(f"loadavg at start {os.getloadavg()}")
+    base = dense_base(ncomp=5000 if a.quick else 20000, nrelax=1000 if a.quick else 3000)
+    tmp = tempfile.TemporaryDirectory(prefix="dem-bench-ab-")
+    work = a.work or tmp.name
+    os.makedirs(work, exist_ok=True)
+    compare_revision(a, base, work)
     tmp.cleanup()
     return 0
 

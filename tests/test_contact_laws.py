@@ -3,6 +3,7 @@ kernels they replaced, fused against separate integration, history layout, the r
 law added as one sub-model, and bad coefficients named."""
 import contextlib
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from dem.engine.contact_laws import (ContactLaw, Frictionless, HertzMindlin, Her
 from dem.engine.cell import PressureServo
 from dem.engine.integrate import Simulation, critical_dt
 from dem.engine.state import State
+import arms_reference_cases as aref
 import engine_reference_cases as eref
 import law_reference_cases as ref
 
@@ -57,6 +59,7 @@ STRATEGY_LAWS = {
     "lammps": lambda: LammpsHookeHistory(kn=1e4, kt=8e3, gamma_n=30.0, gamma_t=15.0, mu=0.4),
     "rolling": lambda: HertzRolling(kh=3e5, mu=0.4, delta_ref=0.02, mu_r=0.05, restitution=0.5),
     "massgamma_linear": lambda: ContactLaw(cm.Hooke(1e4), cm.MassGamma(30.0, 15.0), cm.LinearHistory(8e3, 0.4)),
+    "linear_arms": lambda: LinearFriction(kn=1e4, kt=7e3, mu=0.3, restitution=0.7, contact_arms=True),
 }
 
 
@@ -237,6 +240,51 @@ def test_engine_refactors_reproduce_the_recorded_runs_bit_for_bit(name):
     with the engine before the throughput refactors (tests/engine_reference_cases.py)."""
     with _damping_warned(eref.CASES[name][0]()):
         ref.assert_reproduces(ENGINE_REF, name, eref.run_case, eref.FIELDS)
+
+
+ARMS_REF = np.load(__import__("pathlib").Path(__file__).parent / "data" / "arms_reference.npz")
+
+
+@pytest.mark.parametrize("name", list(aref.CASES))
+def test_contact_arms_reproduce_the_recorded_runs_bit_for_bit(name):
+    """Contact-point spin arms, a compile-time choice since, against runs recorded when they were a
+    flag read at run time (tests/arms_reference_cases.py): both loops, fused kick, three laws."""
+    ref.assert_reproduces(ARMS_REF, name, aref.run_case, aref.FIELDS)
+
+
+def test_arms_reference_tells_the_arms_apart():
+    """The recorded arms runs are not those of radius arms: the test above fails if the arms are dropped."""
+    law_f, kw_f = aref.CASES["linear_arms_fused"]
+    law = replace(law_f(), contact_arms=False)
+    st = ref.initial_state(True)
+    Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f()).run(aref.STEPS)
+    assert not np.array_equal(st.x, ARMS_REF["linear_arms_fused/x"])
+
+
+def test_contact_arms_are_a_compiled_type():
+    """A law with contact arms gives the loops its scalar-history model as the arms subclass (equal
+    as a tuple, an instance of the public class), so numba's dispatcher, which keys a tuple on its
+    class and field types, compiles a loop per choice in one process (the radius arms without the
+    arm division); pair_forces converts a Models built by hand the same way."""
+    import numba
+    for m, arms_cls in ((cm.LinearHistory(1e4, 0.5), cm._LinearHistoryArms), (cm.Mindlin(0.5, 0.5), cm._MindlinArms)):
+        on = m._replace(contact_arms=True)
+        models = cm.Models(cm.Hooke(1.0), cm.NoDamping(), on, cm.NoRolling())
+        typed = cm.with_arm_types(models)
+        assert type(typed.tangential) is arms_cls and isinstance(typed.tangential, type(m))
+        assert typed == models and typed.tangential.contact_arms is True
+        off = cm.Models(cm.Hooke(1.0), cm.NoDamping(), m, cm.NoRolling())
+        assert cm.with_arm_types(off) is off and cm.with_arm_types(typed) is typed
+
+        @numba.njit
+        def kt_ratio_or_kt(models):
+            return models.tangential[0]
+        kt_ratio_or_kt(off), kt_ratio_or_kt(typed), kt_ratio_or_kt(off)
+        assert len(kt_ratio_or_kt.signatures) == 2
+    law = LinearFriction(kn=1e4, kt=5e3, mu=0.3, contact_arms=True)
+    assert type(law.models.tangential) is cm._LinearHistoryArms
+    assert type(LinearFriction(kn=1e4, kt=5e3, mu=0.3).models.tangential) is cm.LinearHistory
+    assert law_from_meta(law.to_meta()) == law and law.to_meta()["contact_arms"] is True
 
 
 def test_contact_arms_torque_and_slip_closed_form():

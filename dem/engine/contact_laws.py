@@ -68,7 +68,7 @@ class _Composed:
     """What every law derives from its sub-models ``self.models``."""
 
     def _compose(self, normal, damping, tangential, rolling=cm.NoRolling()):
-        models = cm.Models(normal, damping, tangential, rolling)
+        models = cm.with_arm_types(cm.Models(normal, damping, tangential, rolling))  # arms: a compiled type
         for m in models:
             m.check()
         parity = tuple(tangential.PARITY) + tuple(rolling.PARITY)

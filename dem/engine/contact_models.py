@@ -74,7 +74,7 @@ __all__ = ["Hooke", "Hertz", "NoDamping", "Viscous", "ViscousTangential", "MassG
            "Pairs", "Models", "PairInput", "PairForce", "Cell", "Kick", "NO_KICK", "bodies_of", "cell_of",
            "pair_forces", "pair_forces_chunked", "pair_forces_serial", "pair_forces_span",
            "pair_forces_threaded", "vectorises", "compact_list", "make_pair_constants", "kick_range",
-           "kick_all", "SUBMODELS"]
+           "kick_all", "with_arm_types", "SUBMODELS"]
 
 
 def _check(name, value, low, *, low_open=False, high=math.inf):
@@ -519,6 +519,41 @@ class Mindlin(NamedTuple):
         return self.kt_ratio * normal.tangent(delta)
 
 
+# The spin arms are a compile-time choice, as LAMMPS GRANULAR makes them a sub-model: the loops
+# receive a LinearHistory or Mindlin whose ``contact_arms`` is True as the private subclass below
+# (same fields; :func:`with_arm_types`, applied by the laws when they compose their ``models`` and
+# by :func:`pair_forces`), so numba compiles the pair loop once per choice and the default, radius
+# arms, does not execute the arm division ``|l| / (r_i + r_j)``: the vectorised loop used to
+# compute it for every pair and select (measured in docs/dem.md). It has to be a Python class:
+# numba's dispatcher keys a tuple argument on its class and its fields' types, not their values.
+# Every hook of the scalar models is registered for the subclasses too (``_implements`` matches
+# exact classes).
+class _LinearHistoryArms(LinearHistory):
+    """A :class:`LinearHistory` with ``contact_arms=True`` as the pair loop receives it."""
+    __slots__ = ()
+
+
+class _MindlinArms(Mindlin):
+    """A :class:`Mindlin` with ``contact_arms=True`` as the pair loop receives it."""
+    __slots__ = ()
+
+
+_WITH_ARMS = {LinearHistory: _LinearHistoryArms, Mindlin: _MindlinArms}
+#: the scalar-history tangential models as the loops see them (with and without contact arms)
+_SCALAR = (LinearHistory, Mindlin, _LinearHistoryArms, _MindlinArms)
+
+
+def with_arm_types(models):
+    """``models`` (:class:`Models`) with a LinearHistory or Mindlin whose ``contact_arms`` is True
+    replaced by its arms subclass (equal as a tuple, an instance of the same class), the form the
+    loops are compiled for; ``models`` itself when there is nothing to replace."""
+    t = models.tangential
+    arms = _WITH_ARMS.get(type(t))
+    if arms is None or not t.contact_arms:
+        return models
+    return models._replace(tangential=arms(*t))
+
+
 @njit(cache=True, inline="always")
 def _coulomb_scalar(fs, lim, ct, vt, with_damping):
     """Scalar Coulomb cap. Returns (spring force kept in the history, total tangential force)."""
@@ -535,7 +570,8 @@ def _coulomb_scalar(fs, lim, ct, vt, with_damping):
 
 def _scalar_tangential(model, damping, c, load, hist, slots, dt, fast):
     tdamp = bool(_cls(damping).TANGENTIAL)
-    mindlin = _cls(model) is Mindlin
+    mindlin = issubclass(_cls(model), Mindlin)
+    arms = _cls(model) in (_LinearHistoryArms, _MindlinArms)  # compile-time: see with_arm_types
 
     def impl(model, damping, c, load, hist, slots, dt, fast):
         tx = -c.ny
@@ -544,7 +580,7 @@ def _scalar_tangential(model, damping, c, load, hist, slots, dt, fast):
         rj = c.rj
         ai = ri
         aj = rj
-        if model.contact_arms:
+        if arms:
             s = c.d / (ri + rj)
             ai = s * ri
             aj = s * rj
@@ -656,8 +692,8 @@ def _lammps_tangential(model, damping, c, load, hist, slots, dt, fast):
     return impl
 
 
-_implements(tangential_force, LinearHistory, Mindlin)(_scalar_tangential)
-_implements(force_magnitude, LinearHistory, Mindlin, LammpsHistory)(_frictional_mag)
+_implements(tangential_force, *_SCALAR)(_scalar_tangential)
+_implements(force_magnitude, *_SCALAR, LammpsHistory)(_frictional_mag)
 
 
 def _history_slots(model, rolling):
@@ -668,7 +704,7 @@ def _history_slots(model, rolling):
     return impl
 
 
-_implements(history_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_history_slots)
+_implements(history_slots, NoTangential, *_SCALAR, LammpsHistory)(_history_slots)
 
 
 def _tangential_slots(model):
@@ -679,7 +715,7 @@ def _tangential_slots(model):
     return impl
 
 
-_implements(tangential_slots, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_tangential_slots)
+_implements(tangential_slots, NoTangential, *_SCALAR, LammpsHistory)(_tangential_slots)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1090,7 +1126,7 @@ def _torque_terms(model, rolling):
     return impl
 
 
-_implements(torque_terms, NoTangential, LinearHistory, Mindlin, LammpsHistory)(_torque_terms)
+_implements(torque_terms, NoTangential, *_SCALAR, LammpsHistory)(_torque_terms)
 
 #: pairs per chunk of :func:`pair_forces_chunked` (its scratch rows stay in the L1 cache)
 CHUNK = 128
@@ -1308,7 +1344,8 @@ _PAIR_FORCES_DOC = """Contact forces (and, with ``kick``, the integration) of on
 
     bodies: :class:`Bodies` (x, v (N, 2); omega, theta, inertia (N,) or empty); pairs:
     :class:`Pairs` (the list, its history and per-pair constants); cell: :class:`Cell`; models:
-    :class:`Models` (the law's four sub-models); kick: :class:`Kick`; dt: the history increment
+    :class:`Models` (the law's four sub-models, ``law.models``: contact arms as their compiled type,
+    see :func:`with_arm_types`, which :func:`pair_forces` applies); kick: :class:`Kick`; dt: the history increment
     step (0: history not advanced); tally: whether to fill ``out``. Fills ``forces``
     (:class:`Forces`): f (N, 2), torque (N,), ``out`` (8,) (see :mod:`dem.engine.contact_laws`; only
     if ``tally``, as LAMMPS tallies energy and virial only on the steps that need them) and, with a
@@ -1508,6 +1545,7 @@ _THREADS = _Threads()
 
 def pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads):
     bodies, pairs, forces, kick = Bodies(*bodies), Pairs(*pairs), Forces(*forces), Kick(*kick)
+    models = with_arm_types(models)
     n = bodies.x.shape[0]
     spin = bodies.omega.shape[0] > 0
     pool, parts = _THREADS.get(threads, n, spin)
@@ -1551,6 +1589,7 @@ def vectorises(models) -> bool:
 
 
 def pair_forces(bodies, pairs, cell, models, kick, dt, tally, forces, threads=1):
+    models = with_arm_types(models)
     if threads > 1:
         pair_forces_threaded(bodies, pairs, cell, models, kick, dt, tally, forces, threads)
         return
