@@ -34,10 +34,12 @@ Pre-stressed networks are outside this bound (the geometric term is not of the f
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
 
 from .kinematics import Assembly, rotational_dofs
 from .results import Result
@@ -45,6 +47,7 @@ from .results import Result
 __all__ = ["DualBound", "Equilibrator", "build_equilibrator", "dual_lower_bound"]
 
 _RANK_TOL = 1e-9       # eigenvalue of the local A K A^T below this fraction of the largest: rank-deficient
+_ACCEPT = 1e-4         # a unit joins only if every eigenvalue of its A K A^T is above this fraction (cond <= 1e4)
 _U = np.finfo(float).eps
 
 
@@ -139,17 +142,86 @@ def _try_unit(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, pa
                               B, Q, nk, Kq, nl)
     for u in range(mem.shape[0]):
         slot[mem[u]] = -1
-    _, rank = _operator(A, Kl)
-    return A.shape[0] > 0 and rank == A.shape[0]
+    if A.shape[0] == 0 or A.shape[1] < A.shape[0]:
+        return False
+    M = A @ Kl @ A.T
+    w = np.linalg.eigvalsh(0.5 * (M + M.T))
+    return w[0] > _ACCEPT * w[-1]
 
 
-# long: one breadth-first loop whose state (queue, counts, units) lives in local arrays
 @numba.njit(cache=True)
-def _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl, pairs_ok):
+def _attach(mem, idx, pos, queue, tail, members, nm, uptr, nu):
+    """Join the unit ``mem`` at position ``pos``; returns the new (tail, nm, nu)."""
+    for x in mem:
+        idx[x] = pos
+        queue[tail] = x
+        tail += 1
+        members[nm] = x
+        nm += 1
+    nu += 1
+    uptr[nu] = nm
+    return tail, nm, nu
+
+
+@numba.njit(cache=True)
+def _grow(q, kmax, cnt, idx, regular, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl, slot):
+    """A unit of up to ``kmax`` unbuilt particles around ``q`` (each step the unbuilt neighbour with
+    the most contacts to the built set) that carries any load; empty if none does."""
+    BIG = 1 << 60
+    mem = np.empty(kmax, np.int64)
+    mem[0] = q
+    m = 1
+    while m < kmax:
+        best, bc = -1, -1
+        for u in range(m):
+            p = mem[u]
+            for t in range(ptr[p], ptr[p + 1]):
+                r = adj_q[t]
+                if not usable[adj_e[t]] or idx[r] < BIG or not regular[r] or cnt[r] <= bc:
+                    continue
+                dup = False
+                for v in range(m):
+                    dup = dup or mem[v] == r
+                if not dup:
+                    best, bc = r, cnt[r]
+        if best < 0:
+            break
+        mem[m] = best
+        m += 1
+        if _try_unit(mem[:m], slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+            return mem[:m].copy()
+    return mem[:0].copy()
+
+
+@numba.njit(cache=True)
+def _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q, usable,
+           pdof, pairs, B, Q, nk, Kq, nl):
+    """Breadth-first growth by single particles; ``st`` = (head, tail, nm, nu, pos), updated."""
+    BIG = 1 << 60
+    one = np.empty(1, np.int64)
+    while st[0] < st[1]:
+        p = queue[st[0]]
+        st[0] += 1
+        for t in range(ptr[p], ptr[p + 1]):
+            q = adj_q[t]
+            e = adj_e[t]
+            if not usable[e] or idx[q] < BIG or not regular[q]:
+                continue
+            cnt[q] += nk[e]
+            if cnt[q] < neq[q]:
+                continue
+            one[0] = q
+            if _try_unit(one, slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+                st[1], st[2], st[3] = _attach(one, idx, st[4], queue, st[1], members, st[2], uptr, st[3])
+                st[4] += 1
+
+
+@numba.njit(cache=True)
+def _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl, kmax):
     """Construction order from the seed: a regular particle joins once its usable contacts to the
-    particles already in carry any load (full row rank), or, failing that (``pairs_ok``), together
-    with an unbuilt neighbour (a unit of two: in 3D two contacts leave each sphere a twist about
-    the line of its contact points, which the contact between the two resists). Returns ``idx``
+    particles already in carry any load (full row rank), or, failing that, together with unbuilt
+    neighbours as one unit of up to ``kmax`` particles (in 3D two contacts leave a sphere a twist
+    about the line of its contact points, which a contact to a neighbour resists). Returns ``idx``
     (N,): 0 for the seed, 1.. the unit's position, ``BIG`` for particles that never joined; and
     the units' members in order (``members``, ``uptr``)."""
     N = neq.shape[0]
@@ -167,46 +239,25 @@ def _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
         queue[tail] = p
         tail += 1
     pos = 1
-    one = np.empty(1, np.int64)
-    two = np.empty(2, np.int64)
-    while head < tail:
-        p = queue[head]
-        head += 1
-        for t in range(ptr[p], ptr[p + 1]):
-            q = adj_q[t]
-            e = adj_e[t]
-            if not usable[e] or idx[q] < BIG or not regular[q]:
+    st = np.array([head, tail, nm, nu, pos])
+    while True:
+        _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q, usable,
+               pdof, pairs, B, Q, nk, Kq, nl)
+        progressed = False      # stalled: units of several particles on the frontier, pass by pass
+        for q in range(N):
+            if idx[q] < BIG or not regular[q] or cnt[q] == 0:
                 continue
-            cnt[q] += nk[e]
-            if cnt[q] + (2 * nk[e] if pairs_ok else 0) < neq[q]:
-                continue
-            one[0] = q
-            got = 0
-            if cnt[q] >= neq[q] and _try_unit(one, slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof,
-                                              pairs, B, Q, nk, Kq, nl):
-                got = 1
-            elif pairs_ok:
-                for t2 in range(ptr[q], ptr[q + 1]):
-                    r = adj_q[t2]
-                    if (not usable[adj_e[t2]] or r == q or idx[r] < BIG or not regular[r] or cnt[r] == 0
-                            or cnt[q] + cnt[r] + nk[adj_e[t2]] < neq[q] + neq[r]):
-                        continue
-                    two[0], two[1] = q, r
-                    if _try_unit(two, slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs,
-                                 B, Q, nk, Kq, nl):
-                        got = 2
-                        break
-            if got:
-                for u in range(got):
-                    x = one[0] if got == 1 else two[u]
-                    idx[x] = pos
-                    queue[tail] = x
-                    tail += 1
-                    members[nm] = x
-                    nm += 1
-                nu += 1
-                uptr[nu] = nm
-                pos += 1
+            mem = _grow(q, kmax, cnt, idx, regular, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q,
+                        nk, Kq, nl, slot)
+            if mem.shape[0]:
+                st[1], st[2], st[3] = _attach(mem, idx, st[4], queue, st[1], members, st[2], uptr, st[3])
+                st[4] += 1
+                progressed = True
+                _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q,
+                       usable, pdof, pairs, B, Q, nk, Kq, nl)
+        if not progressed:
+            break
+    nm, nu = st[2], st[3]
     return idx, members[:nm], uptr[:nu + 1]
 
 
@@ -252,13 +303,13 @@ def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
 
 
 @numba.njit(cache=True)
-def _peel(load, c, pptr, pe, rptr, rdof, yptr, Y, pdof, pairs, B, Q, nk, nl):
+def _peel(load, c, pptr, pe, rptr, rdof, yptr, Y, pdof, pairs, B, Q, nk, nl, a0, a1):
     """Leaf to root: each unit (reversed construction order) hands its load to its parent contacts
     (``c`` += forces, (C, d, s)); the reactions load the other ends. ``load`` (ndof, s) keeps what
     is left (round-off where the local solve has full rank)."""
     d = B.shape[1]
     s = load.shape[1]
-    for a in range(pptr.shape[0] - 2, -1, -1):
+    for a in range(a1 - 1, a0 - 1, -1):
         m = rptr[a + 1] - rptr[a]
         ncol = (yptr[a + 1] - yptr[a]) // max(m, 1)
         if ncol == 0 or m == 0:
@@ -310,14 +361,17 @@ class Equilibrator:
     n_attached : int
         Particles attached in the construction order with a full-rank local solve.
     n_stalled : int
-        Particles with a full-rank contact set that the order could not attach (solved by least
-        squares on their contacts to earlier particles; their leftover shows in the residual).
+        Particles with a full-rank contact set that the order could not attach: solved together,
+        as one sparse block on their contacts (``block_solved``).
     n_deficient : int
         Particles whose contacts cannot carry every load (e.g. a two-contact sphere): peeled
         first, by least squares (consistent: the load of a network's residual has no component on
         their local mechanism).
     n_reserved : int
-        Periodic contacts reserved to carry the seed's net moment.
+        Contacts reserved to carry the seed's net moment (across the periodic boundary and at random).
+    block_solved : bool
+        The stalled particles were solved together (a sparse factorisation of their own system,
+        up to ``block_max`` unknowns); False: they were not, and the field is not in equilibrium.
     setup_time : float
         Wall time of the construction [s].
     """
@@ -327,8 +381,9 @@ class Equilibrator:
     n_stalled: int
     n_deficient: int
     n_reserved: int
+    block_solved: bool
     setup_time: float
-    _data: dict
+    _data: dict = field(repr=False)
 
     def correct(self, r: np.ndarray, chunk: int = 6) -> np.ndarray:
         """Forces ``c`` (C, d, s) with ``B^T c = r`` for loads ``r`` (ndof, s) in the range of
@@ -356,8 +411,22 @@ class Equilibrator:
         D = self._data
         load = np.array(r, dtype=float, order="C", copy=True)
         c = np.zeros((D["C"], D["d"], r.shape[1]))
-        _peel(load, c, D["pptr"], D["pe"], D["rptr"], D["rdof"], D["yptr"], D["Y"], D["pdof"],
-              D["pairs"], D["B"], D["Q"], D["nk"], D["nl"])
+        args = (D["pptr"], D["pe"], D["rptr"], D["rdof"], D["yptr"], D["Y"], D["pdof"], D["pairs"], D["B"],
+                D["Q"], D["nk"], D["nl"])
+        if D["block"] is not None:        # the particles the order could not attach: one sparse solve
+            A, AS, KAT, lu, be, bcols = D["block"]
+            rhs = np.ascontiguousarray(load[D["block_dofs"]])
+            z = lu.solve(rhs)
+            for _ in range(3):           # iterative refinement: the factor is of M + 1e-13 max|M| I
+                z += lu.solve(rhs - AS @ (KAT @ z))
+            y = KAT @ z
+            f = np.zeros((len(be), D["d"], r.shape[1]))
+            for b in range(D["d"]):
+                ok = bcols[:, b] >= 0
+                f[ok] += D["Q"][be[ok], :, b][:, :, None] * y[bcols[ok, b]][:, None, :]
+            np.add.at(c, be, f)
+            load -= A @ y
+        _peel(load, c, *args, 0, D["n_tree"])
         if D["seed_Y"] is not None:       # the seed: dense least squares on its own contacts
             ls = load[D["seed_dofs"]]
             y = D["seed_Y"] @ ls
@@ -486,7 +555,7 @@ def _reserve(asm, usable, stick, per_axis=4, n_random=8, seed=0):
     return np.array(sorted(set(res)), dtype=np.int64)
 
 
-def build_equilibrator(asm: Assembly, seed_size=None) -> Equilibrator:
+def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000) -> Equilibrator:
     """The statics of ``asm`` (module docstring): construction order, local operators, seed and
     reserved contacts. O(C) time and memory."""
     t0 = time.perf_counter()
@@ -501,33 +570,88 @@ def build_equilibrator(asm: Assembly, seed_size=None) -> Equilibrator:
     ptr, adj_e, adj_s, adj_q = _adjacency(pairs, N)
     stick = net.effective_kt > 0
     usable = pairs[:, 0] != pairs[:, 1]                 # a particle touching its own image: unused
-    reserved = _reserve(asm, usable, stick)
-    usable[reserved] = False
     args = (ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
     regular = _regular(neq, *args)
+    reserved = _reserve(asm, usable, stick & regular[pairs[:, 0]] & regular[pairs[:, 1]])
+    usable[reserved] = False
+    regular2 = _regular(neq, *args)
+    back = reserved[~(regular2[pairs[reserved, 0]] & regular2[pairs[reserved, 1]])]
+    if len(back):                 # a reservation must not leave a particle unable to carry its load
+        usable[back] = True
+        reserved = np.setdiff1d(reserved, back)
+        regular2 = _regular(neq, *args)
+    regular = regular2
     deg = np.bincount(pairs[usable].ravel(), minlength=N)
     seed = _seed(deg, seed_size or (12 if d == 2 else 30), ptr, adj_q, regular, usable, pairs, pdof,
                  B, Q, nk, Kq, nl, d)
     idx, members, uptr = _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs,
-                                    B, Q, nk, Kq, nl, d == 3)
+                                    B, Q, nk, Kq, nl, 16)
     BIG = 1 << 60
     live = neq > 0
     stalled = np.flatnonzero(live & (idx == BIG) & regular)
     deficient = np.flatnonzero(live & ~regular)
-    nxt = len(uptr)
-    idx[stalled] = nxt + np.arange(len(stalled))
-    idx[deficient] = nxt + len(stalled) + np.arange(len(deficient))
-    members = np.concatenate([members, stalled, deficient]).astype(np.int64)
-    uptr = np.concatenate([uptr, uptr[-1] + 1 + np.arange(len(stalled) + len(deficient))]).astype(np.int64)
+    n_tree = len(uptr) - 1
+    idx[stalled] = n_tree + 1        # one block after every attached unit: the stalled and deficient
+    idx[deficient] = n_tree + 1      # particles (its load is the network's own: consistent)
     pptr, pe, rptr, rdof, yptr, Y, deficit = _operators(members, uptr, idx, *args)
     data = dict(C=C, d=d, nl=nl, pairs=pairs, B=B, Q=Q, nk=nk, pdof=pdof, pptr=pptr, pe=pe, rptr=rptr,
-                rdof=rdof, yptr=yptr, Y=Y, seed_Y=None, Lres=None)
+                rdof=rdof, yptr=yptr, Y=Y, seed_Y=None, Lres=None, n_tree=n_tree, block=None)
+    resolved = _block(data, asm, np.concatenate([stalled, deficient]), idx, usable, Kq, block_max)
     _seed_solve(data, seed, usable, Kq)
     _reserved_fields(data, asm, reserved)
-    n_att = int(uptr.shape[0] - 1 - len(stalled) - len(deficient))
-    return Equilibrator(n_seed=len(seed), n_attached=int(uptr[n_att]), n_stalled=len(stalled),
-                        n_deficient=len(deficient), n_reserved=len(reserved),
+    return Equilibrator(n_seed=len(seed), n_attached=int(uptr[n_tree]), n_stalled=len(stalled),
+                        n_deficient=len(deficient), n_reserved=len(reserved), block_solved=resolved,
                         setup_time=time.perf_counter() - t0, _data=data)
+
+
+def _block(data, asm, stalled, idx, usable, Kq, block_max):
+    """Sparse least-``K^+``-norm solve of the particles the order could not attach, on their
+    contacts to the attached particles and between them (peeled after the deficient particles,
+    before the tree). Returns whether it was made (False above ``block_max`` unknowns)."""
+    if not len(stalled):
+        return True
+    pdof, pairs, d, nl, nk, B, Q = (data[k] for k in ("pdof", "pairs", "d", "nl", "nk", "B", "Q"))
+    sd = pdof[stalled].ravel()
+    sd = sd[sd >= 0]
+    if len(sd) > block_max:
+        return False
+    ins = np.zeros(pdof.shape[0], bool)
+    ins[stalled] = True
+    lim = idx[stalled[0]]
+    i, j = pairs[:, 0], pairs[:, 1]
+    be = np.flatnonzero(usable & (ins[i] | ins[j]) & (idx[i] <= lim) & (idx[j] <= lim))
+    bcols = np.full((len(be), d), -1, np.int64)
+    ncol = 0
+    for b in range(d):
+        ok = nk[be] > b
+        bcols[ok, b] = ncol + np.arange(ok.sum())
+        ncol += int(ok.sum())
+    rows, cols, vals = [], [], []
+    for side in range(2):
+        for k in range(nl):
+            g = pdof[pairs[be, side], k]
+            for b in range(d):
+                ok = (g >= 0) & (bcols[:, b] >= 0)
+                rows.append(g[ok])
+                cols.append(bcols[ok, b])
+                vals.append(np.einsum("cx,cx->c", B[be[ok], :, side * nl + k], Q[be[ok], :, b]))
+    A = sps.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                       shape=(pdof.max() + 1, ncol))
+    kr, kc, kv = [], [], []
+    for a in range(d):
+        for b in range(d):
+            ok = (bcols[:, a] >= 0) & (bcols[:, b] >= 0)
+            kr.append(bcols[ok, a])
+            kc.append(bcols[ok, b])
+            kv.append(Kq[be[ok], a, b])
+    Kl = sps.csr_matrix((np.concatenate(kv), (np.concatenate(kr), np.concatenate(kc))), shape=(ncol, ncol))
+    AS = A[sd]
+    KAT = (Kl @ AS.T).tocsr()
+    M = (AS @ KAT).tocsc()
+    scale = float(abs(M.diagonal()).max(initial=1.0))
+    lu = spla.splu((M + 1e-13 * scale * sps.eye(M.shape[0])).tocsc())
+    data.update(block=(A, AS, KAT, lu, be, bcols), block_dofs=sd)
+    return True
 
 
 @numba.njit(cache=True)
@@ -581,7 +705,7 @@ def _reserved_fields(data, asm, reserved):
     BtU = np.asarray((rows.T @ Ublk))
     lefts = []
     for a in range(0, ncol, 6):
-        _, left = Equilibrator(0, 0, 0, 0, 0, 0.0, data)._tree(BtU[:, a:a + 6])
+        _, left = Equilibrator(0, 0, 0, 0, 0, True, 0.0, data)._tree(BtU[:, a:a + 6])
         lefts.append(left[data["seed_dofs"]])
     L = np.concatenate(lefts, axis=1)          # B^T (u - T B^T u) on the seed
     data.update(Lres=L, Lres_pinv=np.linalg.pinv(L, rcond=1e-10), BtU=BtU, res_e=reserved,

@@ -57,6 +57,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, affine_tensor, assemble, rotational_dofs, stress0
+from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
@@ -796,6 +797,7 @@ class _Run:
     max_order: int = 16
     certify_max_order: int = 200
     margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
+    dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
@@ -803,7 +805,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                          min_contacts=None, reorthogonalize="auto",
                          preconditioner: str = "amg", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
-                         factor_steps: int = 4) -> HierarchyResult:
+                         factor_steps: int = 4, dual_bound="auto") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -891,12 +893,22 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
         is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
 
+    dual_bound : {"auto", True, False}
+        The complementary-energy lower bound (``microhom.dual_bound``; docs/theory.md, section 12):
+        an exactly equilibrated force field built from each CG iterate, no eigenvalue and no
+        factorisation. "auto" (default): used where no spectral bound is available (above
+        ``dense_max`` and ``microhom.spectral.CERTIFIED_MAX_DOF``, or ``spectral_bound="none"``)
+        and the network is not pre-stressed; True: also beside a spectral bound (each order keeps
+        the better one); False: never. Pre-stressed networks are outside it (``reasons`` says so).
+
     Returns
     -------
     HierarchyResult
         Moduli [unit of kn, N/m] with bounds, orders, flags and the validity.
     """
     t0 = time.perf_counter()
+    if dual_bound not in ("auto", True, False):
+        raise ValueError(f"dual_bound must be 'auto', True or False, got {dual_bound!r}")
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
                                      preconditioner, max_memory)
     for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
@@ -910,6 +922,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     t_asm = time.perf_counter() - t0
     t1 = time.perf_counter()
     _spectral_step(run, user_lam, spectral_bound, dense_max)
+    _dual_step(run, dual_bound)
     soft = _soft_mode_step(run, soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
@@ -1057,6 +1070,24 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
     run.t_bound += time.perf_counter() - tb
 
 
+def _dual_step(run, dual_bound):
+    """The complementary-energy bound's statics (``microhom.dual_bound``) where it applies."""
+    if dual_bound is False or not run.asm.ndof or run.empty:
+        return
+    if dual_bound == "auto" and (run.lam is not None or run.lam_n is not None):
+        return
+    if run.prestress:
+        run.reasons.append("dual lower bound not used: the network is pre-stressed (the geometric stiffness "
+                           "is not of the form B^T K B with K >= 0); only the spectral certificate applies")
+        return
+    tb = time.perf_counter()
+    run.dual = build_equilibrator(run.asm)
+    run.src = "dual" if run.src == "none" else run.src + "+dual"
+    if run.lam is None and run.lam_n is None:
+        run.reasons[:] = [r for r in run.reasons if not r.startswith("no certified spectral bound")]
+    run.t_bound += time.perf_counter() - tb
+
+
 def _dense_fits(run, ndof):
     """Memory check of the dense bound (24 ndof^2 bytes on top of the planned peak); says why not."""
     need = plan_memory(0, 0, max_order=0, preconditioner="block", soft_modes=0, dense=False).total \
@@ -1182,7 +1213,7 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
-    rigorous = run.lam is not None or run.lam_n is not None
+    rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
     cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
     if rigorous and run.factor is None:
         cap = max(int(max_order), int(run.certify_max_order))
@@ -1315,10 +1346,12 @@ def _verdict(run, ests, C_upper):
                        f"{width}): returned the best interval")
     if not certified and run.best_low is not None and not run.trivial:
         lam = run.lam if run.lam is not None else run.lam_n
+        term = (f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g}" if lam is not None else
+                "the dual bound's gap Corr^T K^+ Corr (the CG residual carried by statics)")
         cap = (f"{run.max_order} multilevel + {run.n_factor_steps} factorised step(s)" if run.n_factor_steps
                else f"the cap of {max(run.max_order, run.certify_max_order)} step(s)")
         reasons.append(f"rigorous interval wider than tol after {cap}: the residual term "
-                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates; raise "
+                       f"{term} still dominates; raise "
                        "max_order, certify_max_order or factor_steps")
     return certified, jammed, floppy, negative
 
@@ -1415,9 +1448,13 @@ def _best_lower(run, C, cg):
         cands.append(_lower(C, cg, run.Minv, run.lam, run.lam_hi, run.area))
     if run.lam_n is not None:
         cands.append(_lower(C, cg, run.Ninv, run.lam_n, None, run.area))
+    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
+    if run.dual is not None:      # its own round-off margin is subtracted already
+        tb = time.perf_counter()
+        cands.append(dual_lower_bound(run.asm, cg.X, run.area, run.dual).C_lower)
+        run.t_bound += time.perf_counter() - tb
     if not cands:
         return None
-    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     L = max(cands, key=lambda L: sum(_iso(L)))
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)
