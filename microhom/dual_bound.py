@@ -49,6 +49,7 @@ __all__ = ["DualBound", "Equilibrator", "build_equilibrator", "dual_lower_bound"
 _RANK_TOL = 1e-9       # eigenvalue of the local A K A^T below this fraction of the largest: rank-deficient
 _ACCEPT = 1e-4         # a unit joins only if every eigenvalue of its A K A^T is above this fraction (cond <= 1e4)
 _U = np.finfo(float).eps
+_VALID_RESIDUAL = 1e-9  # relative equilibrium residual above which the field is not taken as balanced
 
 
 # ---- local statics (numba) ----------------------------------------------------------------------
@@ -735,6 +736,9 @@ class DualBound(Result):
         [unit of C].
     time : float
         Wall time of this evaluation [s].
+    valid : bool
+        The corrected field is in equilibrium to round-off (``residual <= 1e-9``) and the stalled
+        particles were solved: only then is ``C_lower`` a bound.
     """
 
     C_lower: np.ndarray
@@ -744,6 +748,7 @@ class DualBound(Result):
     residual: float
     gap: np.ndarray
     time: float
+    valid: bool
 
 
 def _compliance(asm: Assembly):
@@ -819,6 +824,7 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
     scale = asm.F_scale if asm.F_scale > 0 else 1.0
     K_l, G_l = _iso(C_lower)
+    res = float(np.abs(rho).max(initial=0.0) / scale)
     return DualBound(C_lower=C_lower, K_lower=float(K_l), G_lower=float(G_l), margin=float(margin),
-                     residual=float(np.abs(rho).max(initial=0.0) / scale), gap=0.5 * (gap + gap.T),
-                     time=time.perf_counter() - t0)
+                     residual=res, gap=0.5 * (gap + gap.T), time=time.perf_counter() - t0,
+                     valid=bool(eq.block_solved and res <= _VALID_RESIDUAL))

@@ -892,14 +892,9 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
         figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
         is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
-
     dual_bound : {"auto", True, False}
-        The complementary-energy lower bound (``microhom.dual_bound``; docs/theory.md, section 12):
-        an exactly equilibrated force field built from each CG iterate, no eigenvalue and no
-        factorisation. "auto" (default): used where no spectral bound is available (above
-        ``dense_max`` and ``microhom.spectral.CERTIFIED_MAX_DOF``, or ``spectral_bound="none"``)
-        and the network is not pre-stressed; True: also beside a spectral bound (each order keeps
-        the better one); False: never. Pre-stressed networks are outside it (``reasons`` says so).
+        The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12; no
+        eigenvalue, no factorisation): "auto" where no spectral bound is, True beside it too, False never.
 
     Returns
     -------
@@ -907,10 +902,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Moduli [unit of kn, N/m] with bounds, orders, flags and the validity.
     """
     t0 = time.perf_counter()
-    if dual_bound not in ("auto", True, False):
-        raise ValueError(f"dual_bound must be 'auto', True or False, got {dual_bound!r}")
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes,
-                                     preconditioner, max_memory)
+                                     preconditioner, max_memory, dual_bound)
     for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
             raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
@@ -921,8 +914,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     _setup(run, min_contacts)
     t_asm = time.perf_counter() - t0
     t1 = time.perf_counter()
-    _spectral_step(run, user_lam, spectral_bound, dense_max)
-    _dual_step(run, dual_bound)
+    _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound)
     soft = _soft_mode_step(run, soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
@@ -930,7 +922,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     return _finish(run, preconditioner, t_asm, t_solve)
 
 
-def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory):
+def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory,
+              dual_bound="auto"):
     """Argument checks (each error names the parameter and its allowed range); returns
     (soft_modes with "auto" kept, the user's spectral bound or None)."""
     if not isinstance(network, ContactNetwork):
@@ -959,6 +952,8 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
     if max_memory is not None and not (isinstance(max_memory, (int, float, np.integer, np.floating))
                                        and np.isfinite(max_memory) and max_memory > 0):
         raise ValueError(f"max_memory must be a positive number of bytes, got {max_memory!r}")
+    if not (isinstance(dual_bound, bool) or (isinstance(dual_bound, str) and dual_bound == "auto")):
+        raise ValueError(f"dual_bound must be 'auto', True or False, got {dual_bound!r}")
     return soft_modes, user_lam
 
 
@@ -1026,8 +1021,9 @@ def _setup(run, min_contacts):
                                                                           * np.ones(kept.n_contacts), 1e-300)))
 
 
-def _spectral_step(run, user_lam, spectral_bound, dense_max):
-    """The certified lower bound of the pencil's non-zero spectrum (user's, dense, or none)."""
+def _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound="auto"):
+    """The certified lower bound of the pencil's non-zero spectrum (user's, dense, or none), then
+    the dual bound's statics where it applies (:func:`_dual_step`)."""
     tb = time.perf_counter()
     asm = run.asm
     run.lam_hi = None if run.prestress else 2.0   # H <= 2M without pre-stress (docs/theory.md section 9)
@@ -1068,6 +1064,7 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
                                "microhom.spectral.CERTIFIED_MAX_DOF; pass spectral_bound=): the lower bounds are "
                                "not available")
     run.t_bound += time.perf_counter() - tb
+    _dual_step(run, dual_bound)
 
 
 def _dual_step(run, dual_bound):
@@ -1082,6 +1079,12 @@ def _dual_step(run, dual_bound):
         return
     tb = time.perf_counter()
     run.dual = build_equilibrator(run.asm)
+    if not run.dual.block_solved:
+        run.reasons.append(f"dual lower bound not used: {run.dual.n_stalled} particles could not be attached "
+                           "by statics and their block is above block_max (microhom.dual_bound)")
+        run.dual = None
+        run.t_bound += time.perf_counter() - tb
+        return
     run.src = "dual" if run.src == "none" else run.src + "+dual"
     if run.lam is None and run.lam_n is None:
         run.reasons[:] = [r for r in run.reasons if not r.startswith("no certified spectral bound")]
@@ -1451,7 +1454,9 @@ def _best_lower(run, C, cg):
     cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     if run.dual is not None:      # its own round-off margin is subtracted already
         tb = time.perf_counter()
-        cands.append(dual_lower_bound(run.asm, cg.X, run.area, run.dual).C_lower)
+        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual)
+        if b.valid:
+            cands.append(b.C_lower)
         run.t_bound += time.perf_counter() - tb
     if not cands:
         return None
