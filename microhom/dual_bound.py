@@ -428,7 +428,7 @@ class Equilibrator:
             np.add.at(c, be, f)
             load -= A @ y
         _peel(load, c, *args, 0, D["n_tree"])
-        if D["seed_Y"] is not None:       # the seed: dense least squares on its own contacts
+        if D["seed_Y"] is not None and len(D["seed_e"]):   # the seed: dense least squares on its contacts
             ls = load[D["seed_dofs"]]
             y = D["seed_Y"] @ ls
             f = np.einsum("uxb,ubs->uxs", D["seed_Q"], y.reshape(len(D["seed_e"]), D["d"], -1))
@@ -521,7 +521,6 @@ def _seed(deg, target, ptr, adj_q, regular, usable, pairs, pdof, B, Q, nk, Kq, n
     load (rank = unknowns - rigid motions)."""
     rigid = d + rotational_dofs(d)
     cand = np.argsort(-np.where(regular, deg, -1), kind="stable")[:tries]
-    best = None
     for start in cand:
         ball = _ball(start, target, ptr, adj_q, regular)
         while len(ball) >= 2:
@@ -535,9 +534,8 @@ def _seed(deg, target, ptr, adj_q, regular, usable, pairs, pdof, B, Q, nk, Kq, n
             inner = [int((ins[pairs[usable & ((pairs[:, 0] == p) | (pairs[:, 1] == p))]].all(axis=1)).sum())
                      for p in ball]
             ball.pop(int(np.argmin(inner)))
-        if best is None:
-            best = np.array(_ball(start, target, ptr, adj_q, regular), dtype=np.int64)
-    return best
+    # none: a single particle (no internal contact; its whole load is left, carried by the cycles)
+    return np.array(cand[:1], dtype=np.int64)
 
 
 def _reserve(asm, usable, stick, per_axis=4, n_random=8, seed=0):
@@ -676,7 +674,10 @@ def _seed_solve(data, seed, usable, Kq):
     A, Kl, se, sd = _seed_matrix(seed, usable, data["pairs"], data["pdof"], data["B"], data["Q"],
                                  data["nk"], Kq, data["nl"], d)
     data["seed_dofs"] = sd
-    if not len(se) or not len(sd):
+    if not len(sd):
+        return
+    if not len(se):                 # a single particle: it keeps its whole load (the cycles carry it)
+        data.update(seed_e=se, seed_A=np.zeros((len(sd), 0)), seed_Q=data["Q"][se], seed_Y=np.zeros((0, len(sd))))
         return
     KA = Kl @ A.T
     M = A @ KA

@@ -44,7 +44,7 @@ def _with_sliding(net, frac=0.15, seed=3):
 def _networks():
     tri = diluted_triangular(300, z=4.6, kt=0.5, seed=1)
     fcc = fcc_network(100, keep=0.65, kt=0.5, seed=2)
-    loose = fcc_network(100, keep=0.5, kt=0.5, seed=4)       # rattlers
+    loose = fcc_network(100, keep=0.4, kt=0.5, seed=4)       # rattlers
     return {"2D": tri, "2D sliding": _with_sliding(tri), "3D": fcc, "3D sliding": _with_sliding(fcc),
             "3D rattlers": loose}
 
