@@ -894,7 +894,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         is tried first; a dense bound that does not fit is skipped; ``reasons`` says so).
     dual_bound : {"auto", True, False}
         The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12; no
-        eigenvalue, no factorisation): "auto" where no spectral bound is, True beside it too, False never.
+        eigenvalue, no factorisation): "auto" where "auto" found no spectral bound, True always, False never.
 
     Returns
     -------
@@ -1064,14 +1064,16 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound="auto"):
                                "microhom.spectral.CERTIFIED_MAX_DOF; pass spectral_bound=): the lower bounds are "
                                "not available")
     run.t_bound += time.perf_counter() - tb
-    _dual_step(run, dual_bound)
+    _dual_step(run, dual_bound, spectral_bound == "auto" and asm.ndof > dense_max)
 
 
-def _dual_step(run, dual_bound):
-    """The complementary-energy bound's statics (``microhom.dual_bound``) where it applies."""
+def _dual_step(run, dual_bound, large):
+    """The complementary-energy bound's statics (``microhom.dual_bound``) where it applies: always
+    with ``dual_bound=True``; with "auto" when the spectral route was "auto" on a system above
+    ``dense_max`` and gave no bound (``spectral_bound="none"`` keeps meaning no lower bound)."""
     if dual_bound is False or not run.asm.ndof or run.empty:
         return
-    if dual_bound == "auto" and (run.lam is not None or run.lam_n is not None):
+    if dual_bound == "auto" and (run.lam is not None or run.lam_n is not None or not large):
         return
     if run.prestress:
         run.reasons.append("dual lower bound not used: the network is pre-stressed (the geometric stiffness "
