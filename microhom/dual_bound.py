@@ -375,6 +375,8 @@ class Equilibrator:
         up to ``block_max`` unknowns); False: they were not, and the field is not in equilibrium.
     setup_time : float
         Wall time of the construction [s].
+    _data : dict
+        The construction's arrays (order, local operators, seed, block, reserved cycles): internal.
     """
 
     n_seed: int
