@@ -59,6 +59,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, affine_tensor, assemble, rotational_dofs, stress0
+from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
@@ -839,6 +840,7 @@ class _Run:
     spectral_guess: float | None = None
     n_cert_fact: int = 0             # numeric factorisations of the sparse certificate
     no_certificate: bool = False     # its factor does not fit in memory (_memory_guard)
+    dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
 
 
 def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
@@ -847,7 +849,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                          preconditioner: str = "auto", soft_modes="auto",
                          max_memory=None, certify_max_order: int = 200,
                          factor_steps: int = 4, spectral_guess=None,
-                         spin_arm: str = "contact") -> HierarchyResult:
+                         spin_arm: str = "contact", dual_bound="auto") -> HierarchyResult:
     """Estimates of the stiffness of ``network`` of increasing order, with bounds.
 
     The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
@@ -935,6 +937,9 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         "One factorisation"). Never trusted: a wrong guess costs a factorisation, not the bound.
     spin_arm : ``"contact"`` (default) or ``"radius"``
         Spin arms of the assembly (:mod:`microhom.kinematics`); the bounds are of that tensor.
+    dual_bound : {"auto", True, False}
+        The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12; no
+        eigenvalue, no factorisation): "auto" where "auto" found no spectral bound, True always, False never.
 
     Returns
     -------
@@ -945,7 +950,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     auto_order, auto_prec = max_order == "auto", preconditioner == "auto"
     max_order, prec0 = 16 if auto_order else max_order, "amg" if auto_prec else preconditioner
     soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, prec0,
-                                     max_memory, spectral_guess, certify_max_order, factor_steps)
+                                     max_memory, spectral_guess, certify_max_order, factor_steps,
+                                     dual_bound)
     run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
                max_order=int(max_order), certify_max_order=int(certify_max_order),
                factor_steps=int(factor_steps), spectral_guess=spectral_guess, spin_arm=spin_arm)
@@ -953,7 +959,7 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
                          spectral_bound == "auto" and factor_steps > 0, dense_max)
     _setup(run, min_contacts)
     t_asm = (t1 := time.perf_counter()) - t0
-    _spectral_step(run, user_lam, spectral_bound, dense_max)
+    _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound)
     max_order, preconditioner = _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner)
     soft = _soft_mode_step(run, soft_modes)
     _calibration(run, preconditioner, soft)
@@ -982,7 +988,7 @@ def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
 
 
 def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory,
-              spectral_guess=None, certify_max_order=200, factor_steps=4):
+              spectral_guess=None, certify_max_order=200, factor_steps=4, dual_bound="auto"):
     """Argument checks (each error names the parameter and its allowed range); returns
     (soft_modes with "auto" kept, the user's spectral bound or None)."""
     if not isinstance(network, ContactNetwork):
@@ -1015,6 +1021,8 @@ def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, pr
                                            and np.isfinite(spectral_guess) and spectral_guess > 0):
         raise ValueError(f"spectral_guess must be a positive finite float, got {spectral_guess!r}")
     _validate_caps(certify_max_order, factor_steps)
+    if not (isinstance(dual_bound, bool) or (isinstance(dual_bound, str) and dual_bound == "auto")):
+        raise ValueError(f"dual_bound must be 'auto', True or False, got {dual_bound!r}")
     return soft_modes, user_lam
 
 
@@ -1092,8 +1100,9 @@ def _setup(run, min_contacts):
                                                                           * np.ones(kept.n_contacts), 1e-300)))
 
 
-def _spectral_step(run, user_lam, spectral_bound, dense_max):
-    """The certified lower bound of the pencil's non-zero spectrum (user's, dense, or none)."""
+def _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound="auto"):
+    """The certified lower bound of the pencil's non-zero spectrum (user's, dense, or none), then
+    the dual bound's statics where it applies (:func:`_dual_step`)."""
     tb = time.perf_counter()
     asm = run.asm
     run.lam_hi = None if run.prestress else 2.0   # H <= 2M without pre-stress (docs/theory.md section 9)
@@ -1135,6 +1144,33 @@ def _spectral_step(run, user_lam, spectral_bound, dense_max):
                                "the sparse certificate failed or the system is above its limit "
                                "microhom.spectral.CERTIFIED_MAX_DOF; pass spectral_bound=): the lower bounds are "
                                "not available")
+    run.t_bound += time.perf_counter() - tb
+    _dual_step(run, dual_bound, spectral_bound == "auto" and asm.ndof > dense_max)
+
+
+def _dual_step(run, dual_bound, large):
+    """The complementary-energy bound's statics (``microhom.dual_bound``) where it applies: always
+    with ``dual_bound=True``; with "auto" when the spectral route was "auto" on a system above
+    ``dense_max`` and gave no bound (``spectral_bound="none"`` keeps meaning no lower bound)."""
+    if dual_bound is False or not run.asm.ndof or run.empty:
+        return
+    if dual_bound == "auto" and (run.lam is not None or run.lam_n is not None or not large):
+        return
+    if run.prestress:
+        run.reasons.append("dual lower bound not used: the network is pre-stressed (the geometric stiffness "
+                           "is not of the form B^T K B with K >= 0); only the spectral certificate applies")
+        return
+    tb = time.perf_counter()
+    run.dual = build_equilibrator(run.asm)
+    if not run.dual.block_solved:
+        run.reasons.append(f"dual lower bound not used: {run.dual.n_stalled} particles could not be attached "
+                           "by statics and their block is above block_max (microhom.dual_bound)")
+        run.dual = None
+        run.t_bound += time.perf_counter() - tb
+        return
+    run.src = "dual" if run.src == "none" else run.src + "+dual"
+    if run.lam is None and run.lam_n is None:
+        run.reasons[:] = [r for r in run.reasons if not r.startswith("no certified spectral bound")]
     run.t_bound += time.perf_counter() - tb
 
 
@@ -1264,7 +1300,7 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
-    rigorous = run.lam is not None or run.lam_n is not None
+    rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
     cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
     if rigorous and run.factor is None:
         cap = max(int(max_order), int(run.certify_max_order))
@@ -1397,10 +1433,12 @@ def _verdict(run, ests, C_upper):
                        f"{width}): returned the best interval")
     if not certified and run.best_low is not None and not run.trivial:
         lam = run.lam if run.lam is not None else run.lam_n
+        term = (f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g}" if lam is not None else
+                "the dual bound's gap Corr^T K^+ Corr (the CG residual carried by statics)")
         cap = (f"{run.max_order} multilevel + {run.n_factor_steps} factorised step(s)" if run.n_factor_steps
                else f"the cap of {max(run.max_order, run.certify_max_order)} step(s)")
         reasons.append(f"rigorous interval wider than tol after {cap}: the residual term "
-                       f"Res^T M^-1 Res / lam with the certified lam = {lam:.3g} still dominates; raise "
+                       f"{term} still dominates; raise "
                        "max_order, certify_max_order or factor_steps")
     return certified, jammed, floppy, negative
 
@@ -1498,9 +1536,15 @@ def _best_lower(run, C, cg):
         cands.append(_lower(C, cg, run.Minv, run.lam, run.lam_hi, run.area))
     if run.lam_n is not None:
         cands.append(_lower(C, cg, run.Ninv, run.lam_n, None, run.area))
+    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
+    if run.dual is not None:      # its own round-off margin is subtracted already
+        tb = time.perf_counter()
+        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual)
+        if b.valid:
+            cands.append(b.C_lower)
+        run.t_bound += time.perf_counter() - tb
     if not cands:
         return None
-    cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     L = max(cands, key=lambda L: sum(_iso(L)))
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)

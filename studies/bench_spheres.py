@@ -1,6 +1,6 @@
 """Cost of the relaxation hierarchy on sphere networks (3D) against the exact solve.
 
-    python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01]
+    python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
@@ -44,7 +44,12 @@ def _rss_gb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
 
 
-def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None):
+#: --bound: the lower-bound route of the hierarchy (relaxation_hierarchy's spectral_bound, dual_bound)
+BOUNDS = {"auto": dict(), "dual": dict(spectral_bound="none", dual_bound=True),
+          "spectral": dict(dual_bound=False)}
+
+
+def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto", hier_memory=None):
     t0 = time.perf_counter()
     net = fcc_network(n, keep=keep, kt=kt)
     t_build = time.perf_counter() - t0
@@ -53,14 +58,15 @@ def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None):
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order)
+        h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order, max_memory=hier_memory,
+                                 **BOUNDS[bound])
     t_h = time.perf_counter() - t0
-    print(f"  hierarchy: {t_h:.1f} s total (assembly {h.assembly_time:.1f}, CG {h.solve_time:.1f}, "
+    print(f"  hierarchy ({bound} bound: {h.spectral_bound_source}): {t_h:.1f} s total (assembly {h.assembly_time:.1f}, CG {h.solve_time:.1f}, "
           f"bound {h.bound_time:.1f}), ndof {h.n_dof}, order {h.order}; peak RSS {_rss_gb():.2f} GiB", flush=True)
     print("  " + h.summary(), flush=True)
     print(f"  preconditioner setup {h.preconditioner_time:.1f} s; upper bounds per order K "
           f"{np.array2string(h.K_orders, precision=6)}, G {np.array2string(h.G_orders, precision=6)}", flush=True)
-    row = dict(N=net.n_particles, Nc=net.n_contacts, ndof=h.n_dof, order=h.order, t_hierarchy=t_h,
+    row = dict(bound=h.spectral_bound_source, cpu=time.process_time(), N=net.n_particles, Nc=net.n_contacts, ndof=h.n_dof, order=h.order, t_hierarchy=t_h,
                t_bound=h.bound_time, K_upper=h.K.upper, K_lower=h.K.lower, G_upper=h.G.upper,
                G_lower=h.G.lower, t_exact=np.nan, K_exact=np.nan, G_exact=np.nan)
     if exact == "yes" or (exact == "auto" and net.n_particles <= 20_000):
@@ -81,8 +87,12 @@ def main(argv=None):
     ap.add_argument("--exact", choices=("auto", "yes", "no"), default="auto")
     ap.add_argument("--max-order", type=int, default=60)
     ap.add_argument("--max-memory", type=float, default=None, help="bytes, for the exact solve")
+    ap.add_argument("--bound", choices=tuple(BOUNDS), default="auto",
+                    help="lower bound: auto (spectral certificate where it applies, else dual), dual, spectral")
+    ap.add_argument("--hier-memory", type=float, default=None, help="bytes, the hierarchy's max_memory")
     a = ap.parse_args(argv)
-    rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory) for n in a.n]
+    rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
+            for n in a.n]
     for r in rows:
         print(r)
     return rows
