@@ -897,15 +897,12 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
         responsibility).
     dense_max : int
-        Largest number of unknowns for the dense spectral bound (default 1000: at 2922 unknowns it
-        took 31 s against 0.8 s for the sparse certificate, docs/results/hierarchy.md section 7).
+        Largest number of unknowns for the dense spectral bound (docs/results/hierarchy.md §7).
     min_contacts : int, optional
         Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
     reorthogonalize : bool or "auto"
-        H-conjugate each new search block against all earlier ones (True), only the
-        last (False: the plain block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000
-        unknowns when the basis fits in memory: exact-arithmetic behaviour when runs go to
-        convergence on small systems).
+        H-conjugate each new search block against all earlier ones (True), only the last (False:
+        the block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000 unknowns if it fits).
     preconditioner : {"auto", "amg", "block"}
         Preconditioner of the conjugate gradients. "auto" (default): "block" where ``max_order``
         "auto" resolved to 1, else "amg". "amg": smoothed-aggregation multilevel
@@ -938,8 +935,8 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
     spin_arm : ``"contact"`` (default) or ``"radius"``
         Spin arms of the assembly (:mod:`microhom.kinematics`); the bounds are of that tensor.
     dual_bound : {"auto", True, False}
-        The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12; no
-        eigenvalue, no factorisation): "auto" where "auto" found no spectral bound, True always, False never.
+        The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12):
+        "auto" where "auto" found no spectral bound, True always, False never.
 
     Returns
     -------
