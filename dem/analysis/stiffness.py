@@ -63,7 +63,7 @@ from microhom.factor import (AUTO_PARDISO_DOF, COUNTS, MemoryGuardError, NotPosi
 
 _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set this to None
 
-__all__ = ["StiffnessResult", "RIGIDITY_CHECK_MAX_DOF", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
+__all__ = ["StiffnessResult", "RIGIDITY_CHECK_MAX_DOF", "rigidity_factor", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
            "factorise", "count_modes", "relax", "relax_tangential", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
            "have_pardiso", "particle_ordering", "predicted_memory", "Reduced", "ModeCount",
            "MemoryGuardError"]
