@@ -69,14 +69,10 @@ def _unit_local(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, 
                 rowof[u, k] = nrow
                 rdof[nrow] = pdof[mem[u], k]
                 nrow += 1
-    ne = 0
+    deg = 0
     for u in range(mem.shape[0]):
-        p = mem[u]
-        for t in range(ptr[p], ptr[p + 1]):
-            e, q = adj_e[t], adj_q[t]
-            if usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before)):
-                ne += 1
-    es = np.empty(ne, np.int64)
+        deg += ptr[mem[u] + 1] - ptr[mem[u]]
+    es = np.empty(deg, np.int64)        # at most every contact of the unit; trimmed below
     ncol = 0
     ne = 0
     for u in range(mem.shape[0]):
@@ -87,6 +83,7 @@ def _unit_local(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, 
                 es[ne] = e
                 ne += 1
                 ncol += nk[e]
+    es = es[:ne]
     A = np.zeros((nrow, ncol))
     Kl = np.zeros((ncol, ncol))
     col = 0
@@ -272,7 +269,9 @@ def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
     pptr = np.zeros(n + 1, np.int64)
     rptr = np.zeros(n + 1, np.int64)
     yptr = np.zeros(n + 1, np.int64)
-    for a in range(n):          # sizes first
+    es_l, rd_l, y_l = numba.typed.List(), numba.typed.List(), numba.typed.List()
+    deficit = np.zeros(n, np.int64)
+    for a in range(n):          # one local solve per unit, kept until the sizes are known
         mem = members[uptr[a]:uptr[a + 1]]
         for u in range(mem.shape[0]):
             slot[mem[u]] = u
@@ -280,26 +279,21 @@ def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
                                     pairs, B, Q, nk, Kq, nl)
         for u in range(mem.shape[0]):
             slot[mem[u]] = -1
+        Yp, rank = _operator(A, Kl)
+        deficit[a] = rd.shape[0] - rank
+        es_l.append(es)
+        rd_l.append(rd)
+        y_l.append(Yp.ravel().copy())
         pptr[a + 1] = pptr[a] + es.shape[0]
         rptr[a + 1] = rptr[a] + rd.shape[0]
-        yptr[a + 1] = yptr[a] + A.shape[0] * A.shape[1]
+        yptr[a + 1] = yptr[a] + y_l[a].shape[0]
     pe = np.empty(pptr[n], np.int64)
     rdof = np.empty(rptr[n], np.int64)
     Y = np.empty(yptr[n])
-    deficit = np.zeros(n, np.int64)
     for a in range(n):
-        mem = members[uptr[a]:uptr[a + 1]]
-        for u in range(mem.shape[0]):
-            slot[mem[u]] = u
-        A, Kl, es, rd = _unit_local(mem, slot, idx, idx[mem[0]], ptr, adj_e, adj_s, adj_q, usable, pdof,
-                                    pairs, B, Q, nk, Kq, nl)
-        for u in range(mem.shape[0]):
-            slot[mem[u]] = -1
-        pe[pptr[a]:pptr[a + 1]] = es
-        rdof[rptr[a]:rptr[a + 1]] = rd
-        Yp, rank = _operator(A, Kl)
-        deficit[a] = rd.shape[0] - rank
-        Y[yptr[a]:yptr[a + 1]] = Yp.ravel()
+        pe[pptr[a]:pptr[a + 1]] = es_l[a]
+        rdof[rptr[a]:rptr[a + 1]] = rd_l[a]
+        Y[yptr[a]:yptr[a + 1]] = y_l[a]
     return pptr, pe, rptr, rdof, yptr, Y, deficit
 
 

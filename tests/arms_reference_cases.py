@@ -18,7 +18,6 @@ import engine_reference_cases as eref  # noqa: E402
 import law_reference_cases as ref  # noqa: E402
 from dem.engine import contact_models as cm  # noqa: E402
 from dem.engine.contact_laws import ContactLaw, HertzMindlin, HertzRolling, LinearFriction  # noqa: E402
-from dem.engine.integrate import Simulation  # noqa: E402
 
 CASES = {
     # name: (law, Simulation keywords); the vectorised loop under a servo, fused, and the serial loop
@@ -40,15 +39,8 @@ FIELDS = eref.FIELDS
 
 
 def run_case(name):
-    """Run case ``name`` for STEPS steps from :func:`law_reference_cases.initial_state` (local
-    damping 0.2, skin 0.02, a spatial sort every 3 builds) and return the final state, the last
-    ``out`` vector and the number of builds."""
-    law_f, kw_f = CASES[name]
-    law = law_f()
-    st = ref.initial_state(law.needs_spin)
-    sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f())
-    sim.run(STEPS)
-    return st, sim.out.copy(), sim.n_rebuilds
+    """Run case ``name`` of :data:`CASES` as :func:`engine_reference_cases.run_case` runs its own."""
+    return eref.run_case(name, CASES)
 
 
 if __name__ == "__main__":

@@ -44,11 +44,11 @@ STEPS = 400
 FIELDS = ref.FIELDS + ("L",)
 
 
-def run_case(name):
-    """Run case ``name`` for STEPS steps from :func:`law_reference_cases.initial_state` (local
-    damping 0.2, skin 0.02, a spatial sort every 3 builds) and return the final state, the last
-    ``out`` vector and the number of builds."""
-    law_f, kw_f = CASES[name]
+def run_case(name, cases=None):
+    """Run case ``name`` of ``cases`` (default :data:`CASES`) for STEPS steps from
+    :func:`law_reference_cases.initial_state` (local damping 0.2, skin 0.02, a spatial sort every
+    3 builds) and return the final state, the last ``out`` vector and the number of builds."""
+    law_f, kw_f = (CASES if cases is None else cases)[name]
     law = law_f()
     st = ref.initial_state(law.needs_spin)
     sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f())

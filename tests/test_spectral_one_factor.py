@@ -5,7 +5,6 @@ The truth is scipy's dense generalised eigen-solver on (H, M) (another routine t
 certificate's Sylvester count); the exact moduli come from ``dem.analysis.stiffness``."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from scipy.linalg import eigh
 
 from dem.analysis.stiffness import stiffness
@@ -14,8 +13,9 @@ from microhom.factor import available_backends
 from microhom.hierarchy import block_preconditioner, plan_memory, relaxation_hierarchy
 from microhom.kinematics import assemble
 from microhom.multilevel import near_null_space
-from microhom.network import ContactNetwork, from_overlaps
+from microhom.network import ContactNetwork
 from microhom.spectral import GUESS_FACTOR, certified_bound
+from test_hierarchy_certify import _weak_band  # noqa: E402  (the same network, one definition)
 
 BACKENDS = [b for b in ("pardiso", "splu") if b in available_backends()]
 
@@ -34,20 +34,10 @@ def _diluted(nx, ny, z, seed=0):
                           kt=rng.uniform(0.5, 1.0, m), sliding=False)
 
 
-def _cut(n=16, seed=0):
+def _cut():
     """A polydisperse diluted lattice with the contacts across its middle line removed: floppy
-    modes beyond the translations (as test_hierarchy_certify's weak band at zero stiffness)."""
-    rng = np.random.default_rng(seed)
-    base = lattices.triangular(n, n)
-    pos = base.positions + 0.15 * rng.uniform(-0.5, 0.5, base.positions.shape)
-    rad = 0.5 * (1 + 0.15 * rng.uniform(-1, 1, len(pos)))
-    net = from_overlaps(pos, rad, base.cell, kn=1.0, kt=1.0, tolerance=0.35)
-    net = net.select_contacts(rng.random(net.n_contacts) < 4.4 / 6)
-    net = net.with_stiffness(kn=rng.uniform(0.5, 1.5, net.n_contacts))
-    i, j = net.pairs.T
-    y = net.positions[:, 1]
-    mid = 0.5 * (y.min() + y.max())
-    return net.select_contacts((y[i] < mid) == (y[j] < mid))
+    modes beyond the translations (test_hierarchy_certify's weak band at zero stiffness)."""
+    return _weak_band(0.0)
 
 
 def _pencil(net):
