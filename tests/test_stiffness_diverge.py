@@ -62,6 +62,10 @@ def test_modes_on_both_sides_keep_the_best_iterate_and_stop():
     assert "diverged too" in path, path
     assert np.isfinite(X).all() and resid <= r0 and n_ref <= 30
     assert resid > stf.INACCURATE
+    # psd=True (no pre-stress): a growth at s = +eta can only be rounding, so no second factor
+    f = factor(red.H, backend="splu", shift=ETA, scale=red.d)
+    X, resid, n_ref, path = relax(f, red, 1.0, max_refine=30, details=True, psd=True)
+    assert path.endswith("kept the best iterate") and n_ref < 30 and np.isfinite(X).all(), path
 
 
 def _row():

@@ -493,7 +493,7 @@ def _opposite_shift(factor, max_memory):
     return new, f"splu at {s:+.0e}"
 
 
-def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, details=False):
+def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, details=False, psd=False):
     """Solve ``H Q = -F`` for the three unit strains by iterated Tikhonov (refinement on the
     shifted factor ``M = H + s diag(d)`` against the unshifted H): exact for every mode whose
     stiffness >> eta diag; zero modes are not excited (F lies in the range of H). Returns
@@ -506,14 +506,15 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, d
     residual grows by :data:`DIVERGENCE` over its best, the best iterate is kept and the
     refinement goes on, within the same ``max_refine`` budget, on the factor of
     ``H - s diag(d)`` (:func:`_opposite_shift`: contracting for every mode of that side; a
-    positive semi-definite H converges at ``s = +eta``). Never more than ``max_refine`` solves;
-    the returned iterate is the best seen, its residual the one returned."""
+    positive semi-definite H converges at ``s = +eta``, so with ``psd`` a growth there is rounding
+    and only the best iterate is kept). Never more than ``max_refine`` solves; the returned
+    iterate is the best seen, its residual the one returned."""
     if red.H.shape[0] == 0:
         return (np.zeros((0, red.F.shape[1])), 0.0, 0) + (("empty",) if details else ())
     fn_ = F_scale if F_scale > 0 else 1.0
     X, resid, n_ref, diverged, last = _refine(factor, red, factor.solve(-red.F), fn_, rtol, max_refine)
     path = f"{factor.name} at {factor.shift:+.0e}"
-    if diverged and resid > rtol and n_ref < max_refine:
+    if diverged and resid > rtol and n_ref < max_refine and not (psd and factor.shift > 0):
         path += (f": diverged (residual {resid:.1e} grew to {last:.1e} at refinement {n_ref}); "
                  f"kept the best iterate, then ")
         try:
@@ -682,8 +683,8 @@ def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memor
         Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
         path = "splu (non-symmetric)"
     else:
-        Xr, resid, n_ref, path = relax(factor, red, asm.F_scale, rtol, max_refine,
-                                       max_memory=max_memory, details=True)
+        Xr, resid, n_ref, path = relax(factor, red, asm.F_scale, rtol, max_refine, max_memory=max_memory,
+                                       details=True, psd=asm.Kgs is None)
     used = "splu" if tangential else factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
