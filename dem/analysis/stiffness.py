@@ -95,7 +95,9 @@ class StiffnessResult(Result):
     forces and the pre-stress terms of the Cauchy increment are included; ``stress0_mandel``: the
     pre-stress (3,) Mandel [N/m, tension positive] or None. Accuracy: ``residual`` =
     ``max_j |H q_j + F_j|`` over the norm of the per-contact affine forces, after ``n_refine``
-    steps of iterative refinement [-]; ``consistency`` = ``|stress form - energy form| / |C|``
+    steps of iterative refinement [-] (above ``INACCURATE`` = 1e-8: flagged, and ``C_mandel``, ``K``,
+    ``G`` NaN); ``relax_path`` the factor(s) and shift(s) the refinement ran on (a diverging
+    refinement re-solved at the opposite shift, :func:`relax`); ``consistency`` = ``|stress form - energy form| / |C|``
     [-]; ``pivot_gap`` = (largest floppy, smallest kept) relative pivot [-];
     ``count_method`` how the floppy modes were counted (see :func:`count_modes`); ``step_times``
     the wall time of each named step [s]. Not exported: ``u`` (3, N, 2) relaxed fluctuations [m]
@@ -126,6 +128,7 @@ class StiffnessResult(Result):
     residual: float = 0.0          # max_j |H q_j + F_j| / (norm of the per-contact affine forces) after refinement
     consistency: float = 0.0       # |stress form - energy form| / |C|
     n_refine: int = 0
+    relax_path: str = ""           # the factor(s) and shift(s) the refinement ran on (see relax)
     pivot_gap: tuple = (np.nan, np.nan)   # (largest floppy, smallest kept) relative pivot
     stress0_mandel: np.ndarray | None = None
     flags: tuple = ()
@@ -172,6 +175,8 @@ class StiffnessResult(Result):
             f"{self.consistency:.2e}, pivot gap {self.pivot_gap[0]:.1e} | {self.pivot_gap[1]:.1e}",
             f"  assembly {self.assembly_time:.3f} s, solve {self.solve_time:.3f} s",
         ]
+        if "diverged" in self.relax_path:
+            lines.append(f"  refinement: {self.relax_path}")
         lines += [f"  FLAG: {s}" for s in self.flags]
         return "\n".join(lines)
 
@@ -444,26 +449,87 @@ def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=No
 
 
 # ---- step 5: solve ---------------------------------------------------------------------------
-def relax(factor, red, F_scale, rtol=1e-13, max_refine=50):
+#: a relative residual above this flags the result "inaccurate", with NaN relaxed tensor and moduli
+INACCURATE = 1e-8
+#: the refinement diverges once its residual exceeds the best one so far by this factor: a step
+#: multiplies the error of a pencil mode ``lam`` by ``-s/(lam + s)`` (shift ``s``), of modulus
+#: above 1 for ``lam`` between 0 and ``-2 s`` (a rigid mode within ``eta`` of PARDISO's ``-eta``,
+#: or a negative mode within ``eta`` of ``+eta``); rounding moves a stalled residual by less
+DIVERGENCE = 10.0
+
+
+def _refine(factor, red, X, fn_, rtol, steps):
+    """At most ``steps`` refinements of ``X`` on ``factor`` against ``H``, stopped at ``rtol`` or
+    once the residual exceeds the best by :data:`DIVERGENCE` (or is not finite). Returns
+    ``(best X, its residual, refinements run, diverged?, last residual)``."""
+    def residual(X):
+        return float((np.linalg.norm(-red.F - red.H @ X, axis=0) / fn_).max())
+    best, best_r = X, residual(X)
+    r, n = best_r, 0
+    while best_r > rtol and n < steps:
+        X = X + factor.solve(-red.F - red.H @ X)
+        n, r = n + 1, residual(X)
+        if not (np.isfinite(r) and r <= DIVERGENCE * best_r):
+            return best, best_r, n, True, r
+        if r < best_r:
+            best, best_r = X, r
+    return (best, best_r, n, False, r) if r > best_r else (X, r, n, False, r)
+
+
+def _opposite_shift(factor, max_memory):
+    """The factor of ``H - shift diag(d)`` (the other side of the pencil's spectrum): the same
+    factor reshifted (PARDISO in place on its analysis, CHOLMOD in place, SuperLU a new factor),
+    else a new SuperLU factor under the memory guard. Returns ``(factor, how)``."""
+    s = -factor.shift
+    new = None
+    if factor.scale is not None:
+        try:
+            new = factor.reshift(s)
+        except (NotImplementedError, _factor.FactorisationError):
+            new = None
+    if new is not None:
+        return new, f"{new.name} reshifted to {s:+.0e}"
+    new = _factor.factor(factor.A, backend="splu", shift=s, scale=factor.scale, max_memory=max_memory)
+    return new, f"splu at {s:+.0e}"
+
+
+def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, details=False, psd=False):
     """Solve ``H Q = -F`` for the three unit strains by iterated Tikhonov (refinement on the
-    shifted factor against the unshifted H): exact for every mode whose stiffness >> eta diag;
-    zero modes are not excited (F lies in the range of H). Returns (Q (m, 3), residual, n_refine)
-    with the residual relative to the norm of the per-contact affine forces ``F_scale``."""
+    shifted factor ``M = H + s diag(d)`` against the unshifted H): exact for every mode whose
+    stiffness >> eta diag; zero modes are not excited (F lies in the range of H). Returns
+    (Q (m, 3), residual, n_refine) with the residual relative to the norm of the per-contact
+    affine forces ``F_scale`` (and the path taken, a string, if ``details``).
+
+    A step multiplies the error of a pencil mode ``lam`` by ``-s/(lam + s)``: a mode between 0
+    and ``-2s`` makes the refinement diverge (PARDISO's ``s = -eta`` beside a rigid mode at
+    ``1.26 eta``: residual 6e19, K = 1.7e51 on a corpus row, ``docs/stiffness.md``). Once the
+    residual grows by :data:`DIVERGENCE` over its best, the best iterate is kept and the
+    refinement goes on, within the same ``max_refine`` budget, on the factor of
+    ``H - s diag(d)`` (:func:`_opposite_shift`: contracting for every mode of that side; a
+    positive semi-definite H converges at ``s = +eta``, so with ``psd`` a growth there is rounding
+    and only the best iterate is kept). Never more than ``max_refine`` solves; the returned
+    iterate is the best seen, its residual the one returned."""
     if red.H.shape[0] == 0:
-        return np.zeros((0, red.F.shape[1])), 0.0, 0
-    Xr = factor.solve(-red.F)
+        return (np.zeros((0, red.F.shape[1])), 0.0, 0) + (("empty",) if details else ())
     fn_ = F_scale if F_scale > 0 else 1.0
-    n_ref = 0
-    for n_ref in range(1, max_refine + 1):
-        R = -red.F - red.H @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-        if resid <= rtol or not np.isfinite(resid):
-            break
-        Xr = Xr + factor.solve(R)
-    else:
-        R = -red.F - red.H @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-    return Xr, resid, n_ref
+    X, resid, n_ref, diverged, last = _refine(factor, red, factor.solve(-red.F), fn_, rtol, max_refine)
+    path = f"{factor.name} at {factor.shift:+.0e}"
+    if diverged and resid > rtol and n_ref < max_refine and not (psd and factor.shift > 0):
+        path += (f": diverged (residual {resid:.1e} grew to {last:.1e} at refinement {n_ref}); "
+                 f"kept the best iterate, then ")
+        try:
+            f2, how = _opposite_shift(factor, max_memory)
+        except _factor.MemoryGuardError as exc:
+            path += f"no re-solve ({exc})"
+        else:
+            X, resid, n2, diverged, last = _refine(f2, red, X, fn_, rtol, max_refine - n_ref)
+            n_ref += n2
+            path += how + (f": diverged too (residual {last:.1e})" if diverged else "")
+            if f2 is not factor and hasattr(f2, "release"):
+                f2.release()
+    elif diverged:
+        path += f": diverged (residual {last:.1e}); kept the best iterate"
+    return (X, resid, n_ref) + ((path,) if details else ())
 
 
 def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA):
@@ -609,18 +675,20 @@ def _fluctuation_fields(asm, Q, N, dim):
     return u_f, w_f
 
 
-def _relax_and_release(factor, asm, red, tangential, rtol, max_refine):
+def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memory=None):
     """The relaxation step of :func:`stiffness`: the symmetric solve on ``factor`` (or, for spheres
     with pre-stress and tangential forces, the non-symmetric one), then the factor's memory freed.
-    Returns ``(Xr, residual, n_refine, solver name)``."""
+    Returns ``(Xr, residual, n_refine, solver name, path)`` (``path``: see :func:`relax`)."""
     if tangential:
         Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
+        path = "splu (non-symmetric)"
     else:
-        Xr, resid, n_ref = relax(factor, red, asm.F_scale, rtol, max_refine)
+        Xr, resid, n_ref, path = relax(factor, red, asm.F_scale, rtol, max_refine, max_memory=max_memory,
+                                       details=True, psd=asm.Kgs is None)
     used = "splu" if tangential else factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
-    return Xr, resid, n_ref, used
+    return Xr, resid, n_ref, used, path
 
 
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
@@ -696,15 +764,16 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         factor = modes.factor
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
-    Xr, resid, n_ref, used = _relax_and_release(factor, asm, red, tangential, rtol, max_refine)
+    Xr, resid, n_ref, used, path = _relax_and_release(factor, asm, red, tangential, rtol, max_refine,
+                                                      max_memory)
     steps["relax"] = time.perf_counter() - tc
     del factor
     Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
     Q[red.idx] = Xr
     t_solve = time.perf_counter() - t1
-    if resid > 1e-8:
+    if resid > INACCURATE:
         flags.append(f"inaccurate: the relaxation solve did not converge (relative residual "
-                     f"{resid:.2e})")
+                     f"{resid:.2e}; {path}); the relaxed tensor and moduli are NaN")
 
     tc = time.perf_counter()
     c_rel, consistency = relaxed_tensor(asm, Q, net.volume)
@@ -728,6 +797,8 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
                f"{s:.3g}; rescale the stiffnesses (the moduli are proportional to kn)")
         flags.append(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    if resid > INACCURATE:       # a tensor off by an unknown amount is not returned (K was 1.7e51)
+        c_rel, K_, G_ = np.full_like(c_rel, np.nan), np.nan, np.nan
     N = net.n_particles
     u_f, w_f = _fluctuation_fields(asm, Q, N, net.dim)
     return StiffnessResult(
@@ -736,7 +807,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         solve_time=t_solve, assembly_time=t_asm, n_particles=N,
         n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(modes.n_unstable),
         prestress=bool(prestress), solver=used, residual=resid,
-        consistency=consistency, n_refine=n_ref, pivot_gap=modes.gap,
+        consistency=consistency, n_refine=n_ref, relax_path=path, pivot_gap=modes.gap,
         stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0) * s,
         flags=tuple(flags), stiffness_scale=s, count_method=modes.method, step_times=steps, u=u_f, omega=w_f, rattler_mask=asm.rattlers)
 
