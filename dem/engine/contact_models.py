@@ -956,11 +956,12 @@ def _kick_dof(F, vo, m, dtk, dt, damping):
 
 
 @njit(cache=True, inline="always")
-def _kick_block(b0, b1, ka, kick, spins, terms, kb):
-    """The updates of particles b0..b1-1 of :func:`kick_range` (``ka``: its arrays, see
-    ``_kick_range``; no reduction: vectorised), the squared non-affine displacements into ``kb``
-    and, if ``terms`` (a constant where inlined), the kinetic-energy and damping-work terms."""
-    xf, vf, ff, rf, mass = ka[0], ka[1], ka[2], ka[3], ka[4]
+def _kick_block(b0, b1, fb, fo, kick, spins, terms, kb):
+    """The updates of particles b0..b1-1 of :func:`kick_range` (no reduction: vectorised), the
+    squared non-affine displacements into ``kb`` and, if ``terms`` (a constant where inlined),
+    the kinetic-energy and damping-work terms."""
+    xf, vf, rf, mass = fb.x, fb.v, fb.x_ref, fb.mass
+    ff = fo.f
     dtk = kick.dtk
     dt = kick.dt
     damping = kick.damping
@@ -992,7 +993,7 @@ def _kick_block(b0, b1, ka, kick, spins, terms, kb):
             kb[_KWX + q] = wx
             kb[_KWY + q] = wy
     if spins:
-        omega, theta, torque, inertia = ka[5], ka[6], ka[7], ka[8]
+        omega, theta, inertia, torque = fb.omega, fb.theta, fb.inertia, fo.torque
         for k in range(b0, b1):
             q = k - b0
             wn, er, wr = _kick_dof(torque[k], omega[k], inertia[k], dtk, dt, damping)
@@ -1003,20 +1004,10 @@ def _kick_block(b0, b1, ka, kick, spins, terms, kb):
                 kb[_KWR + q] = wr
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def kick_range(lo, hi, fb, fo, kick, sums, kb):
     """Kick and drift particles lo..hi-1 (``fb``: :class:`Bodies` with flat (2N,) x, v, x_ref;
     ``fo``: :class:`Forces` with a flat f), then their spins if ``fb.omega`` is not empty:
-    ``_kick_range`` on the nine arrays that it reads or writes (see there)."""
-    return _kick_range(lo, hi, (fb.x, fb.v, fo.f, fb.x_ref, fb.mass, fb.omega, fb.theta, fo.torque, fb.inertia),
-                       kick, sums, kb)
-
-
-@njit(cache=True, error_model="numpy")
-def _kick_range(lo, hi, ka, kick, sums, kb):
-    """Kick and drift particles lo..hi-1 (``ka``: the flat (2N,) x, v, f, x_ref and the (N,)
-    mass, omega, theta, torque, inertia as a plain tuple: only the arrays the kick uses), then
-    their spins if ``omega`` is not empty:
 
     * ``v += dtk (F + F_damp) / m``, ``x += dt (v + L x)`` with the Cundall damping
       ``F_damp,c = -damping |F_c| sign(v_c)`` per component;
@@ -1035,16 +1026,16 @@ def _kick_range(lo, hi, ka, kick, sums, kb):
     d2m, ke, wd, ker, wdr = sums
     damping = kick.damping
     tally = kick.tally
-    spins = ka[5].shape[0] > 0
+    spins = fb.omega.shape[0] > 0
     terms = tally or damping > 0.0
     a = np.uint64(lo)
     z = np.uint64(hi)
     for b0 in range(a, z, np.uint64(KICK_CHUNK)):
         b1 = min(z, b0 + np.uint64(KICK_CHUNK))
         if terms:
-            _kick_block(b0, b1, ka, kick, spins, True, kb)
+            _kick_block(b0, b1, fb, fo, kick, spins, True, kb)
         else:
-            _kick_block(b0, b1, ka, kick, spins, False, kb)
+            _kick_block(b0, b1, fb, fo, kick, spins, False, kb)
         for q in range(b1 - b0):
             d2 = kb[_KD2 + q]
             if d2 > d2m:
