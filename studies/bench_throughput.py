@@ -42,6 +42,12 @@ steps (the fastest chunk is the steadier figure under load), and the CPU rates o
 (particle-steps/s and contact-steps/s). Printed per law: every process, the medians with their
 spread, the median of the paired ratios (this code over the revision), and whether the two codes
 ended on the same positions and velocities bit for bit.
+
+``--parts`` (with ``--against``) times the step's components instead, each code's kernels on the
+same arrays in one process (``studies/bench_ab_parts.py``: the pair-force kernel, the kick, the
+neighbour rebuild as the control; the revision's package imported a second time as ``dem_rev``),
+``--repeats`` processes per law; printed per component: the minima, the ratio of minima and the
+median of the per-round ratios (this code over the revision, > 1 slower).
 """
 from __future__ import annotations
 
@@ -73,6 +79,7 @@ from studies.common import add_out, cli_out_dir, report_to
 INPUTS = Path(__file__).resolve().parent / "lammps_bench"
 ROOT = Path(__file__).resolve().parent.parent
 WORKER = Path(__file__).resolve().parent / "bench_ab_worker.py"
+PARTS = Path(__file__).resolve().parent / "bench_ab_parts.py"
 KN = 1e4
 DT = 0.1 * 2.0 * math.sqrt(1.0 / KN)
 ZETA = 0.05
@@ -238,6 +245,31 @@ def _ab_summary(name, runs):
           f"trajectories {'bit-identical' if same else 'DIFFER'} ({len(ours) + len(old)} runs)", flush=True)
 
 
+def compare_parts(a, other, state, work):
+    """``--parts``: the components of a step, both codes in one process per repeat and law."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=os.path.join(work, "numba_parts"),
+               NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    for name in a.laws:
+        cls, kw, startup = AB_LAWS[name]
+        spec = os.path.join(work, f"law_{name}.json")
+        with open(spec, "w") as fh:
+            json.dump({"law": cls, "kwargs": kw, "startup": startup, "dt": DT, "skin": SKIN}, fh)
+        for rep in range(a.repeats):
+            r = subprocess.run([sys.executable, str(PARTS), str(other), state, spec, str(a.parts_rounds),
+                                str(a.parts_calls)], cwd=str(ROOT), env=env, capture_output=True, text=True)
+            if r.returncode != 0:
+                raise RuntimeError(f"parts worker failed:\n{r.stderr[-3000:]}")
+            res = json.loads(r.stdout.strip().splitlines()[-1])
+            same = "bit-identical" if res["same_forces"] and res["same_kick"] else "DIFFER"
+            print(f"  rep {rep + 1} {name:8s} load={res['load']:.1f} outputs {same}", flush=True)
+            for part in ("forces", "kick", "rebuild"):
+                q = res[part]
+                lo, hi = q["round_ratio_range"]
+                print(f"    {part:8s} min this {q['this_min_us']:.1f} us, revision {q['rev_min_us']:.1f} us: "
+                      f"ratio of minima {q['ratio_of_min']:.3f}, median of round ratios "
+                      f"{q['median_round_ratio']:.3f} [{lo:.3f}, {hi:.3f}] (> 1: this code slower)", flush=True)
+
+
 def compare_revision(a, base, work):
     """``--against``: this code against a git revision (or a checkout), interleaved processes."""
     other = Path(a.against_dir) if a.against_dir else Path(checkout_revision(a.against, os.path.join(work, "rev")))
@@ -246,6 +278,11 @@ def compare_revision(a, base, work):
     state = os.path.join(work, "ab_state.npz")
     np.savez(state, x=st.x, r=st.radius, h=st.h, rho=RHO)
     sides = {"this code": (ROOT, os.path.join(work, "numba_this")), "revision": (other, os.path.join(work, "numba_rev"))}
+    if a.parts:
+        print(f"\n--against {label} --parts: N={a.ab_n}, {a.parts_rounds} rounds of {a.parts_calls} calls "
+              f"per component and code (wall time, one thread, both codes in one process)", flush=True)
+        compare_parts(a, other, state, work)
+        return None
     print(f"\n--against {label}: N={a.ab_n}, {a.chunks} chunks of {a.chunk_steps} steps after {WARM} "
           f"(CPU time, one thread, separate processes, order alternating)", flush=True)
     runs = {name: {side: [] for side in sides} for name in a.laws}
@@ -288,6 +325,11 @@ def main(argv=None):
     ap.add_argument("--ab-n", type=int, default=100000, help="disks of --against (a multiple of 10000)")
     ap.add_argument("--chunks", type=int, default=200, help="timed chunks per process of --against")
     ap.add_argument("--chunk-steps", type=int, default=10, help="steps per chunk of --against")
+    ap.add_argument("--parts", action="store_true",
+                    help="with --against: time the pair-force kernel, the kick and the rebuild of both codes "
+                         "in one process on the same arrays (studies/bench_ab_parts.py)")
+    ap.add_argument("--parts-rounds", type=int, default=30, help="rounds of --parts")
+    ap.add_argument("--parts-calls", type=int, default=20, help="calls per component, code and round of --parts")
     add_out(ap, "bench_throughput")
     a = ap.parse_args(argv)
     if a.against or a.against_dir:
