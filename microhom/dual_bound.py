@@ -688,7 +688,7 @@ def _reserved_fields(data, asm, reserved):
     if not len(reserved) or data.get("seed_Y") is None:
         return
     d, nk, Q = data["d"], data["nk"], data["Q"]
-    cols, U, ures = [], [], []
+    cols, U = [], []
     k = 0
     for e in reserved:
         U.append(Q[e, :, :nk[e]])

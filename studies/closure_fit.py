@@ -38,10 +38,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from microhom import closure
 from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, features, predict_closure
 from studies.closure_rigidity import RIGIDITY_COLUMNS, rigidity_columns
-from studies.common import cli_out_dir, out_dir, write_table
+from studies.common import cli_out_dir, write_table
 
 SUMMARY = Path(__file__).resolve().parent / "closure_corpus.csv"
 COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob_mu_prep", "knob_dispersity",

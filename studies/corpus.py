@@ -352,7 +352,6 @@ def build_network(row: CorpusRow, cache: Path):
     if path.exists():
         return _load_network(path)
     t0 = time.perf_counter()
-    p = row.params
     meta = dict(row=asdict(row))
     if row.protocol.startswith("pack_"):
         from dem.engine.packing import pack
