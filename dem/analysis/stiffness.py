@@ -503,9 +503,9 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, d
     A step multiplies the error of a pencil mode ``lam`` by ``-s/(lam + s)``: a mode between 0
     and ``-2s`` makes the refinement diverge (PARDISO's ``s = -eta`` beside a rigid mode at
     ``1.26 eta``: residual 6e19, K = 1.7e51 on a corpus row, ``docs/stiffness.md``). Once the
-    residual grows by :data:`DIVERGENCE` over its best, the best iterate is kept and the
+    residual grows by ``DIVERGENCE`` (10) over its best, the best iterate is kept and the
     refinement goes on, within the same ``max_refine`` budget, on the factor of
-    ``H - s diag(d)`` (:func:`_opposite_shift`: contracting for every mode of that side; a
+    ``H - s diag(d)`` (``_opposite_shift``: contracting for every mode of that side; a
     positive semi-definite H converges at ``s = +eta``, so with ``psd`` a growth there is rounding
     and only the best iterate is kept). Never more than ``max_refine`` solves; the returned
     iterate is the best seen, its residual the one returned."""
