@@ -30,7 +30,7 @@ scalars, (C,) arrays or functions ``f(i, j, r_i, r_j, overlap)``, or a normal co
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree

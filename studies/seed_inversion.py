@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -37,7 +36,7 @@ from dem.analysis.stiffness import stiffness
 from microhom.seed_inversion import invert_seed_correction
 from microhom.structural_sums import network_statistics
 from studies.cases import DEFAULTS, get_packing
-from studies.common import cli_out_dir, markdown_table, write_table
+from studies.common import cli_out_dir, write_table
 
 PSI6_MAX = 0.5
 NBAR_GRID = (3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 20.0, 30.0)

@@ -35,8 +35,6 @@ import os
 import re
 import warnings
 
-import numpy as np
-
 from ._core import (Configuration, FormatError, build, check_positive, open_bytes, parse_number,
                     parse_table, require_particles, show)
 
