@@ -60,7 +60,7 @@ from .results import Result
 
 __all__ = ["ALL_FEATURES", "FEATURES_K", "FEATURES_G", "features", "isostatic_point", "predict_closure", "predict_network", "closure_inputs", "size_coordination",
            "dispersity", "ClosurePrediction", "FEATURES", "COEF_K",
-           "COEF_G", "COV_K", "COV_G", "Q", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR",
+           "COEF_G", "COV_K", "COV_G", "Q", "Q_FAMILY", "L_MAX", "family_error_scale", "H_MEAN", "H_MAX", "RANGES", "DZ_MIN", "ERROR",
            "PSI6_LOCAL_DEFAULT"]
 
 #: every feature the closure can use; FEATURES_K / FEATURES_G are the ones each modulus uses
@@ -145,6 +145,7 @@ COV_G = np.array([[ 1.42288748e-01, -5.13761078e-02,  6.82704851e-03,  1.8965170
   -2.15600845e-01,  3.90421458e-02, -9.22204913e-02, -1.86047337e+00, -1.00578688e+01,
    6.34498812e+00]])   # (F^T F)^-1 of the fitted design
 Q = {'K': 0.0523913, 'G': 0.0866659}   # relative error at the mean leverage (>= 90 % LOPO coverage per protocol)
+Q_FAMILY = {'K': (0.0357202, 0.021), 'G': (0.0865136, 0.00225)}   # (a, b): across-family Q = max(Q, a + b L) (>= 90 % LOFO coverage per family)
 H_MEAN = {'K': 0.0182119, 'G': 0.0182119}   # mean leverage of the corpus
 H_MAX = {'K': 1.01176, 'G': 0.995453}   # 3 x the largest leverage of the corpus: beyond, flagged
 RANGES = {'Z': [3.1589, 4.974], 'kt_over_kn': [0.05, 1.0], 'dispersity': [0.0, 0.5007], 'r': [0.0245, 0.0673], 'phi': [0.8042, 0.9101], 'p_over_kn': [9.999997588100242e-05, 0.03821805128847747], 'size_coordination': [0.0, 0.2371], 'rattler_fraction': [0.0, 0.163], 'psi6_local': [0.477, 0.9734]}   # the box of the corpus (usable rows)
@@ -157,7 +158,11 @@ N_MIN = 1000
 #: The psi6_local assumed when it is not given (and then flagged, bit 32), the median of the corpus's
 #: usable rows.
 PSI6_LOCAL_DEFAULT = 0.62
-ERROR = Q   # kept name: the error scale of the closure (relative, at the mean leverage)
+ERROR = Q   # kept name: the in-family error scale of the closure (relative, at the mean leverage)
+#: The largest L = ln(kn / kt) of the across-family error scale (kt/kn = 0.05, the corpus's smallest
+#: kt > 0); kt = 0 (frictionless) takes it too: no family-out case at kt = 0 is valid (only one
+#: family has frictionless rows), so that branch's across-family error is the widest, untested.
+L_MAX = float(np.log(20.0))
 
 #: The largest solid fraction accepted: above 1 a measured phi counts the overlaps twice; up to
 #: 1.1 that is a squeezed packing (flagged), beyond it not a packing fraction (refused).
@@ -282,10 +287,19 @@ class ClosurePrediction(Result):
     K_mf, G_mf : ndarray
         Mean field (37) of the load-bearing particles, ``Z phi (1 - x_r)`` [N/m].
     error_K, error_G : ndarray
-        Stated error of this prediction [N/m]: ``Q sqrt(1 + h / H_MEAN)`` times the modulus, with
-        ``h`` the input's leverage; 90 % of the leave-one-protocol-out cases of the corpus lie
-        within it.
+        Stated error of this prediction for a packing of a preparation family the corpus may not
+        hold (the default) [N/m]: ``max(Q, a + b L) sqrt(1 + h / H_MEAN)`` times the modulus,
+        with ``(a, b) = Q_FAMILY``, ``L = ln(kn/kt)`` in ``[0, L_MAX]`` and ``h`` the input's
+        leverage; at least 90 % of the valid leave-one-family-out cases of each family lie within
+        it (docs/results/closure.md, section 4).
     rel_error_K, rel_error_G : ndarray
+        The same, relative [-].
+    error_K_in_family, error_G_in_family : ndarray
+        The narrower in-family error [N/m], ``Q sqrt(1 + h / H_MEAN)`` times the modulus: at least
+        90 % of the leave-one-protocol-out cases of each protocol lie within it; for a packing
+        whose preparation is like one of the corpus's (servo compression to a pressure, fixed-rate
+        compression to a solid fraction, frictionless energy minimisation).
+    rel_error_K_in_family, rel_error_G_in_family : ndarray
         The same, relative [-].
     leverage_K, leverage_G : ndarray
         The input's leverage in the fitted design (feature-space distance from the data) [-].
@@ -309,6 +323,10 @@ class ClosurePrediction(Result):
     error_G: np.ndarray
     rel_error_K: np.ndarray
     rel_error_G: np.ndarray
+    error_K_in_family: np.ndarray
+    error_G_in_family: np.ndarray
+    rel_error_K_in_family: np.ndarray
+    rel_error_G_in_family: np.ndarray
     leverage_K: np.ndarray
     leverage_G: np.ndarray
     dz: np.ndarray
@@ -335,11 +353,11 @@ def _check(name, a, lo, hi=np.inf, lo_open=False):
 def _model(model):
     """The coefficients, covariances, error scale and leverages of the stored model, or of
     ``model``'s overrides (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``, ``h_mean``,
-    ``h_max``)."""
+    ``h_max``, ``q_family``)."""
     m = model or {}
     return (np.asarray(m.get("coef_K", COEF_K), dtype=float), np.asarray(m.get("coef_G", COEF_G), dtype=float),
             np.asarray(m.get("cov_K", COV_K), dtype=float), np.asarray(m.get("cov_G", COV_G), dtype=float),
-            m.get("Q", Q), m.get("h_mean", H_MEAN), m.get("h_max", H_MAX))
+            m.get("Q", Q), m.get("h_mean", H_MEAN), m.get("h_max", H_MAX), m.get("q_family", Q_FAMILY))
 
 
 def _outside_box(values, kt_over_kn, shape):
@@ -354,6 +372,17 @@ def _outside_box(values, kt_over_kn, shape):
 
 def _leverage(X, cov):
     return np.sum((X @ cov) * X, axis=-1)
+
+
+def family_error_scale(kt_over_kn, q_in, q_family):
+    """The across-family error scale ``max(q_in, a + b L)`` [-] at the mean leverage, ``L = ln(kn /
+    kt)`` clipped to ``[0, L_MAX]`` (kt = 0: ``L_MAX``); ``q_family = (a, b)`` (``Q_FAMILY[m]``),
+    ``q_in`` the in-family scale (``Q[m]``). Broadcasts over ``kt_over_kn``."""
+    kr = np.asarray(kt_over_kn, dtype=float)
+    with np.errstate(divide="ignore"):
+        L = np.where(kr > 0, np.clip(-np.log(np.where(kr > 0, kr, 1.0)), 0.0, L_MAX), L_MAX)
+    a, b = q_family
+    return np.maximum(q_in, a + b * L)
 
 
 def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0, sliding_fraction=None,
@@ -405,7 +434,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
         experiment); :func:`closure_inputs` measures it.
     model : dict, optional
         Override the stored model (keys ``coef_K``, ``coef_G``, ``cov_K``, ``cov_G``, ``Q``,
-        ``h_mean``, ``h_max``; used by the refit study).
+        ``h_mean``, ``h_max``, ``q_family``; used by the refit study).
 
     The pressure enters through nc (the corpus spans p/kn from 1e-4 to 3e-2).
 
@@ -438,7 +467,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     xr = _check("rattler_fraction", 0.0 if rattler_fraction is None else rattler_fraction, 0.0, 1.0)
     if np.any(xr >= 1):
         raise ValueError("rattler_fraction must be in [0, 1); got 1")
-    cK, cG, covK, covG, q, h_mean, h_max = _model(model)
+    cK, cG, covK, covG, q, h_mean, h_max, qf = _model(model)
     missing_zs = size_coordination is None
     zs = np.asarray(0.0 if missing_zs else size_coordination, dtype=float)
     if not np.all(np.isfinite(zs)):
@@ -459,8 +488,10 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     K = K_mf / (1 + b)
     G = G_mf * dzp / (dzp + a)
     hK, hG = _leverage(XK, covK), _leverage(XG, covG)
-    eK = q["K"] * np.sqrt(1 + hK / h_mean["K"])
-    eG = q["G"] * np.sqrt(1 + hG / h_mean["G"])
+    sK, sG = np.sqrt(1 + hK / h_mean["K"]), np.sqrt(1 + hG / h_mean["G"])
+    eK_in, eG_in = q["K"] * sK, q["G"] * sG   # in-family: leave one protocol out
+    eK = family_error_scale(kr, q["K"], qf["K"]) * sK   # across families (the default): leave one family out
+    eG = family_error_scale(kr, q["G"], qf["G"]) * sG
     box = _outside_box(dict(Z=nc, dispersity=d, r=r, phi=phi, p_over_kn=pk, size_coordination=zs,
                             rattler_fraction=xr, psi6_local=q6), kr, K.shape)
     out = box | (hK > h_max["K"]) | (hG > h_max["G"])
@@ -473,5 +504,7 @@ def predict_closure(nc, r=None, phi=0.84, kt_over_kn=1.0, dispersity=0.0, kn=1.0
     b = lambda x: np.broadcast_to(x, shape)  # noqa: E731
     return ClosurePrediction(K=b(K), G=b(G), K_mf=b(K_mf), G_mf=b(G_mf),
                              error_K=b(eK * np.abs(K)), error_G=b(eG * np.abs(G)), rel_error_K=b(eK), rel_error_G=b(eG),
+                             error_K_in_family=b(eK_in * np.abs(K)), error_G_in_family=b(eG_in * np.abs(G)),
+                             rel_error_K_in_family=b(eK_in), rel_error_G_in_family=b(eG_in),
                              leverage_K=b(hK), leverage_G=b(hG), dz=b(dz),
                              valid=flags == 0, flags=flags)
