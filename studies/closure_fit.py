@@ -47,7 +47,8 @@ COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob
            "knob_phi", "knob_radii", "Z", "Z_all", "Z_iso", "dZ", "r", "phi", "rattler_fraction",
            "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "psi6", "psi6_local", "fabric_anisotropy",
            "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
-           "flags"]
+           "flags", "weak_fraction", "fn_small", "near_contacts", "Z_stick", "f_z3"]   # the last five:
+#: studies.closure_transfer.CONTACT_COLUMNS (measured on the cached packings)
 #: candidate statistics tried on top of the base features (item 2 of issue 25)
 CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
               "sliding_fraction", "psi6") + RIGIDITY_COLUMNS
@@ -596,7 +597,8 @@ def main(argv=None):
     else:
         from studies.corpus import load_corpus
         raw = load_corpus(args.cache, build=not args.no_build, verbose=False)
-        raw = rigidity_columns(raw[[c for c in COLUMNS if c in raw.columns]], args.cache)
+        from studies.closure_transfer import contact_columns
+        raw = contact_columns(rigidity_columns(raw[[c for c in COLUMNS if c in raw.columns]], args.cache), args.cache)
         raw.to_csv(out / "corpus.csv", index=False)
     df = usable(raw)
     print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
