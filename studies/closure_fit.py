@@ -283,17 +283,19 @@ def _family_L(kt):
     return np.where(kt > 0, np.clip(-np.log(np.where(kt > 0, kt, 1.0)), 0.0, L_MAX), L_MAX)
 
 
-def calibrate_family(lf, q_in, coverage=0.9, exclude=None, slopes=np.linspace(0.0, 0.1, 401)):
+def calibrate_family(lf, q_in, coverage=0.9, exclude=None, slopes=np.linspace(0.0, 0.1, 401),
+                     by=("held_out", "kt_over_kn")):
     """The across-family error scale ``Q(kt) = max(q_in, a + b L)`` per modulus (``L`` of
     :func:`_family_L`), on the leave-one-family-out cases ``lf`` (:func:`lofo`): for each slope
     ``b >= 0`` the smallest ``a >= 0`` with at least ``coverage`` of the valid cases of *every*
-    held-out family inside ``Q(kt) sqrt(1 + h/h_mean)``; of those the pair with the smallest mean
-    Q over the valid cases. ``q_in``: the in-family scale (:func:`calibrate`), the floor: a new
-    family is never stated better than a new protocol of a known one. ``exclude``: a family left
-    out of the calibration (the nested check). Returns ``{"K": (a, b), "G": (a, b)}``."""
+    held-out family at *every* kt/kn (the groups ``by``; ``("held_out",)``: per family only)
+    inside ``Q(kt) sqrt(1 + h/h_mean)``; of those the pair with the smallest mean Q over the valid
+    cases. ``q_in``: the in-family scale (:func:`calibrate`), the floor: a new family is never
+    stated better than a new protocol of a known one. ``exclude``: a family left out of the
+    calibration (the nested check). Returns ``{"K": (a, b), "G": (a, b)}``."""
     v = lf[lf.valid & (lf.held_out != exclude)]
     L = _family_L(v.kt_over_kn.to_numpy())
-    fams = v.held_out.to_numpy()
+    fams = v[list(by)].astype(str).agg("/".join, axis=1).to_numpy()
     out = {}
     for m in ("K", "G"):
         z = (v[f"err_{m}"].abs() / scale(v, m)).to_numpy()
@@ -304,7 +306,7 @@ def calibrate_family(lf, q_in, coverage=0.9, exclude=None, slopes=np.linspace(0.
             obj = float(np.mean(np.maximum(q_in[m], a + b * L)))
             if best is None or obj < best[0] - 1e-12:
                 best = (obj, a, float(b))
-        out[m] = (best[1] * (1 + 1e-9), best[2])   # the quantile case itself inside after rounding
+        out[m] = (float(np.ceil(best[1] * 1e6) / 1e6), best[2])   # rounded up: the quantile case stays inside
     return out
 
 
