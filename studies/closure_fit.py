@@ -20,6 +20,13 @@ statistics, the collapse plots.
    valid cases (not flagged: leverage and the training rows' box), rms and max error, coverage of
    the stated error and overclaims (valid, outside it). ``--trials`` (always without ``--quick``):
    the same two tables with the normal-force coefficient of variation added (:data:`FN_CV_TRIALS`).
+4c. The default stated error, across families (:func:`calibrate_family`): ``Q(kt) = max(Q, a + b
+   ln(kn/kt))`` with ``(a, b)`` the smallest on average such that at least 90 % of the valid
+   family-out cases of every family at every kt/kn lie within ``Q(kt) sqrt(1 + h/h_mean)``; the
+   printed ``Q_FAMILY`` is the one stored. Table ``family_error``: per family and protocol the
+   coverage and overclaims of the in-family error (before), of ``Q_FAMILY`` (after) and of it
+   calibrated without the family (nested). The search for statistics that carry K across
+   families is ``studies.closure_transfer``.
 5. Candidate statistics: LOPO rms of ``log(K/K_mf)`` and ``log(G/G_mf)`` when each candidate is
    added to the base features (how much of the spread across protocols it removes).
 6. Plots under ``--out`` (collapse of G/G_mf and K/K_mf against Z - Z_iso by protocol; predicted
