@@ -20,6 +20,13 @@ statistics, the collapse plots.
    valid cases (not flagged: leverage and the training rows' box), rms and max error, coverage of
    the stated error and overclaims (valid, outside it). ``--trials`` (always without ``--quick``):
    the same two tables with the normal-force coefficient of variation added (:data:`FN_CV_TRIALS`).
+4c. The default stated error, across families (:func:`calibrate_family`): ``Q(kt) = max(Q, a + b
+   ln(kn/kt))`` with ``(a, b)`` the smallest on average such that at least 90 % of the valid
+   family-out cases of every family at every kt/kn lie within ``Q(kt) sqrt(1 + h/h_mean)``; the
+   printed ``Q_FAMILY`` is the one stored. Table ``family_error``: per family and protocol the
+   coverage and overclaims of the in-family error (before), of ``Q_FAMILY`` (after) and of it
+   calibrated without the family (nested). The search for statistics that carry K across
+   families is ``studies.closure_transfer``.
 5. Candidate statistics: LOPO rms of ``log(K/K_mf)`` and ``log(G/G_mf)`` when each candidate is
    added to the base features (how much of the spread across protocols it removes).
 6. Plots under ``--out`` (collapse of G/G_mf and K/K_mf against Z - Z_iso by protocol; predicted
@@ -38,7 +45,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, features, predict_closure
+from microhom.closure import DZ_MIN, FEATURES_G, FEATURES_K, L_MAX, family_error_scale, features, predict_closure
 from studies.closure_rigidity import RIGIDITY_COLUMNS, rigidity_columns
 from studies.common import cli_out_dir, write_table
 
@@ -47,7 +54,8 @@ COLUMNS = ["protocol", "key", "seed", "n", "kt_over_kn", "knob_p_over_kn", "knob
            "knob_phi", "knob_radii", "Z", "Z_all", "Z_iso", "dZ", "r", "phi", "rattler_fraction",
            "sliding_fraction", "dispersity", "z_size_corr", "Z_size", "f_min", "psi6", "psi6_local", "fabric_anisotropy",
            "force_anisotropy", "p_over_kn", "fn_cv", "K", "G", "K_ps", "G_ps", "K_aff", "G_aff", "n_floppy",
-           "flags"]
+           "flags", "weak_fraction", "fn_small", "near_contacts", "Z_stick", "f_z3"]   # the last five:
+#: studies.closure_transfer.CONTACT_COLUMNS (measured on the cached packings)
 #: candidate statistics tried on top of the base features (item 2 of issue 25)
 CANDIDATES = ("phi", "z_size_corr", "f_min", "fabric_anisotropy", "force_anisotropy", "fn_cv",
               "sliding_fraction", "psi6") + RIGIDITY_COLUMNS
@@ -276,6 +284,68 @@ def lofo_table(lo, by="held_out"):
                                "rms_G", "max_G", "inside_G", "overclaims", "Q_K", "Q_G", "rms_K_all", "rms_G_all"]]
 
 
+def _family_L(kt):
+    """L = ln(kn / kt) of the across-family error scale, clipped to [0, L_MAX] (kt = 0: L_MAX)."""
+    kt = np.asarray(kt, dtype=float)
+    return np.where(kt > 0, np.clip(-np.log(np.where(kt > 0, kt, 1.0)), 0.0, L_MAX), L_MAX)
+
+
+def calibrate_family(lf, q_in, coverage=0.9, exclude=None, slopes=np.linspace(0.0, 0.1, 401),
+                     by=("held_out", "kt_over_kn")):
+    """The across-family error scale ``Q(kt) = max(q_in, a + b L)`` per modulus (``L`` of
+    :func:`_family_L`), on the leave-one-family-out cases ``lf`` (:func:`lofo`): for each slope
+    ``b >= 0`` the smallest ``a >= 0`` with at least ``coverage`` of the valid cases of *every*
+    held-out family at *every* kt/kn (the groups ``by``; ``("held_out",)``: per family only)
+    inside ``Q(kt) sqrt(1 + h/h_mean)``; of those the pair with the smallest mean Q over the valid
+    cases. ``q_in``: the in-family scale (:func:`calibrate`), the floor: a new family is never
+    stated better than a new protocol of a known one. ``exclude``: a family left out of the
+    calibration (the nested check). Returns ``{"K": (a, b), "G": (a, b)}``."""
+    v = lf[lf.valid & (lf.held_out != exclude)]
+    L = _family_L(v.kt_over_kn.to_numpy())
+    fams = v[list(by)].astype(str).agg("/".join, axis=1).to_numpy()
+    out = {}
+    for m in ("K", "G"):
+        z = (v[f"err_{m}"].abs() / scale(v, m)).to_numpy()
+        best = None
+        for b in slopes:
+            need = np.where(z > q_in[m] * (1 + 1e-12), z - b * L, -np.inf)   # a at which the case is inside
+            a = max([0.0] + [float(np.quantile(need[fams == f], coverage, method="higher")) for f in set(fams)])
+            obj = float(np.mean(np.maximum(q_in[m], a + b * L)))
+            if best is None or obj < best[0] - 1e-12:
+                best = (obj, a, float(b))
+        out[m] = (float(np.ceil(best[1] * 1e6) / 1e6), best[2])   # rounded up: the quantile case stays inside
+    return out
+
+
+def family_error_table(lf, q_in, q_family):
+    """Per held-out family (:func:`lofo`) and per protocol within it: valid cases, the fraction
+    inside the in-family error (``Q sqrt(1 + h/h_mean)``, Q of the closure fitted without the family,
+    as :func:`lofo_table`: *before*), inside the across-family error ``max(q_in, a + b L) sqrt(1 +
+    h/h_mean)`` calibrated on all families (*after*), and inside it calibrated without the family
+    (``nested_*``: the out-of-sample check), with the overclaims (valid, outside in K or G) of each."""
+    rows = []
+    nested = {f: calibrate_family(lf, q_in, exclude=f) for f in sorted(lf.held_out.unique())}
+    for by in ("held_out", "protocol"):
+        for u, g in lf.groupby(by, sort=True):
+            gv = g[g.valid]
+            d = dict(held_out=g.held_out.iloc[0], protocol="all" if by == "held_out" else u, valid=len(gv))
+            ok = {}
+            for tag, qf in (("before", None), ("after", q_family), ("nested", nested[g.held_out.iloc[0]])):
+                for m in ("K", "G"):
+                    sc = scale(gv, m).to_numpy()
+                    q = gv[f"Q_{m}"].to_numpy() if qf is None else family_error_scale(gv.kt_over_kn.to_numpy(),
+                                                                                      q_in[m], qf[m])
+                    ok[tag, m] = gv[f"err_{m}"].abs().to_numpy() <= q * sc * (1 + 1e-12)
+                    d[f"{tag}_inside_{m}"] = float(ok[tag, m].mean()) if len(gv) else np.nan
+                    d[f"{tag}_stated_{m}"] = float(np.median(q * sc)) if len(gv) else np.nan
+                d[f"{tag}_overclaims"] = int((~(ok[tag, "K"] & ok[tag, "G"])).sum())
+            d.update(rms_K=float(np.sqrt(np.mean(gv.err_K ** 2))) if len(gv) else np.nan,
+                     rms_G=float(np.sqrt(np.mean(gv.err_G ** 2))) if len(gv) else np.nan,
+                     nested_a_K=nested[g.held_out.iloc[0]]["K"][0], nested_b_K=nested[g.held_out.iloc[0]]["K"][1])
+            rows.append(d)
+    return pd.DataFrame(rows)
+
+
 #: Refit trials of issue 25 (item 2): the normal-force coefficient of variation ``fn_cv`` (std/mean
 #: of the contact normal forces) as one more input, in both moduli or in G only.
 FN_CV_TRIALS = (("the closure", ()), ("+ fn_cv (K and G)", ("fn_cv",)), ("+ fn_cv (G only)", {"G": ("fn_cv",)}),
@@ -413,13 +483,16 @@ def data_ranges(df) -> dict:
             "psi6_local": rd(df.psi6_local.min(), df.psi6_local.max())}
 
 
-def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max):
+def stored_model_text(cK, cG, covK, covG, q, h_mean, h_max, q_family=None):
     f = lambda a: np.array2string(np.asarray(a), precision=8, separator=", ", max_line_width=100,
                                   floatmode="maxprec")
     return (f"COEF_K = np.array({f(cK)})\nCOEF_G = np.array({f(cG)})\nCOV_K = np.array({f(covK)})\n"
             f"COV_G = np.array({f(covG)})\nQ = {{'K': {q['K']:.6g}, 'G': {q['G']:.6g}}}\n"
             f"H_MEAN = {{'K': {h_mean['K']:.6g}, 'G': {h_mean['G']:.6g}}}\n"
-            f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n")
+            f"H_MAX = {{'K': {h_max['K']:.6g}, 'G': {h_max['G']:.6g}}}\n"
+            + ("" if q_family is None else
+               f"Q_FAMILY = {{'K': ({q_family['K'][0]:.6g}, {q_family['K'][1]:.6g}), "
+               f"'G': ({q_family['G'][0]:.6g}, {q_family['G'][1]:.6g})}}\n"))
 
 
 def quick_end_to_end():
@@ -450,7 +523,8 @@ def heldout(paths, kt_ratios=HELDOUT_KT, hierarchy=False) -> pd.DataFrame:
 
     One row per file and kt/kn: the statistics of ``studies.corpus.network_features``, the exact
     ``K``, ``G`` (no pre-stress, kn = 1), the closure's ``closure_K``, ``closure_G``, relative errors
-    ``err_K``, ``err_G``, stated errors ``stated_K``, ``stated_G``, ``valid``, ``flags`` (bits of
+    ``err_K``, ``err_G``, stated errors ``stated_K``, ``stated_G`` (across families, the default) and
+    ``stated_K_in_family``, ``stated_G_in_family``, ``valid``, ``flags`` (bits of
     ``microhom.closure``), ``reason``, ``inside_K``/``inside_G`` (|err| <= stated) and
     ``overclaim`` (valid but outside its stated error in K or G: the defect the held-out test
     looks for). ``hierarchy=True`` adds the relaxation hierarchy's certified bounds
@@ -485,11 +559,14 @@ def heldout(paths, kt_ratios=HELDOUT_KT, hierarchy=False) -> pd.DataFrame:
     df["closure_K"], df["closure_G"] = p.K, p.G
     df["err_K"], df["err_G"] = p.K / df.K - 1, p.G / df.G - 1
     df["stated_K"], df["stated_G"] = p.rel_error_K, p.rel_error_G
+    df["stated_K_in_family"], df["stated_G_in_family"] = p.rel_error_K_in_family, p.rel_error_G_in_family
     df["valid"], df["flags_closure"] = p.valid & ok.to_numpy(), np.where(ok, p.flags, -1)
     df["reason"] = np.where(ok, p.reason, "no exact response")
     df["inside_K"] = np.abs(df.err_K) <= df.stated_K
     df["inside_G"] = np.abs(df.err_G) <= df.stated_G
     df["overclaim"] = df.valid & ~(df.inside_K & df.inside_G)
+    df["overclaim_in_family"] = df.valid & ~((np.abs(df.err_K) <= df.stated_K_in_family)
+                                             & (np.abs(df.err_G) <= df.stated_G_in_family))
     return df
 
 
@@ -529,7 +606,8 @@ def main(argv=None):
     else:
         from studies.corpus import load_corpus
         raw = load_corpus(args.cache, build=not args.no_build, verbose=False)
-        raw = rigidity_columns(raw[[c for c in COLUMNS if c in raw.columns]], args.cache)
+        from studies.closure_transfer import contact_columns
+        raw = contact_columns(rigidity_columns(raw[[c for c in COLUMNS if c in raw.columns]], args.cache), args.cache)
         raw.to_csv(out / "corpus.csv", index=False)
     df = usable(raw)
     print(f"corpus: {raw.key.nunique()} packings, {len(raw)} rows (x kt/kn); {len(df)} usable "
@@ -544,13 +622,14 @@ def main(argv=None):
     h_mean = {"K": float(hK.mean()), "G": float(hG.mean())}
     h_max = {"K": float(3.0 * hK.max()), "G": float(3.0 * hG.max())}
     tab = lopo_table(lo, q, inside)
+    lf = lofo(df)
+    q_family = calibrate_family(lf, q)
     print("features K:", FEATURES_K, "\nfeatures G:", FEATURES_G)
-    print(stored_model_text(cK, cG, covK, covG, q, h_mean, h_max))
+    print(stored_model_text(cK, cG, covK, covG, q, h_mean, h_max, q_family))
     print("leave one protocol out (relative errors; stated error Q sqrt(1 + h/h_mean)):")
     print(tab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     write_table(tab, out, "lopo", "Closure, leave one protocol out",
                 f"Q_K = {q['K']:.4f}, Q_G = {q['G']:.4f}; {len(df)} usable rows.")
-    lf = lofo(df)
     ftab, fprot = lofo_table(lf), lofo_table(lf, "protocol")
     print("leave one preparation family out (families:", FAMILIES, ")\n  valid: not flagged by the closure "
           "fitted without the family (its leverage and box); stated error: Q of that closure's own LOPO:")
@@ -559,6 +638,12 @@ def main(argv=None):
     write_table(pd.concat([ftab, fprot], ignore_index=True), out, "lofo", "Closure, leave one preparation family out",
                 "Per family, then per protocol within it; Q of the closure fitted without the family.")
     lf.to_csv(out / "lofo_cases.csv", index=False)
+    etab = family_error_table(lf, q, q_family)
+    print("the stated error on each held-out family: in-family Q (before), across-family Q(kt) = "
+          f"max(Q, a + b ln(kn/kt)) (after; {q_family}), and the latter calibrated without the family (nested):")
+    print(etab.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    write_table(etab, out, "family_error", "Closure, stated error on held-out families: in-family and across-family",
+                f"Q_FAMILY = {q_family}; before: in-family Q of the closure fitted without the family.")
     if args.trials or not (args.quick or args.no_candidates):
         tri = family_trials(df)
         print("refit trials (normal-force coefficient of variation), LOPO and leave one family out:")
@@ -568,6 +653,7 @@ def main(argv=None):
     print("RANGES =", ranges)
     (out / "model.json").write_text(json.dumps(dict(coef_K=list(cK), coef_G=list(cG), cov_K=covK.tolist(),
                                                     cov_G=covG.tolist(), Q=q, h_mean=h_mean, h_max=h_max,
+                                                    q_family=q_family,
                                                     ranges=ranges)))
     lo.to_csv(out / "lopo_cases.csv", index=False)
     if not args.quick:
@@ -582,7 +668,8 @@ def main(argv=None):
     if args.heldout:
         ho = heldout(args.heldout, hierarchy=args.hierarchy)
         cols = ["file", "n", "kt_over_kn", "Z", "dZ", "r", "phi", "dispersity", "K", "closure_K", "err_K",
-                "stated_K", "G", "closure_G", "err_G", "stated_G", "valid", "flags_closure", "overclaim"]
+                "stated_K", "stated_K_in_family", "G", "closure_G", "err_G", "stated_G", "stated_G_in_family", "valid",
+                "flags_closure", "overclaim", "overclaim_in_family"]
         cols += [c for c in ho.columns if c.startswith("hier_")]
         print("held-out packings (not in the fit):")
         print(ho[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"))

@@ -64,7 +64,7 @@ class TwinsResult(Result):
     n_twins : cross-protocol pairs within ``radius``. max_ratio_G, max_ratio_K : the largest
         ``max(G1/G2, G2/G1) - 1`` among them [relative]. bound_G, bound_K : the lower bound on the
         larger of the two errors of any closure for that pair, ``exp(|log G1/G2| / 2) - 1`` at
-        d -> 0 [relative]. stated_G, stated_K : the stored closure's stated error at those rows
+        d -> 0 [relative]. stated_G, stated_K : the stored closure's in-family stated error at those rows
         (median) [relative]. worst_pair_G : "protocol A vs protocol B at kt/kn" of the pair with
         ``max_ratio_G``.
     """
@@ -106,7 +106,8 @@ def _closure(df):
 def pairs(df: pd.DataFrame) -> pd.DataFrame:
     """Every pair of rows of ``df`` (usable corpus rows) at the same kt/kn: protocols, keys,
     feature distance ``d``, the exact log ratios ``logG``, ``logK`` (|log G1/G2|), the stored
-    closure's predicted log ratios and the unexplained parts, and the closure's stated errors."""
+    closure's predicted log ratios and the unexplained parts, and the closure's in-family stated errors
+    (these are corpus packings: their preparation families are in the fit)."""
     X, _ = standardised(df)
     p = _closure(df)
     lG, lK = np.log(df.G.to_numpy()), np.log(df.K.to_numpy())
@@ -124,8 +125,8 @@ def pairs(df: pd.DataFrame) -> pd.DataFrame:
                             closure_logG=np.abs(pG[i] - pG[j]), closure_logK=np.abs(pK[i] - pK[j]),
                             unexplained_G=np.abs((lG[i] - lG[j]) - (pG[i] - pG[j])),
                             unexplained_K=np.abs((lK[i] - lK[j]) - (pK[i] - pK[j])),
-                            stated_G=np.maximum(p.rel_error_G[i], p.rel_error_G[j]),
-                            stated_K=np.maximum(p.rel_error_K[i], p.rel_error_K[j]),
+                            stated_G=np.maximum(p.rel_error_G_in_family[i], p.rel_error_G_in_family[j]),
+                            stated_K=np.maximum(p.rel_error_K_in_family[i], p.rel_error_K_in_family[j]),
                             valid=p.valid[i] & p.valid[j]))
     return out.sort_values("d").reset_index(drop=True)
 

@@ -323,8 +323,10 @@ class AnalysisResult(Result):
         model (``theory.alpha_prediction``, ``theory.alpha``) [N/m].
     closure : microhom.closure.ClosurePrediction or SectionError
         The statistics-only closure (0-d arrays): ``K``, ``G`` [N/m] and their stated errors
-        ``error_K``, ``error_G`` [N/m] (per prediction, leave-one-protocol-out residuals,
-        docs/results/closure.md), ``valid``, ``reason``.
+        ``error_K``, ``error_G`` [N/m] (per prediction, for a packing of any preparation:
+        leave-one-family-out residuals), ``error_K_in_family``, ``error_G_in_family`` [N/m] (for a
+        preparation like the corpus's: leave-one-protocol-out residuals; docs/results/closure.md,
+        section 4), ``valid``, ``reason``.
     closure_inputs : ClosureInputs or SectionError
         What the closure was given (Z, r, phi, kt/kn, ...); printed in the JSON's ``closure``
         section after the prediction.
@@ -497,6 +499,7 @@ def _theory_view(t: TheoryResult) -> dict:
 def _closure_view(p: ClosurePrediction, x: ClosureInputs) -> dict:
     inputs = {k.name: float(getattr(x, k.name)) for k in fields(x) if getattr(x, k.name) is not None}
     return {"K": float(p.K), "G": float(p.G), "error_K": float(p.error_K), "error_G": float(p.error_G),
+            "error_K_in_family": float(p.error_K_in_family), "error_G_in_family": float(p.error_G_in_family),
             "valid": bool(p.valid), "reason": str(p.reason), **inputs}
 
 
@@ -1131,8 +1134,10 @@ def _estimate_lines(res: AnalysisResult, spheres: bool) -> list:
     if _ok(cl):
         L.append(f"  {'closure (statistics only)':44}{_g(float(cl.K)):>14}{_g(float(cl.G)):>14}"
                  f"{_ratios(cmp, 'closure')}{_flag(cl)}")
-        L.append(f"  {'  stated error (this prediction)':44}{_g(float(cl.error_K), '.3g'):>14}"
+        L.append(f"  {'  stated error (any preparation)':44}{_g(float(cl.error_K), '.3g'):>14}"
                  f"{_g(float(cl.error_G), '.3g'):>14}")
+        L.append(f"  {'  stated error (preparation like the corpus)':44}"
+                 f"{_g(float(cl.error_K_in_family), '.3g'):>14}{_g(float(cl.error_G_in_family), '.3g'):>14}")
     elif not spheres:
         L.append(f"  closure: n/a ({cl.message})")
     return L
