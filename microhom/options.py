@@ -61,12 +61,13 @@ def integer(v) -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class Options(Result):
-    """Base of the options bundles: validated when made (``RULES``), ``names()``, ``replace()``.
+    """Base of the options bundles: validated when made, ``names()``, ``replace()``.
 
-    ``as_dict()`` (from :class:`microhom.results.Result`) records the values."""
+    A subclass's class attribute ``RULES`` maps each of its fields to ``(allowed, check)`` (the
+    range as text, a predicate of the value). ``as_dict()`` (from
+    :class:`microhom.results.Result`) records the values."""
 
-    #: field -> (allowed range as text, predicate); every field of a subclass has an entry
-    RULES = {}
+    RULES = {}      # field -> (allowed range as text, predicate); every field of a subclass has one
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
