@@ -68,8 +68,8 @@ from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
 
 __all__ = ["DEFAULT_TOL", "Estimate", "HierarchyResult", "HierarchyOptions", "relaxation_hierarchy",
-           "block_preconditioner", "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments", "plan_memory",
-           "MemoryPlan", "HierarchyMemoryError", "CALIBRATED_KT_OVER_KN"]
+           "block_preconditioner", "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments",
+           "plan_memory", "MemoryPlan", "HierarchyMemoryError", "CALIBRATED_KT_OVER_KN"]
 
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
 _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy direction, dropped
