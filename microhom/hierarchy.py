@@ -58,17 +58,18 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .kinematics import Assembly, affine_tensor, assemble, rotational_dofs, stress0
+from .kinematics import SPIN_ARMS, Assembly, affine_tensor, assemble, rotational_dofs, stress0
 from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .network import ContactNetwork
+from .options import Options, finite_real, flag, integer, merged
 from .results import Result
 from .tensors import isotropic_moduli, prestress_correction
 
-__all__ = ["DEFAULT_TOL", "Estimate", "HierarchyResult", "relaxation_hierarchy", "block_preconditioner",
-           "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments", "plan_memory",
-           "MemoryPlan", "HierarchyMemoryError", "CALIBRATED_KT_OVER_KN"]
+__all__ = ["DEFAULT_TOL", "Estimate", "HierarchyResult", "HierarchyOptions", "relaxation_hierarchy",
+           "block_preconditioner", "spectral_lower_bound", "lowest_modes", "isotropic_weights", "moments",
+           "plan_memory", "MemoryPlan", "HierarchyMemoryError", "CALIBRATED_KT_OVER_KN"]
 
 _NEG_CURV = 1e-10     # p^T H p < -_NEG_CURV p^T M p: negative curvature (unstable pre-stressed network)
 _NULL_CURV = 1e-13    # |p^T H p| < _NULL_CURV p^T M p: a (numerically) floppy direction, dropped
@@ -843,30 +844,44 @@ class _Run:
     dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
 
 
-def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, tol: float = DEFAULT_TOL,
-                         max_order="auto", spectral_bound="auto", dense_max: int = 1000,
-                         min_contacts=None, reorthogonalize="auto",
-                         preconditioner: str = "auto", soft_modes="auto",
-                         max_memory=None, certify_max_order: int = 200,
-                         factor_steps: int = 4, spectral_guess=None,
-                         spin_arm: str = "contact", dual_bound="auto") -> HierarchyResult:
-    """Estimates of the stiffness of ``network`` of increasing order, with bounds.
+def _max_order_ok(v):
+    if isinstance(v, str):
+        return v == "auto"
+    try:
+        return int(v) == v and 1 <= v <= 10000
+    except (TypeError, ValueError, OverflowError):
+        return False
 
-    The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
-    (``certified``), or the extrapolation met it in the regime where its stated error was measured
-    honest (``calibrated``: kt/kn in ``CALIBRATED_KT_OVER_KN`` with the soft-mode search), and
-    nothing voids it (not jammed, floppy, unstable, a negative modulus). Every other result says
-    why in ``reasons``. Outside the calibrated regime the estimate is the rigorous interval itself
-    (midpoint, half-width; ``upper`` and an infinite error without a spectral bound).
 
-    Why the extrapolation is trusted only where calibrated, and why with a certified spectral bound
-    only the rigorous interval stops CG: docs/theory.md section 9, docs/results/hierarchy.md §6-7.
+def _spectral_bound_ok(v):
+    if isinstance(v, str):
+        return v in ("auto", "none")
+    try:
+        lam = float(v)
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isfinite(lam) and lam > 0)
 
-    Parameters
+
+def _positive(v):
+    return finite_real(v) and v > 0
+
+
+def _int_in(lo, hi):
+    return lambda v: integer(v) and lo <= v <= hi
+
+
+@dataclass(frozen=True)
+class HierarchyOptions(Options):
+    """How :func:`relaxation_hierarchy` runs: frozen, validated when made (a value outside its range
+    raises :class:`~microhom.options.OptionError`, a ``ValueError`` naming the field and its range).
+
+    ``relaxation_hierarchy(net, tol=1e-3)`` is ``relaxation_hierarchy(net, HierarchyOptions(tol=1e-3))``;
+    keywords given with an options object replace its values. Variants: ``options.replace(tol=1e-4)``;
+    ``as_dict()`` records them.
+
+    Attributes
     ----------
-    network : ContactNetwork
-        A periodic network (sliding contacts have kt_eff = 0, exactly as in the exact
-        solver; rattlers are removed iteratively, ``min_contacts`` as in ``dem.analysis.stiffness``).
     prestress : bool
         Include the geometric stiffness of the normal forces and the pre-stress
         correction of the Cauchy increment (needs ``network.fn``), as ``dem.analysis.stiffness`` does.
@@ -881,25 +896,16 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         where the calibrated extrapolation meets ``tol``). With one, only the rigorous interval
         stops it (issue 22): past ``max_order`` it goes on with ``factor_steps`` or
         ``certify_max_order``, and ``reasons`` says when even that cap was not enough.
-    certify_max_order : int
-        Cap on the CG steps when a certified bound is available but no factorisation is (dense,
-        user or companion bound), 1..10000 (values below ``max_order`` act as ``max_order``).
-        The basis is fully re-orthogonalised past ``max_order`` only while it fits in memory.
-    factor_steps : int
-        Steps past ``max_order`` preconditioned by the sparse certificate's factorisation of
-        ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
-        releases the factorisation at once and continues with the multilevel CG instead. 1-3
-        such steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
     spectral_bound : {"auto", "none"} or float
         "auto" (exact dense bound if ``ndof <= dense_max``, else the sparse certificate by
         Sylvester's inertia, ``microhom.spectral.certified_bound``, up to
         ``microhom.spectral.CERTIFIED_MAX_DOF`` unknowns; none above), "none", or a
-        float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the caller's
-        responsibility).
+        positive finite float: a certified lower bound of the non-zero spectrum of ``M^-1 H`` (the
+        caller's responsibility).
     dense_max : int
-        Largest number of unknowns for the dense spectral bound (docs/results/hierarchy.md §7).
-    min_contacts : int, optional
-        Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``).
+        Largest number of unknowns for the dense spectral bound, >= 0 (docs/results/hierarchy.md §7).
+    min_contacts : int, "rigid" or None
+        Contacts below which a particle is a rattler (as in ``dem.analysis.stiffness``), >= 0.
     reorthogonalize : bool or "auto"
         H-conjugate each new search block against all earlier ones (True), only the last (False:
         the block CG recurrence, O(ndof) memory), or "auto" (full up to 50 000 unknowns if it fits).
@@ -921,22 +927,105 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         with the eigenvalue. The soft modes found are deflated: the CG space is augmented with them, so that
         a near-mechanism the load barely excites cannot leave the iteration on a plateau that the
         extrapolation would take for convergence (docs/results/hierarchy.md, the sweep).
-    max_memory : int, optional
-        Memory limit [bytes] for the predicted peak (:func:`plan_memory`); default the system's
-        available memory. A prediction above it raises :class:`HierarchyMemoryError` naming both
-        figures before anything large is allocated (with ``reorthogonalize="auto"`` the recurrence
-        is tried first; a dense bound or a sparse certificate's factor that does not fit is
-        skipped; ``reasons`` says so).
-    spectral_guess : float, optional
+    max_memory : float or None
+        Memory limit [bytes] for the predicted peak (:func:`plan_memory`), > 0; None (default) the
+        system's available memory. A prediction above it raises :class:`HierarchyMemoryError` naming
+        both figures before anything large is allocated (with ``reorthogonalize="auto"`` the
+        recurrence is tried first; a dense bound or a sparse certificate's factor that does not fit
+        is skipped; ``reasons`` says so).
+    certify_max_order : int
+        Cap on the CG steps when a certified bound is available but no factorisation is (dense,
+        user or companion bound), 1..10000 (values below ``max_order`` act as ``max_order``).
+        The basis is fully re-orthogonalised past ``max_order`` only while it fits in memory.
+    factor_steps : int
+        Steps past ``max_order`` preconditioned by the sparse certificate's factorisation of
+        ``H - s M`` (``microhom.spectral.certified_bound``, ``ndof > dense_max``), 0..100; 0
+        releases the factorisation at once and continues with the multilevel CG instead. 1-3
+        such steps meet ``tol`` where the multilevel CG plateaus on the soft modes.
+    spectral_guess : float or None
         Estimate of the smallest non-zero eigenvalue of (H, M) for the sparse certificate (e.g. the
-        ``spectral_bound`` of a similar network): at most twice it, with the translations as the
-        only null space, one numeric factorisation certifies half of it (docs/theory.md section 9,
-        "One factorisation"). Never trusted: a wrong guess costs a factorisation, not the bound.
+        ``spectral_bound`` of a similar network), > 0 [-]: at most twice it, with the translations
+        as the only null space, one numeric factorisation certifies half of it (docs/theory.md
+        section 9, "One factorisation"; passed to ``certified_bound(guess=)``). Never trusted: a
+        wrong guess costs a factorisation, not the bound.
     spin_arm : ``"contact"`` (default) or ``"radius"``
         Spin arms of the assembly (:mod:`microhom.kinematics`); the bounds are of that tensor.
     dual_bound : {"auto", True, False}
         The complementary-energy lower bound (``microhom.dual_bound``, docs/theory.md section 12):
         "auto" where "auto" found no spectral bound, True always, False never.
+    """
+
+    prestress: bool = False
+    tol: float = DEFAULT_TOL
+    max_order: int | str = "auto"
+    spectral_bound: float | str = "auto"
+    dense_max: int = 1000
+    min_contacts: int | str | None = None
+    reorthogonalize: bool | str = "auto"
+    preconditioner: str = "auto"
+    soft_modes: int | str = "auto"
+    max_memory: float | None = None
+    certify_max_order: int = 200
+    factor_steps: int = 4
+    spectral_guess: float | None = None
+    spin_arm: str = "contact"
+    dual_bound: bool | str = "auto"
+
+    RULES = {
+        "prestress": ("True or False", flag),
+        "tol": ("a relative width in (0, 1)",
+                lambda v: isinstance(v, (int, float)) and bool(np.isfinite(v)) and 0 < v < 1),
+        "max_order": ("'auto' or an integer in [1, 10000]", _max_order_ok),
+        "spectral_bound": ("'auto', 'none' or a positive finite float", _spectral_bound_ok),
+        "dense_max": ("an integer >= 0", lambda v: integer(v) and v >= 0),
+        "min_contacts": ("None, 'rigid' or an integer >= 0",
+                         lambda v: (integer(v) and v >= 0) or v is None or (isinstance(v, str) and v == "rigid")),
+        "reorthogonalize": ("'auto', True or False", lambda v: flag(v) or (isinstance(v, str) and v == "auto")),
+        "preconditioner": ("'auto', 'amg' or 'block'", lambda v: isinstance(v, str) and v in ("auto", "amg", "block")),
+        "soft_modes": ("'auto' or an integer in [0, 50]",
+                       lambda v: (isinstance(v, str) and v == "auto")
+                       or (isinstance(v, (int, np.integer)) and 0 <= v <= 50)),
+        "max_memory": ("None or a positive number of bytes", lambda v: v is None or _positive(v)),
+        "certify_max_order": ("an integer in [1, 10000]", _int_in(1, 10000)),
+        "factor_steps": ("an integer in [0, 100]", _int_in(0, 100)),
+        "spectral_guess": ("None or a positive finite float", lambda v: v is None or _positive(v)),
+        "spin_arm": (f"one of {SPIN_ARMS}", lambda v: isinstance(v, str) and v in SPIN_ARMS),
+        "dual_bound": ("'auto', True or False", lambda v: isinstance(v, bool) or (isinstance(v, str) and v == "auto")),
+    }
+
+    @property
+    def user_bound(self) -> float | None:
+        """The caller's certified spectral bound (``spectral_bound`` as a float), else None."""
+        return None if isinstance(self.spectral_bound, str) else float(self.spectral_bound)
+
+
+def relaxation_hierarchy(network: ContactNetwork, options: HierarchyOptions | None = None,
+                         **overrides) -> HierarchyResult:
+    """Estimates of the stiffness of ``network`` of increasing order, with bounds.
+
+    The result is ``valid`` only where its claim is backed: the rigorous interval met ``tol``
+    (``certified``), or the extrapolation met it in the regime where its stated error was measured
+    honest (``calibrated``: kt/kn in ``CALIBRATED_KT_OVER_KN`` with the soft-mode search), and
+    nothing voids it (not jammed, floppy, unstable, a negative modulus). Every other result says
+    why in ``reasons``. Outside the calibrated regime the estimate is the rigorous interval itself
+    (midpoint, half-width; ``upper`` and an infinite error without a spectral bound).
+
+    Why the extrapolation is trusted only where calibrated, and why with a certified spectral bound
+    only the rigorous interval stops CG: docs/theory.md section 9, docs/results/hierarchy.md §6-7.
+
+    Parameters
+    ----------
+    network : ContactNetwork
+        A periodic network (sliding contacts have kt_eff = 0, exactly as in the exact
+        solver; rattlers are removed iteratively, ``min_contacts`` as in ``dem.analysis.stiffness``).
+    options : HierarchyOptions, optional
+        The settings (:class:`HierarchyOptions`: tolerance, orders, spectral bound, preconditioner,
+        soft modes, memory, ...); None: the defaults.
+    **overrides
+        Any field of :class:`HierarchyOptions` as a keyword (``relaxation_hierarchy(net, tol=1e-3,
+        prestress=True)``), replacing the value of ``options``. A value outside its range raises
+        :class:`~microhom.options.OptionError` (a ``ValueError``) naming it; an unknown name a
+        ``TypeError``.
 
     Returns
     -------
@@ -944,31 +1033,44 @@ def relaxation_hierarchy(network: ContactNetwork, *, prestress: bool = False, to
         Moduli [unit of kn, N/m] with bounds, orders, flags and the validity.
     """
     t0 = time.perf_counter()
-    auto_order, auto_prec = max_order == "auto", preconditioner == "auto"
-    max_order, prec0 = 16 if auto_order else max_order, "amg" if auto_prec else preconditioner
-    soft_modes, user_lam = _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, prec0,
-                                     max_memory, spectral_guess, certify_max_order, factor_steps,
-                                     dual_bound)
-    run = _Run(network=network, prestress=prestress, tol=float(tol), min_contacts=min_contacts,
-               max_order=int(max_order), certify_max_order=int(certify_max_order),
-               factor_steps=int(factor_steps), spectral_guess=spectral_guess, spin_arm=spin_arm)
-    full = _memory_guard(run, max_order, reorthogonalize, prec0, soft_modes, max_memory,
-                         spectral_bound == "auto" and factor_steps > 0, dense_max)
-    _setup(run, min_contacts)
+    o = merged(HierarchyOptions, options, overrides, "relaxation_hierarchy")
+    _check_network(network, o.prestress)
+    run, full = _start(network, o)
+    _setup(run, o.min_contacts)
     t_asm = (t1 := time.perf_counter()) - t0
-    _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound)
-    max_order, preconditioner = _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner)
-    soft = _soft_mode_step(run, soft_modes)
+    _spectral_step(run, o.user_bound, o.spectral_bound, o.dense_max, o.dual_bound)
+    max_order, preconditioner = _resolve_auto(run, o.max_order == "auto", o.preconditioner == "auto",
+                                              run.max_order, o.preconditioner)
+    soft = _soft_mode_step(run, o.soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
     t_solve = time.perf_counter() - t1 - run.t_bound
     return _finish(run, preconditioner, t_asm, t_solve)
 
 
-def _validate_caps(certify_max_order, factor_steps):
-    for name, v, hi in (("certify_max_order", certify_max_order, 10000), ("factor_steps", factor_steps, 100)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not (int(name == "certify_max_order") <= v <= hi):
-            raise ValueError(f"{name} must be an integer in [{int(name == 'certify_max_order')}, {hi}], got {v!r}")
+def _check_network(network, prestress):
+    """The network's own checks (the options are checked by :class:`HierarchyOptions`)."""
+    if not isinstance(network, ContactNetwork):
+        raise TypeError(f"network must be a microhom.network.ContactNetwork, got {type(network).__name__}")
+    if network.cell is None:
+        raise ValueError("network must be periodic (cell is None): the hierarchy estimates the "
+                         "stiffness of a periodic cell")
+    if prestress and network.fn is None:
+        raise ValueError("prestress=True needs the normal forces fn of the network (ContactNetwork.fn)")
+
+
+def _start(network, o):
+    """The run's state from the options (``max_order="auto"`` as 16 and ``preconditioner="auto"``
+    as "amg" until :func:`_resolve_auto`), then the memory guard; returns (run, full
+    re-orthogonalisation)."""
+    max_order = 16 if o.max_order == "auto" else o.max_order
+    prec0 = "amg" if o.preconditioner == "auto" else o.preconditioner
+    run = _Run(network=network, prestress=o.prestress, tol=float(o.tol), min_contacts=o.min_contacts,
+               max_order=int(max_order), certify_max_order=int(o.certify_max_order),
+               factor_steps=int(o.factor_steps), spectral_guess=o.spectral_guess, spin_arm=o.spin_arm)
+    full = _memory_guard(run, max_order, o.reorthogonalize, prec0, o.soft_modes, o.max_memory,
+                         o.spectral_bound == "auto" and o.factor_steps > 0, o.dense_max)
+    return run, full
 
 
 def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
@@ -982,45 +1084,6 @@ def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
     if auto_prec:
         preconditioner = "block" if lean else "amg"
     return max_order, preconditioner
-
-
-def _validate(network, prestress, tol, max_order, spectral_bound, soft_modes, preconditioner, max_memory,
-              spectral_guess=None, certify_max_order=200, factor_steps=4, dual_bound="auto"):
-    """Argument checks (each error names the parameter and its allowed range); returns
-    (soft_modes with "auto" kept, the user's spectral bound or None)."""
-    if not isinstance(network, ContactNetwork):
-        raise TypeError(f"network must be a microhom.network.ContactNetwork, got {type(network).__name__}")
-    if network.cell is None:
-        raise ValueError("network must be periodic (cell is None): the hierarchy estimates the "
-                         "stiffness of a periodic cell")
-    if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
-        raise ValueError(f"tol must be a relative width in (0, 1), got {tol!r}")
-    if isinstance(max_order, str) or int(max_order) != max_order or not (1 <= max_order <= 10000):
-        raise ValueError(f"max_order must be 'auto' or an integer in [1, 10000], got {max_order!r}")
-    user_lam = None
-    if isinstance(spectral_bound, str):
-        if spectral_bound not in ("auto", "none"):
-            raise ValueError(f"spectral_bound must be 'auto', 'none' or a positive float, got {spectral_bound!r}")
-    else:
-        user_lam = float(spectral_bound)
-        if not (np.isfinite(user_lam) and user_lam > 0):
-            raise ValueError(f"spectral_bound must be a positive finite float, got {spectral_bound!r}")
-    if not (soft_modes == "auto" or (isinstance(soft_modes, (int, np.integer)) and 0 <= soft_modes <= 50)):
-        raise ValueError(f"soft_modes must be 'auto' or an integer in [0, 50], got {soft_modes!r}")
-    if preconditioner not in ("amg", "block"):
-        raise ValueError(f"preconditioner must be 'auto', 'amg' or 'block', got {preconditioner!r}")
-    if prestress and network.fn is None:
-        raise ValueError("prestress=True needs the normal forces fn of the network (ContactNetwork.fn)")
-    if max_memory is not None and not (isinstance(max_memory, (int, float, np.integer, np.floating))
-                                       and np.isfinite(max_memory) and max_memory > 0):
-        raise ValueError(f"max_memory must be a positive number of bytes, got {max_memory!r}")
-    if spectral_guess is not None and not (isinstance(spectral_guess, (int, float, np.integer, np.floating))
-                                           and np.isfinite(spectral_guess) and spectral_guess > 0):
-        raise ValueError(f"spectral_guess must be a positive finite float, got {spectral_guess!r}")
-    _validate_caps(certify_max_order, factor_steps)
-    if not (isinstance(dual_bound, bool) or (isinstance(dual_bound, str) and dual_bound == "auto")):
-        raise ValueError(f"dual_bound must be 'auto', True or False, got {dual_bound!r}")
-    return soft_modes, user_lam
 
 
 def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory, certify=False,

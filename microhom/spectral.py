@@ -45,9 +45,10 @@ from scipy.sparse.linalg import LinearOperator, eigsh
 
 from microhom.factor import (AUTO_PARDISO_DOF_PENCIL, FactorisationError, _Pardiso, _Pencil, available_backends,
                              factor)
+from microhom.options import Options, finite_real, flag, integer, merged, real
 from microhom.results import Result
 
-__all__ = ["SpectralBound", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
+__all__ = ["SpectralBound", "CertificateOptions", "certified_bound", "count_below", "gershgorin_upper", "ZERO_EPS",
            "CERTIFIED_MAX_DOF", "GUESS_FACTOR"]
 
 #: largest system certified by default (``microhom.hierarchy.spectral_lower_bound``, ``dem analyse``):
@@ -142,8 +143,67 @@ def _check_m(M, backend, max_memory):
                          f"{m_neg} negative of {n}")
 
 
-def _check_pencil(H, M, eps, rel_gap, backend, guess=None):
-    """Argument checks of :func:`certified_bound`; returns (H, M) as CSR."""
+@dataclass(frozen=True)
+class CertificateOptions(Options):
+    """How :func:`certified_bound` certifies: frozen, validated when made (a value outside its range
+    raises :class:`~microhom.options.OptionError`, a ``ValueError`` naming the field and its range).
+
+    ``certified_bound(H, M, psd=True)`` is ``certified_bound(H, M, CertificateOptions(psd=True))``;
+    keywords given with an options object replace its values.
+
+    Attributes
+    ----------
+    eps : float
+        Zero threshold of the pencil, in (0, 1e-3]: eigenvalues in ``(-eps, eps)`` are the null
+        space [-].
+    psd : bool
+        ``H`` is known to be positive semi-definite (no negative eigenvalues: saves the
+        factorisation of ``H + eps M``).
+    backend : str
+        :func:`microhom.factor.factor` back end; must report the inertia: ``"auto"``,
+        ``"pardiso"`` or ``"splu"``.
+    rel_gap : float
+        In (0, 0.5]: the shift is ``(1 - rel_gap)`` times the Lanczos estimate.
+    tol : float
+        Lanczos tolerance (scipy ``eigsh``), >= 0 (0: machine precision).
+    ncv : int
+        Lanczos vectors, >= 2.
+    max_tries : int
+        Shifts tried, >= 1.
+    max_memory : float or None
+        Memory limit of each factorisation [bytes], > 0; None: the available memory.
+    check_m : bool
+        Factorise ``M`` to check that it is positive definite (False: the caller has, e.g. from
+        its particle blocks).
+    """
+
+    eps: float = ZERO_EPS
+    psd: bool = False
+    backend: str = "auto"
+    rel_gap: float = 1e-3
+    tol: float = 1e-4
+    ncv: int = 10
+    max_tries: int = 4
+    max_memory: float | None = None
+    check_m: bool = True
+
+    RULES = {
+        "eps": ("in (0, 1e-3]", lambda v: real(v) and 0 < v <= 1e-3),
+        "psd": ("True or False", flag),
+        "backend": ("one that reports the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is LL^T only)",
+                    lambda v: isinstance(v, str) and v in ("auto", "pardiso", "splu")),
+        "rel_gap": ("in (0, 0.5]", lambda v: real(v) and 0 < v <= 0.5),
+        "tol": ("finite and >= 0", lambda v: finite_real(v) and v >= 0),
+        "ncv": ("an integer >= 2", lambda v: integer(v) and v >= 2),
+        "max_tries": ("an integer >= 1", lambda v: integer(v) and v >= 1),
+        "max_memory": ("None or a positive number of bytes", lambda v: v is None or (finite_real(v) and v > 0)),
+        "check_m": ("True or False", flag),
+    }
+
+
+def _check_pencil(H, M, guess=None):
+    """Argument checks of :func:`certified_bound` on the pencil and the guess (the options are
+    checked by :class:`CertificateOptions`); returns (H, M) as CSR."""
     H = sp.csr_matrix(H)
     M = sp.csr_matrix(M)
     n = H.shape[0]
@@ -155,138 +215,154 @@ def _check_pencil(H, M, eps, rel_gap, backend, guess=None):
             raise ValueError(f"{name} must be finite")
         if X.nnz and float(abs(X - X.T).max()) > 1e-12 * scale:
             raise ValueError(f"{name} must be symmetric (|{name} - {name}^T| <= 1e-12 max|{name}|)")
-    if not (0 < eps <= 1e-3):
-        raise ValueError(f"eps must be in (0, 1e-3], got {eps!r}")
-    if not (0 < rel_gap <= 0.5):
-        raise ValueError(f"rel_gap must be in (0, 0.5], got {rel_gap!r}")
-    if backend == "cholmod":
-        raise ValueError("backend must report the inertia: 'auto', 'pardiso' or 'splu' (CHOLMOD is "
-                         "LL^T only)")
     if guess is not None and not (np.isfinite(guess) and guess > 0):
         raise ValueError(f"guess must be a positive finite estimate of the smallest eigenvalue, got {guess!r}")
     return H, M
 
 
-def certified_bound(H, M, *, eps=ZERO_EPS, psd=False, backend="auto", rel_gap=1e-3, tol=1e-4,
-                    Minv_sqrt=None, lam_max=None, max_memory=None, max_tries=4, keep_factor=False,
-                    guess=None, null_basis=None, check_m=True, ncv=10):
+def certified_bound(H, M, options: CertificateOptions | None = None, *, Minv_sqrt=None, lam_max=None,
+                    guess=None, null_basis=None, keep_factor=False, **overrides):
     """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
     threshold ``eps``, with the counts of zero and negative eigenvalues (module docstring).
 
     H : (n, n) real symmetric sparse; M : (n, n) symmetric positive definite sparse (checked by
-    its inertia); eps : zero threshold, in (0, 1e-3]; psd : ``H`` is known to be positive
-    semi-definite (no negative eigenvalues: saves the factorisation of ``H + eps M``);
-    backend : :func:`microhom.factor.factor` back end (must report the inertia: ``"pardiso"`` or
-    ``"splu"``); rel_gap : in (0, 0.5], the shift is ``(1 - rel_gap)`` times the estimate;
-    tol : Lanczos tolerance; Minv_sqrt : ``M^-1/2`` (sparse) for the Gershgorin upper bound;
-    lam_max : a known upper bound of the largest eigenvalue (used for the round-off margin);
-    max_memory [bytes] : memory limit of each factorisation; max_tries : shifts tried;
+    its inertia unless ``check_m=False``); options : :class:`CertificateOptions` (``eps``,
+    ``psd``, ``backend``, ``rel_gap``, ``tol``, ``ncv``, ``max_tries``, ``max_memory``,
+    ``check_m``), None: the defaults; ``**overrides``: any of its fields as keywords
+    (``certified_bound(H, M, psd=True)``). The problem's own data: Minv_sqrt : ``M^-1/2``
+    (sparse) for the Gershgorin upper bound; lam_max : a known upper bound of the largest
+    eigenvalue (used for the round-off margin); guess [-] : estimate of the smallest eigenvalue
+    above ``eps`` (``psd`` only): one factorisation at ``s1 = GUESS_FACTOR * guess`` certifies
+    ``s1`` when its count equals the null dimension that ``null_basis`` (n, g) proves (module
+    docstring, "One factorisation"); else the count at ``eps`` and, if needed, the usual path.
     keep_factor : also return the factorisation of ``H - s M`` at the certified shift (a
     :class:`microhom.factor.Factor`, the caller releases it), or None when not certified:
     ``(SpectralBound, Factor or None)`` instead of the ``SpectralBound`` alone.
-    guess [-] : estimate of the smallest eigenvalue above ``eps`` (``psd`` only): one factorisation
-    at ``s1 = GUESS_FACTOR * guess`` certifies ``s1`` when its count equals the null dimension that
-    ``null_basis`` (n, g) proves (module docstring, "One factorisation"); else the count at
-    ``eps`` and, if needed, the usual path. check_m : factorise ``M`` to check that it is positive
-    definite (False: the caller has, e.g. from its particle blocks). ncv : Lanczos vectors.
 
     Cost: two numeric factorisations (three when not ``psd``) and about ``ncv`` solves; one
     numeric factorisation and no solve when ``guess`` is good and ``null_basis`` spans the null
     space."""
     t0 = time.perf_counter()
-    H, M = _check_pencil(H, M, eps, rel_gap, backend, guess)
-    n = H.shape[0]
-    nf = 0
-    if check_m:
-        _check_m(M, backend, max_memory)
-    upper = gershgorin_upper(H, Minv_sqrt) if Minv_sqrt is not None else None
-    lmax = lam_max if lam_max is not None else (upper if upper is not None else _lam_max_estimate(H, M))
-    margin = 1e3 * _U * np.sqrt(max(n, 1)) * abs(lmax)
+    o = merged(CertificateOptions, options, overrides, "certified_bound")
+    H, M = _check_pencil(H, M, guess)
+    if o.check_m:
+        _check_m(M, o.backend, o.max_memory)
+    c = _Certificate(H, M, o, Minv_sqrt, lam_max, t0)
+    kept = None
+    try:
+        res = c.run(guess, null_basis, keep_factor)
+        if keep_factor and res.lower is not None:
+            kept, c.fac = c.fac, None     # the factor of H - s M at the certified shift s
+    except FactorisationError as exc:     # perturbed pivots, no symmetric pivoting: no certificate
+        res = c.out(None, None, None, None, 0, 0, f"no certified inertia: {exc}")
+    finally:
+        if c.fac is not None:
+            c.fac.release()
+    return (res, kept) if keep_factor else res
 
-    def out(lower, est, shift, nb, n_zero, n_neg, reason, name):
-        return SpectralBound(lower=lower, estimate=est, shift=shift, margin=float(margin), upper=upper,
-                             n_zero=int(n_zero), n_negative=int(n_neg), n_below_shift=nb, eps=float(eps),
-                             n=n, n_factorisations=nf, backend=name, time=time.perf_counter() - t0,
-                             reason=reason)
 
-    be = backend
-    if backend == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF_PENCIL unknowns (microhom.factor)
-        be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF_PENCIL else "splu"
-    pencil = _Pencil(H, M) if be == "pardiso" else None
-    fac = None
+class _Certificate:
+    """One run of :func:`certified_bound`: the pencil, its round-off margin, the back end and the
+    factorisation of the latest shift (``fac``), with the steps of the certificate as methods."""
 
-    def factor_at(sh):
-        nonlocal fac, nf
-        nf += 1
-        if pencil is None:
-            if fac is not None:
-                fac.release()
-            fac = factor((H - sh * M).tocsr(), backend=be, max_memory=max_memory)
-        elif fac is None:    # matching only where H may be strongly indefinite (pre-stress)
-            fac = _Pardiso(pencil.matrix(sh), upper=True, max_memory=max_memory, matching=not psd,
-                           ordering="mmd")
+    def __init__(self, H, M, o, Minv_sqrt, lam_max, t0):
+        self.H, self.M, self.o, self.t0 = H, M, o, t0
+        self.n = n = H.shape[0]
+        self.nf = 0
+        self.upper = gershgorin_upper(H, Minv_sqrt) if Minv_sqrt is not None else None
+        lmax = lam_max if lam_max is not None else (self.upper if self.upper is not None
+                                                     else _lam_max_estimate(H, M))
+        self.margin = 1e3 * _U * np.sqrt(max(n, 1)) * abs(lmax)
+        be = o.backend
+        if be == "auto":      # SuperLU is as fast below AUTO_PARDISO_DOF_PENCIL unknowns (microhom.factor)
+            be = "pardiso" if "pardiso" in available_backends() and n >= AUTO_PARDISO_DOF_PENCIL else "splu"
+        self.be = be
+        self.pencil = _Pencil(H, M) if be == "pardiso" else None
+        self.fac = None
+
+    def out(self, lower, est, shift, nb, n_zero, n_neg, reason):
+        """The :class:`SpectralBound` of this run."""
+        return SpectralBound(lower=lower, estimate=est, shift=shift, margin=float(self.margin), upper=self.upper,
+                             n_zero=int(n_zero), n_negative=int(n_neg), n_below_shift=nb, eps=float(self.o.eps),
+                             n=self.n, n_factorisations=self.nf, backend=self.be,
+                             time=time.perf_counter() - self.t0, reason=reason)
+
+    def factor_at(self, sh):
+        """Negative pivots of ``H - sh M`` (one numeric factorisation, kept in ``fac``)."""
+        self.nf += 1
+        mm = self.o.max_memory
+        if self.pencil is None:
+            if self.fac is not None:
+                self.fac.release()
+            self.fac = factor((self.H - sh * self.M).tocsr(), backend=self.be, max_memory=mm)
+        elif self.fac is None:    # matching only where H may be strongly indefinite (pre-stress)
+            self.fac = _Pardiso(self.pencil.matrix(sh), upper=True, max_memory=mm, matching=not self.o.psd,
+                                ordering="mmd")
         else:
-            fac.refactor(pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
-        return _neg(fac)
+            self.fac.refactor(self.pencil.at(sh))      # the analysis (ordering, symbolic factor) reused
+        return _neg(self.fac)
 
-    def certified_at(s, nb, n_zero, n_neg, est):
-        lower = s - margin
-        if lower <= eps:
-            return out(None, est, s, nb, n_zero, n_neg,
-                       f"the round-off margin {margin:.2g} swallows the bound {s:.3g}", be)
-        return out(float(lower), est, float(s), nb, n_zero, n_neg, "", be)
+    def certified_at(self, s, nb, n_zero, n_neg, est):
+        """``s`` less the round-off margin, if that stays above ``eps``."""
+        lower = s - self.margin
+        if lower <= self.o.eps:
+            return self.out(None, est, s, nb, n_zero, n_neg,
+                            f"the round-off margin {self.margin:.2g} swallows the bound {s:.3g}")
+        return self.out(float(lower), est, float(s), nb, n_zero, n_neg, "")
 
-    def _run():
+    def run(self, guess, null_basis, keep_factor):
+        """The certificate: the guess's one factorisation, the counts at ``-eps`` and ``eps``, the
+        Lanczos estimate and the lowered shifts (module docstring)."""
+        o, n = self.o, self.n
         s1 = k1 = None
-        if guess is not None and psd and GUESS_FACTOR * guess - margin > eps:
+        if guess is not None and o.psd and GUESS_FACTOR * guess - self.margin > o.eps:
             s1 = GUESS_FACTOR * float(guess)      # one factorisation: the count at s1 ...
-            k1 = factor_at(s1)
-            if k1 < n and k1 == _proven_null(H, M, null_basis, eps):   # ... is the proven null space
-                return certified_at(s1, k1, k1, 0, None)
-        n_neg = 0 if psd else factor_at(-eps)
-        n_low = factor_at(eps)
+            k1 = self.factor_at(s1)
+            if k1 < n and k1 == _proven_null(self.H, self.M, null_basis, o.eps):   # ... is the proven null space
+                return self.certified_at(s1, k1, k1, 0, None)
+        n_neg = 0 if o.psd else self.factor_at(-o.eps)
+        n_low = self.factor_at(o.eps)
         n_zero = n_low - n_neg
         if n_low >= n:
-            return out(None, None, None, None, n_zero, n_neg, "no eigenvalue above eps", be)
+            return self.out(None, None, None, None, n_zero, n_neg, "no eigenvalue above eps")
         if s1 is not None and k1 == n_low:        # no eigenvalue in [eps, s1): s1 holds (the factor
-            _ = factor_at(s1) if keep_factor else None   # kept is that of H - s1 M)
-            return certified_at(s1, k1, n_zero, n_neg, None)
-        k = 1          # the certificate (step 3) catches a missed eigenvalue; ncv Lanczos vectors
+            _ = self.factor_at(s1) if keep_factor else None   # kept is that of H - s1 M)
+            return self.certified_at(s1, k1, n_zero, n_neg, None)
+        est = self.estimate(n_low)
+        if est is None:
+            return self.out(None, None, None, None, n_zero, n_neg,
+                            "the Lanczos estimate found no eigenvalue above eps")
+        return self.lowered(est, n_low, n_zero, n_neg)
+
+    def estimate(self, n_low):
+        """Smallest eigenvalue above ``eps``: dense for small pencils, else shift-invert Lanczos on
+        the factor at ``eps``; None when Lanczos finds none."""
+        n, eps = self.n, self.o.eps
+        k = 1          # the certificate (the counts) catches a missed eigenvalue; ncv Lanczos vectors
         if n <= 50 or n - n_low <= k + 1:
-            w = _dense_eigs(H, M)
-            est = float(w[w > eps].min())
-        else:
-            op = LinearOperator((n, n), matvec=fac.solve, dtype=float)
-            w = eigsh(H, k=k, M=M, sigma=eps, which="LA", OPinv=op, tol=tol, ncv=min(n - 1, int(ncv)),
-                      return_eigenvectors=False)
-            w = w[w > eps]
-            if not w.size:
-                return out(None, None, None, None, n_zero, n_neg,
-                           "the Lanczos estimate found no eigenvalue above eps", be)
-            est = float(w.min())
-        s = (1.0 - rel_gap) * est
+            w = _dense_eigs(self.H, self.M)
+            return float(w[w > eps].min())
+        op = LinearOperator((n, n), matvec=self.fac.solve, dtype=float)
+        w = eigsh(self.H, k=k, M=self.M, sigma=eps, which="LA", OPinv=op, tol=self.o.tol,
+                  ncv=min(n - 1, int(self.o.ncv)), return_eigenvectors=False)
+        w = w[w > eps]
+        return float(w.min()) if w.size else None
+
+    def lowered(self, est, n_low, n_zero, n_neg):
+        """Count at ``s = (1 - rel_gap) est``; lowered towards ``eps`` while an eigenvalue lies in
+        ``[eps, s)`` (the estimate missed it), at most ``max_tries`` shifts."""
+        eps, max_tries = self.o.eps, self.o.max_tries
+        s = (1.0 - self.o.rel_gap) * est
         for _ in range(int(max_tries)):
             if s <= eps:
                 break
-            nb = factor_at(s)
+            nb = self.factor_at(s)
             if nb == n_low:
-                return certified_at(s, nb, n_zero, n_neg, est)
+                return self.certified_at(s, nb, n_zero, n_neg, est)
             s = np.sqrt(s * eps) if s > 1e4 * eps else 0.5 * (s + eps)   # missed eigenvalue(s)
-        return out(None, est, None, None, n_zero, n_neg,
-                   f"no shift above eps = {eps:g} certified in {max_tries} tries (eigenvalues crowd "
-                   "just above the zero threshold)", be)
-
-    kept = None
-    try:
-        res = _run()
-        if keep_factor and res.lower is not None:
-            kept, fac = fac, None     # the factor of H - s M at the certified shift s
-    except FactorisationError as exc:     # perturbed pivots, no symmetric pivoting: no certificate
-        res = out(None, None, None, None, 0, 0, f"no certified inertia: {exc}", be)
-    finally:
-        if fac is not None:
-            fac.release()
-    return (res, kept) if keep_factor else res
+        return self.out(None, est, None, None, n_zero, n_neg,
+                        f"no shift above eps = {eps:g} certified in {max_tries} tries (eigenvalues crowd "
+                        "just above the zero threshold)")
 
 
 def _proven_null(H, M, Z, eps):

@@ -89,8 +89,13 @@ def _lattice(State):
 
 def _simulation(mods, st, spec):
     law = getattr(mods[1], spec["law"])(**spec["kwargs"])
-    sim = mods[3].Simulation(st, law, dt=spec["dt"], damping=0.0, skin=spec["skin"], sort_every=50,
-                             startup=spec["startup"], unsafe_dt=True)
+    loop, guard = dict(skin=spec["skin"], sort_every=50), dict(unsafe_dt=True)
+    integ = mods[3]
+    if hasattr(integ, "Loop"):    # the bundles (issue 23); older revisions take the keywords flat
+        sim = integ.Simulation(st, law, dt=spec["dt"], damping=0.0, startup=spec["startup"],
+                               guard=integ.Guard(**guard), loop=integ.Loop(**loop))
+    else:
+        sim = integ.Simulation(st, law, dt=spec["dt"], damping=0.0, startup=spec["startup"], **loop, **guard)
     return sim, law
 
 

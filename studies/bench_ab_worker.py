@@ -41,8 +41,13 @@ def main(argv):
     spec = json.loads(open(spec_path).read())
     st = State.from_disks(d["x"], d["r"], d["h"], rho=float(d["rho"]), spins=True)
     law = getattr(laws, spec["law"])(**spec["kwargs"])
-    sim = Simulation(st, law, dt=spec["dt"], damping=0.0, skin=spec["skin"], sort_every=50,
-                     startup=spec["startup"], unsafe_dt=True)
+    loop, guard = dict(skin=spec["skin"], sort_every=50), dict(unsafe_dt=True)
+    mod = sys.modules[Simulation.__module__]
+    if hasattr(mod, "Loop"):      # the bundles (issue 23); older revisions take the keywords flat
+        sim = Simulation(st, law, dt=spec["dt"], damping=0.0, startup=spec["startup"],
+                         guard=mod.Guard(**guard), loop=mod.Loop(**loop))
+    else:
+        sim = Simulation(st, law, dt=spec["dt"], damping=0.0, startup=spec["startup"], **loop, **guard)
     sim.run(warm)
     ts = np.empty(chunks)
     w0 = time.perf_counter()

@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from dem.engine import neighbors
-from dem.engine.integrate import Simulation
+from dem.engine.integrate import Guard, Loop, Simulation
 from studies.bench_throughput import DT, SKIN, bench_law, dense_base, tile, tiling
 from studies.common import add_out, cli_out_dir, report_to
 
@@ -37,7 +37,8 @@ LIST = ("x", "v", "radius", "ids", "omega", "nl_i", "nl_j", "nl_shift", "nl_ft",
 def due_state(base, n):
     """The benchmark scene of n disks at the step its next list rebuild is due."""
     st = tile(base, *tiling(n, base.n))
-    sim = Simulation(st, bench_law(), dt=DT, damping=0.0, skin=SKIN, sort_every=50, unsafe_dt=True)
+    sim = Simulation(st, bench_law(), dt=DT, damping=0.0, guard=Guard(unsafe_dt=True),
+                     loop=Loop(skin=SKIN, sort_every=50))
     sim.run(200)
     while not sim.need_rebuild:
         sim.step(False)

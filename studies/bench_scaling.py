@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from dem.engine.integrate import Simulation
+from dem.engine.integrate import Loop, Simulation
 from studies.bench_throughput import DT, bench_law, dense_base, tile
 from studies.common import add_out, cli_out_dir, report_to
 
@@ -49,7 +49,7 @@ def main(argv=None):
     for rx, ry in tiles:
         st = tile(base, rx, ry)
         n = st.n
-        sim = Simulation(st, bench_law(), dt=DT, damping=0.0, skin=0.1, sort_every=50)
+        sim = Simulation(st, bench_law(), dt=DT, damping=0.0, loop=Loop(skin=0.1, sort_every=50))
         sim.run(20)  # compile, first list build and spatial sort
         steps = max(20, int(2e7 / n))
         t0 = time.perf_counter()

@@ -70,7 +70,7 @@ import numpy as np
 from dem import io
 from dem.engine.cell import StrainRate
 from dem.engine.contact_laws import LammpsHookeHistory, LinearFriction
-from dem.engine.integrate import Simulation
+from dem.engine.integrate import Guard, Loop, Simulation
 from dem.engine.lammps import lammps_available
 from dem.engine.packing import PackingProtocol, pack
 from dem.engine.state import State
@@ -122,8 +122,8 @@ def dense_base(n=10000, seed=4242, ncomp=20000, nrelax=3000):
     st = State.from_disks(x, r, np.diag([L0, L0]), rho=RHO, spins=True)
     e_tot = 0.5 * math.log(phi0 / phi1)  # log strain per direction (negative)
     rate = e_tot / (ncomp * DT)
-    sim = Simulation(st, bench_law(), dt=DT, damping=0.7, skin=SKIN,
-                     control=StrainRate([[rate, 0], [0, rate]]))
+    sim = Simulation(st, bench_law(), dt=DT, damping=0.7, control=StrainRate([[rate, 0], [0, rate]]),
+                     loop=Loop(skin=SKIN))
     sim.run(ncomp)
     sim.control = StrainRate(np.zeros((2, 2)))
     st.L[:] = 0.0
@@ -157,8 +157,8 @@ def tiling(n, nbase=10000):
 def run_ours(base, n, steps, law, startup="leapfrog", threads=1):
     """Warm-up then a timed run; returns (wall particle-steps/s, CPU particle-steps/s, sim)."""
     st = tile(base, *tiling(n, base.n))
-    sim = Simulation(st, law, dt=DT, damping=0.0, skin=SKIN, sort_every=50, startup=startup,
-                     unsafe_dt=True, threads=threads)
+    sim = Simulation(st, law, dt=DT, damping=0.0, startup=startup, guard=Guard(unsafe_dt=True),
+                     loop=Loop(skin=SKIN, sort_every=50, threads=threads))
     sim.run(WARM)
     c0 = time.process_time()
     rep = sim.run(steps)

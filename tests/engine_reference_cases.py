@@ -18,7 +18,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import law_reference_cases as ref  # noqa: E402
 from dem.engine.cell import PressureServo, StrainRate  # noqa: E402
 from dem.engine.contact_laws import HertzRolling, LammpsHookeHistory, LinearFriction  # noqa: E402
-from dem.engine.integrate import Simulation  # noqa: E402
 
 
 def _servo():
@@ -26,7 +25,7 @@ def _servo():
 
 
 CASES = {
-    # name: (law, Simulation keywords)
+    # name: (law, Simulation keywords, loop and guard fields by name: law_reference_cases.simulation)
     "lammps_servo": (lambda: LammpsHookeHistory(kn=1e4, kt=8e3, gamma_n=5.0, mu=0.4),
                      lambda: dict(startup="lammps", control=_servo())),
     "lammps_fused": (lambda: LammpsHookeHistory(kn=1e4, kt=1e4, gamma_n=3.0, mu=0.5, gamma_t=1.0),
@@ -51,7 +50,7 @@ def run_case(name, cases=None):
     law_f, kw_f = (CASES if cases is None else cases)[name]
     law = law_f()
     st = ref.initial_state(law.needs_spin)
-    sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f())
+    sim = ref.simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f())
     sim.run(STEPS)
     return st, sim.out.copy(), sim.n_rebuilds
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from dem.engine.cell import PressureServo
 from dem.engine.contact_laws import Frictionless, HertzMindlin, LinearFriction
-from dem.engine.integrate import Simulation
+from dem.engine import integrate
 from dem.engine.state import State
 from microhom import lattices
 
@@ -47,12 +47,23 @@ def initial_state(spins, seed=3):
     return st
 
 
+def simulation(state, law, **kw):
+    """``Simulation(state, law, ...)`` with the loop and guard settings given by name: bundled into
+    ``Loop`` and ``Guard`` for this engine, flat for the older engines that recorded the runs (so
+    that the recording commands above still run)."""
+    if hasattr(integrate, "Loop"):
+        loop = {k: kw.pop(k) for k in integrate.Loop.names() if k in kw}
+        guard = {k: kw.pop(k) for k in integrate.Guard.names() if k in kw}
+        kw.update(loop=integrate.Loop(**loop), guard=integrate.Guard(**guard))
+    return integrate.Simulation(state, law, **kw)
+
+
 def run_case(name):
     """Run case ``name`` for STEPS steps (pressure servo, local damping, frequent rebuilds and
     spatial sorts) and return the final state and the last ``out`` vector of the kernel."""
     law = CASES[name]()
     st = initial_state(law.needs_spin)
-    sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3,
+    sim = simulation(st, law, damping=0.2, skin=0.02, sort_every=3,
                      control=PressureServo(p_target=80.0, max_rate=5e-3))
     sim.run(STEPS)
     return st, sim.out.copy(), sim.n_rebuilds

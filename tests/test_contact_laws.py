@@ -12,7 +12,7 @@ from dem.engine import contact_models as cm
 from dem.engine.contact_laws import (ContactLaw, Frictionless, HertzMindlin, HertzRolling, LammpsHookeHistory,
                               LinearFriction, law_from_meta)
 from dem.engine.cell import PressureServo
-from dem.engine.integrate import Simulation, critical_dt
+from dem.engine.integrate import Guard, Loop, Simulation, critical_dt
 from dem.engine.state import State
 import arms_reference_cases as aref
 import engine_reference_cases as eref
@@ -43,7 +43,7 @@ def test_fused_kick_is_bit_identical_to_the_separate_pass(name):
     for fuse in (False, True):
         law = ref.CASES[name]()
         st = ref.initial_state(law.needs_spin)
-        sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, fuse=fuse)
+        sim = Simulation(st, law, damping=0.2, loop=Loop(skin=0.02, sort_every=3, fuse=fuse))
         for _ in range(150):
             sim.step()
         runs.append((st, sim.ke_n, sim.damping_work, sim.n_rebuilds))
@@ -77,7 +77,8 @@ def test_chunked_and_serial_pair_loops_are_bit_identical(name, fuse, monkeypatch
         st = ref.initial_state(law.needs_spin)
         control = None if fuse else PressureServo(p_target=80.0, max_rate=5e-3)
         with _damping_warned(law):
-            sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, fuse=fuse, control=control)
+            sim = Simulation(st, law, damping=0.2, control=control,
+                             loop=Loop(skin=0.02, sort_every=3, fuse=fuse))
         for k in range(120):
             sim.step(tally=k % 7 == 0)
         touching = sim.out[4]
@@ -107,7 +108,8 @@ def _chain_pair(law, overlap=2e-3, r=0.5):
     static: the normal forces balance)."""
     w = 2 * (2 * r - overlap)
     st = State.from_disks([[w / 4, 2.0], [3 * w / 4, 2.0]], r, np.diag([w, 4.0]), rho=ref.RHO, spins=True)
-    return st, Simulation(st, law, damping=0.0, skin=0.05, sort_every=0, check_every=0)
+    return st, Simulation(st, law, damping=0.0, guard=Guard(check_every=0),
+                          loop=Loop(skin=0.05, sort_every=0))
 
 
 def test_rolling_resistance_elastic_closed_form():
@@ -164,7 +166,7 @@ def test_history_parity_survives_spatial_sorts():
         for sort_every in (0, 1):
             st = ref.initial_state(True)
             st.v *= 4.0
-            sim = Simulation(st, law, damping=0.0, skin=0.02, sort_every=sort_every)
+            sim = Simulation(st, law, damping=0.0, loop=Loop(skin=0.02, sort_every=sort_every))
             sim.run(200)
             inv = np.argsort(st.ids)
             out.append((st.x[inv], st.v[inv], st.omega[inv], st.ids.copy(), sim.n_rebuilds))
@@ -257,7 +259,7 @@ def test_arms_reference_tells_the_arms_apart():
     law_f, kw_f = aref.CASES["linear_arms_fused"]
     law = replace(law_f(), contact_arms=False)
     st = ref.initial_state(True)
-    Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f()).run(aref.STEPS)
+    ref.simulation(st, law, damping=0.2, skin=0.02, sort_every=3, **kw_f()).run(aref.STEPS)
     assert not np.array_equal(st.x, ARMS_REF["linear_arms_fused/x"])
 
 
@@ -298,7 +300,7 @@ def test_contact_arms_torque_and_slip_closed_form():
                               spins=True)
         st.omega[1] = w
         sim = Simulation(st, LinearFriction(kn=1e4, kt=kt, mu=10.0, contact_arms=arms), damping=0.0,
-                         check_every=0)
+                         guard=Guard(check_every=0))
         sim.compute_forces()
         ai, aj = (d * ri / (ri + rj), d * rj / (ri + rj)) if arms else (ri, rj)
         ft = -kt * (-(aj * w)) * sim.dt      # slip velocity vt = -(w_i a_i + w_j a_j)
@@ -314,7 +316,7 @@ def test_coincident_disks_stop_with_the_reason(make):
     from dem.runtime import InstabilityError
     x = np.array([[1.0, 1.0], [1.0, 1.0], [3.0, 3.0]])
     st = State.from_disks(x, np.full(3, 0.5), np.diag([5.0, 5.0]), rho=1.0, spins=True)
-    sim = Simulation(st, make(), check_every=10)
+    sim = Simulation(st, make(), guard=Guard(check_every=10))
     with pytest.raises(InstabilityError, match="NaN"):
         sim.run(20)
 
@@ -329,8 +331,8 @@ def test_threaded_forces_agree_to_round_off_and_are_reproducible(name):
         law = STRATEGY_LAWS[name]()
         st = ref.initial_state(law.needs_spin)
         with _damping_warned(law):
-            sim = Simulation(st, law, damping=0.2, skin=0.02, sort_every=3, threads=threads,
-                             control=PressureServo(p_target=80.0, max_rate=5e-3))
+            sim = Simulation(st, law, damping=0.2, control=PressureServo(p_target=80.0, max_rate=5e-3),
+                             loop=Loop(skin=0.02, sort_every=3, threads=threads))
         for _ in range(steps):
             sim.step()
         return st, sim
@@ -354,7 +356,7 @@ def test_threaded_forces_agree_to_round_off_and_are_reproducible(name):
 def test_threads_refused_with_the_range(bad):
     st = ref.initial_state(True)
     with pytest.raises(ValueError, match=r"threads must be an integer in \[1, 1024\]"):
-        Simulation(st, STRATEGY_LAWS["linear"](), threads=bad)
+        Simulation(st, STRATEGY_LAWS["linear"](), loop=Loop(threads=bad))
 
 
 def _kernel_functions():

@@ -7,7 +7,7 @@ import pytest
 
 from dem.engine.cell import PressureServo, rotation
 from dem.engine.contact_laws import Frictionless, LinearFriction, HertzMindlin, damping_ratio
-from dem.engine.integrate import InstabilityError, Simulation, critical_dt
+from dem.engine.integrate import Guard, InstabilityError, Loop, Simulation, critical_dt
 from dem.engine.neighbors import rebuild
 from dem.engine.state import State
 from microhom import lattices
@@ -250,8 +250,8 @@ def test_instability_guard_keeps_last_good_state(tmp_path):
     st = perturbed_lattice(frictional=False)
     law = Frictionless(kn=1e4)
     dtc = critical_dt(st, law)
-    sim = Simulation(st, law, dt=2.5 * dtc, unsafe_dt=True, damping=0.0, check_every=20,
-                     failure_path=tmp_path / "last_good.npz")
+    sim = Simulation(st, law, dt=2.5 * dtc, damping=0.0,
+                     guard=Guard(unsafe_dt=True, check_every=20, failure_path=tmp_path / "last_good.npz"))
     with pytest.raises(InstabilityError) as ei:
         sim.run(20000)
     err = ei.value
@@ -267,7 +267,7 @@ def test_checkpoint_restart_bit_exact(tmp_path):
         st.v[:] = np.random.default_rng(9).normal(0, 1e-2, st.v.shape)
         ctl = PressureServo(p_target=50.0, max_rate=1e-2)
         return Simulation(st, LinearFriction(kn=1e4, kt=5e3, mu=0.3, restitution=0.8), damping=0.3,
-                          control=ctl, sort_every=3, skin=0.01)
+                          control=ctl, loop=Loop(sort_every=3, skin=0.01))
     a = make()
     a.run(900)
     b = make()
@@ -284,7 +284,7 @@ def test_same_input_bit_identical_runs():
     out = []
     for _ in range(2):
         st = perturbed_lattice(seed=8)
-        sim = Simulation(st, LinearFriction(kn=1e4, kt=1e4, mu=0.5), damping=0.7, sort_every=2)
+        sim = Simulation(st, LinearFriction(kn=1e4, kt=1e4, mu=0.5), damping=0.7, loop=Loop(sort_every=2))
         sim.run(300)
         out.append(st)
     assert np.array_equal(out[0].x, out[1].x) and np.array_equal(out[0].nl_ft, out[1].nl_ft)

@@ -10,7 +10,7 @@ Scheme (leapfrog / velocity Verlet in kick-drift form, as in PFC and Yade)::
 with spins ``w`` and rotations integrated the same way with torques and ``I = m r^2 / 2``.
 ``Simulation(startup="lammps")`` takes the initial velocities as v(0) instead (LAMMPS' velocity
 Verlet): the first force call does not advance the contact history and the first kick is dt/2,
-after which the sequence is the same. With ``fuse=True`` and no cell control, each particle is
+after which the sequence is the same. With ``loop=Loop(fuse=True)`` and no cell control, each particle is
 kicked and drifted inside the force loop once its force is complete (same arithmetic).
 
 Cundall local non-viscous damping, per component: ``F_damp,k = -lambda |F_k| sign(v_k)`` (first
@@ -27,6 +27,11 @@ largest eigenfrequency of the assembly obeys ``omega_max^2 <= 2 K_i / m_i`` (Ger
 leapfrog limit ``2 / omega_max`` is at least ``sqrt(2) dt_crit``. Default ``dt = 0.8 dt_crit``; a
 larger user ``dt`` than ``dt_crit`` raises ``ValueError``.
 
+Settings by what they are about: ``Simulation(state, law, dt=..., damping=..., control=...,
+startup=..., guard=Guard(...), loop=Loop(...))``; :class:`Guard` the instability guard
+(``check_every``, ``ke_limit``, ``unsafe_dt``, ``failure_path``), :class:`Loop` the step loop's
+implementation (``skin``, ``sort_every``, ``fuse``, ``threads``), both frozen and validated when made.
+
 Instability guard: every ``check_every`` steps the state is checked for NaN/inf and for a kinetic
 energy above ``ke_limit`` (default ``N * k_law * r_min^2``: every particle as energetic as a
 full-diameter overlap); a failure raises :class:`~dem.runtime.InstabilityError` carrying the last good state (and
@@ -41,11 +46,15 @@ on every :meth:`Simulation.step` called directly.
 from __future__ import annotations
 
 import math
+import os
 import time as _time
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+
+from microhom.options import Options, finite_real, flag, integer
 
 from . import contact_models as cm
 from . import neighbors
@@ -53,7 +62,7 @@ from .contact_laws import law_from_meta
 from .state import State
 from ..runtime import InstabilityError, RunReport, run_report  # noqa: F401 - part of this API
 
-__all__ = ["Simulation", "critical_dt", "possible_contacts"]
+__all__ = ["Simulation", "Guard", "Loop", "critical_dt", "possible_contacts"]
 
 
 def possible_contacts(radius) -> np.ndarray:
@@ -115,6 +124,84 @@ def _norm2_2x2(a, b, c, d):
     return math.sqrt(max(0.0, 0.5 * (s + math.sqrt(max(0.0, s * s - 4 * det * det)))))
 
 
+@dataclass(frozen=True)
+class Guard(Options):
+    """The instability guard of a :class:`Simulation`: frozen, validated when made (a value outside
+    its range raises :class:`~microhom.options.OptionError`, a ``ValueError`` naming the field).
+
+    Attributes
+    ----------
+    check_every : int
+        Steps between instability checks (NaN/inf, kinetic energy above ``ke_limit``), >= 0; 0:
+        never.
+    ke_limit : float or None
+        Kinetic-energy bound [J/m], > 0; None: ``N * k_law * r_min^2`` (every particle as
+        energetic as a full-diameter overlap).
+    unsafe_dt : bool
+        Allow ``dt`` above ``critical_dt`` (for tests of the guard itself).
+    failure_path : str, path or None
+        Where the last good state is saved when the guard trips (None: not saved).
+    """
+
+    check_every: int = 200
+    ke_limit: float | None = None
+    unsafe_dt: bool = False
+    failure_path: str | os.PathLike | None = None
+
+    RULES = {
+        "check_every": ("an integer >= 0", lambda v: integer(v) and v >= 0),
+        "ke_limit": ("None or finite and > 0", lambda v: v is None or (finite_real(v) and v > 0)),
+        "unsafe_dt": ("True or False", flag),
+        "failure_path": ("None or a path", lambda v: v is None or isinstance(v, (str, os.PathLike))),
+    }
+
+
+@dataclass(frozen=True)
+class Loop(Options):
+    """How a :class:`Simulation`'s step loop is carried out (never what it computes, except
+    ``threads``: round-off): frozen, validated when made.
+
+    Attributes
+    ----------
+    skin : float or None
+        Verlet skin [m], > 0; None: 0.2 * mean radius.
+    sort_every : int
+        Spatially sort the particles every this many list rebuilds, >= 0 (0: never).
+    fuse : bool
+        Kick and drift inside the force loop when the cell has no control (bit-identical to
+        the separate pass, one pass over the particle arrays fewer; measured no faster on the
+        benchmark scene, see ``docs/dem.md``, hence off by default).
+    threads : int
+        Threads of the contact-force loop, in [1, 1024] (default 1). With 2 or more
+        (:func:`dem.engine.contact_models.pair_forces_threaded`) the forces agree with one thread's to
+        round-off, not bit for bit, and a run is reproducible for a given number of threads; the
+        kick, the list builds and the rest of the step stay on one thread (measured speed-up in
+        ``docs/dem.md``).
+    """
+
+    skin: float | None = None
+    sort_every: int = 20
+    fuse: bool = False
+    threads: int = 1
+
+    RULES = {
+        "skin": ("None or finite and > 0", lambda v: v is None or (finite_real(v) and v > 0)),
+        "sort_every": ("an integer >= 0", lambda v: integer(v) and v >= 0),
+        "fuse": ("True or False", flag),
+        "threads": ("an integer in [1, 1024]", lambda v: integer(v) and 1 <= v <= 1024),
+    }
+
+
+def _bundle(cls, value, name):
+    """``value`` (a ``cls`` or None: its defaults); a TypeError names the keyword otherwise."""
+    if value is None:
+        return cls()
+    if not isinstance(value, cls):
+        raise TypeError(f"Simulation's {name} must be a dem.engine.integrate.{cls.__name__} or None, got "
+                        f"{type(value).__name__} (e.g. {name}={cls.__name__}({', '.join(cls.names())}=...))")
+    return value
+
+
 class Simulation:
     """A disk assembly, a contact law and an integrator in a periodic cell.
 
@@ -123,35 +210,34 @@ class Simulation:
     state : :class:`dem.engine.state.State` (modified in place).
     law : a contact law from :mod:`dem.engine.contact_laws`.
     dt : time step [s]; default ``0.8 * critical_dt``; refused (ValueError) above ``critical_dt``
-        unless ``unsafe_dt=True`` (for tests of the instability guard).
+        unless ``guard=Guard(unsafe_dt=True)`` (for tests of the instability guard).
     damping : Cundall local damping lambda in [0, 1); ``None`` (default) means 0.7, or 0 for a law
         that follows another code's equations (``LAMMPS_EQUIVALENT``: the
         :class:`~dem.engine.contact_laws.LammpsHookeHistory` law, since LAMMPS has no Cundall damping).
         An explicit ``damping > 0`` with such a law runs with a ``RuntimeWarning``: the run leaves
         LAMMPS's equations (dv/v_rms of 0.1 at the first step with 0.7).
-    skin : Verlet skin [m], default 0.1 * mean diameter... (0.2 * mean radius).
     control : cell control (:class:`dem.engine.cell.StrainRate`, :class:`dem.engine.cell.PressureServo`) or None
         (the cell keeps its current ``L``).
-    sort_every : spatially sort the particles every this many list rebuilds (0: never).
-    check_every : steps between instability checks; ke_limit : kinetic-energy bound [J/m].
     startup : ``"leapfrog"`` (default): ``state.v`` holds the half-step velocities v(n - 1/2), as
         this engine stores them. ``"lammps"``: ``state.v`` and ``state.omega`` are the velocities at
         the integer time, as LAMMPS (velocity Verlet) stores them; the first step then computes
         the forces with them without advancing the contact history (LAMMPS' setup force call) and
         kicks by dt/2, after which the two schemes coincide.
-    fuse : kick and drift inside the force loop when the cell has no control (bit-identical to
-        the separate pass, one pass over the particle arrays fewer; measured no faster on the
-        benchmark scene, see ``docs/dem.md``, hence off by default).
-    threads : threads of the contact-force loop (default 1). With 2 or more
-        (:func:`dem.engine.contact_models.pair_forces_threaded`) the forces agree with one thread's to
-        round-off, not bit for bit, and a run is reproducible for a given number of threads; the
-        kick, the list builds and the rest of the step stay on one thread (measured speed-up in
-        ``docs/dem.md``).
+    guard : :class:`Guard` or None
+        The instability guard (``check_every``, ``ke_limit``, ``unsafe_dt``, ``failure_path``);
+        None: its defaults.
+    loop : :class:`Loop` or None
+        The step loop's implementation (``skin``, ``sort_every``, ``fuse``, ``threads``); None: its
+        defaults.
+
+    The settings in use are the attributes ``dt``, ``damping``, ``control``, ``skin``,
+    ``sort_every``, ``check_every``, ``ke_limit`` (resolved), ``failure_path``, ``fuse`` and
+    ``threads``.
     """
 
-    def __init__(self, state, law, *, dt=None, damping=None, skin=None, control=None, sort_every=20,
-                 check_every=200, ke_limit=None, unsafe_dt=False, failure_path=None, startup="leapfrog",
-                 fuse=False, threads=1):
+    def __init__(self, state, law, *, dt=None, damping=None, control=None, startup="leapfrog",
+                 guard=None, loop=None):
+        guard, loop = _bundle(Guard, guard, "guard"), _bundle(Loop, loop, "loop")
         self.state = state
         self.law = law
         lammps_law = getattr(law, "LAMMPS_EQUIVALENT", False)
@@ -165,34 +251,31 @@ class Simulation:
                           "damping unset (0 for this law) to follow LAMMPS", RuntimeWarning,
                           stacklevel=2)
         self.damping = float(damping)
-        self.skin = float(0.2 * np.mean(state.radius) if skin is None else skin)
-        if not (self.skin > 0):
-            raise ValueError(f"skin must be > 0, got {skin}")
+        self.skin = float(0.2 * np.mean(state.radius) if loop.skin is None else loop.skin)
         self.dt_crit = critical_dt(state, law)
         if dt is None:
             dt = 0.8 * self.dt_crit
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0, got {dt}")
-        if dt > self.dt_crit and not unsafe_dt:
+        if dt > self.dt_crit and not guard.unsafe_dt:
             raise ValueError(f"dt = {dt:.6g} exceeds the stable time step dt_crit = {self.dt_crit:.6g} "
                              f"(dt_crit = min_i sqrt(m_i/K_i); allowed range (0, {self.dt_crit:.6g}])")
         self.dt = float(dt)
         self.control = control
-        self.sort_every = int(sort_every)
-        self.check_every = int(check_every)
+        self.sort_every = int(loop.sort_every)
+        self.check_every = int(guard.check_every)
         rmin = float(np.min(state.radius))
-        self.ke_limit = float(state.n * law.dt_stiffness() * rmin * rmin if ke_limit is None else ke_limit)
-        self.failure_path = failure_path
+        self.ke_limit = float(state.n * law.dt_stiffness() * rmin * rmin if guard.ke_limit is None
+                              else guard.ke_limit)
+        self.failure_path = guard.failure_path
         self.rc = neighbors.list_cutoff(state.radius, self.skin)
         if law.needs_spin and state.omega is None:
             state.omega = np.zeros(state.n)
             state.theta = np.zeros(state.n)
         if startup not in ("leapfrog", "lammps"):
             raise ValueError(f"startup must be 'leapfrog' or 'lammps', got {startup!r}")
-        self.fuse = bool(fuse)
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= 1024:
-            raise ValueError(f"threads must be an integer in [1, 1024], got {threads!r}")
-        self.threads = int(threads)
+        self.fuse = bool(loop.fuse)
+        self.threads = int(loop.threads)
         if law.needs_history and state.nl_i is not None and not _history_fits(state.nl_ft, law):
             state.nl_ft = _new_history(state.nl_i.shape[0], law)
         meta = state.meta.get("sim", {})
@@ -451,13 +534,24 @@ class Simulation:
         self.state.save(path)
 
     @classmethod
-    def load(cls, path, *, control=None, **overrides):
+    def load(cls, path, *, control=None, **changes):
         """Restart from :meth:`save`. The cell control object is passed again by the caller (its
-        settings are in ``state.meta['sim']['control']`` for reference)."""
+        settings are in ``state.meta['sim']['control']`` for reference). ``changes`` replace stored
+        settings: ``dt``, ``damping`` or ``startup``, or a field of :class:`Guard` or :class:`Loop`
+        by name (``Simulation.load(path, threads=2)``: the stored loop with 2 threads; the fields
+        not stored, ``fuse``, ``threads``, ``unsafe_dt`` and ``failure_path``, start at their
+        defaults)."""
         st = State.load(path)
         m = st.meta["sim"]
         law = law_from_meta(m["law"])
-        kw = dict(dt=m["dt"], damping=m["damping"], skin=m["skin"], sort_every=m["sort_every"],
-                  check_every=m["check_every"], ke_limit=m["ke_limit"], control=control)
-        kw.update(overrides)
-        return cls(st, law, **kw)
+        own = {k: changes.pop(k) for k in ("dt", "damping", "startup") if k in changes}
+        guard = Guard(check_every=m["check_every"], ke_limit=m["ke_limit"])
+        loop = Loop(skin=m["skin"], sort_every=m["sort_every"])
+        unknown = sorted(set(changes) - set(Guard.names()) - set(Loop.names()))
+        if unknown:
+            raise TypeError(f"Simulation.load: unknown setting {unknown[0]!r}; the settings are dt, damping, "
+                            f"startup, {', '.join(Guard.names() + Loop.names())}")
+        guard = guard.replace(**{k: v for k, v in changes.items() if k in Guard.names()})
+        loop = loop.replace(**{k: v for k, v in changes.items() if k in Loop.names()})
+        kw = dict(dict(dt=m["dt"], damping=m["damping"]), **own)
+        return cls(st, law, control=control, guard=guard, loop=loop, **kw)

@@ -36,7 +36,7 @@ from microhom.results import Result
 
 from .. import io
 from .contact_laws import LammpsHookeHistory
-from .integrate import Simulation
+from .integrate import Guard, Loop, Simulation
 from .lammps import lammps_available, run_lammps
 from .state import State
 
@@ -243,8 +243,8 @@ def lammps_trajectory(state, law, dt, steps, dump_steps, *, newton="on", skin=No
 def engine_trajectory(state, law, dt, steps, dump_steps, *, skin=None, startup="lammps") -> Trajectory:
     """Run a copy of ``state`` for ``steps`` steps here (no local damping, no spatial sorting)."""
     st = state.copy()
-    sim = Simulation(st, law, dt=dt, damping=0.0, skin=skin, sort_every=0, startup=startup,
-                     check_every=0, unsafe_dt=True)
+    sim = Simulation(st, law, dt=dt, damping=0.0, startup=startup, guard=Guard(check_every=0, unsafe_dt=True),
+                     loop=Loop(skin=skin, sort_every=0))
     want = sorted(set(int(s) for s in dump_steps))
     xs, vs, ws = [], [], []
     done = 0

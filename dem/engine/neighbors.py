@@ -173,8 +173,9 @@ def _periodic_bin(u, nb):
 
 
 @njit(cache=True)
-def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
-    """Pairs (i < j, image shift) closer than ``r_i + r_j + skin``, grouped by i and sorted by
+def _find_pairs(x, radius, h, nba, nbb, binof, skin, cap):
+    """Pairs (i < j, image shift) closer than ``r_i + r_j + skin`` in the cell ``h`` (2, 2) (its
+    columns the periodic vectors), grouped by i and sorted by
     (j, shift) within each i (so that the order of the force sums does not depend on the bin
     layout), and their count ``m`` (only the first ``cap`` are stored: call again with
     ``cap = m`` if ``m > cap``). Returns pi, pj (cap + 1,), ps (cap + 1, 2) int64 and m.
@@ -189,6 +190,10 @@ def _find_pairs(x, radius, h00, h01, h10, h11, nba, nbb, binof, skin, cap):
     are the slots after i in its row and the row above, read in increasing j (all with shift 0),
     and need no sort."""
     n = x.shape[0]
+    h00 = h[0, 0]
+    h01 = h[0, 1]
+    h10 = h[1, 0]
+    h11 = h[1, 1]
     start, members, slot, xs, rs, run, top = _gather_by_bin(x, radius, binof, nba, nbb)
     pi = np.empty(cap + 1, np.int64)
     pj = np.empty(cap + 1, np.int64)
@@ -423,7 +428,7 @@ def rebuild(state, skin, *, sort=False, history=None):
     prev = state.nl_i.shape[0] if state.nl_i is not None else 0
     cap = max(64, int(1.25 * prev) + n // 8) if prev else max(16, 8 * n)
     while True:
-        pi, pj, ps, m = _find_pairs(state.x, state.radius, h[0, 0], h[0, 1], h[1, 0], h[1, 1],
+        pi, pj, ps, m = _find_pairs(state.x, state.radius, np.ascontiguousarray(h, dtype=np.float64),
                                     nba, nbb, binof, float(skin), cap)
         if m <= cap:
             break

@@ -105,7 +105,7 @@ from microhom.results import Result
 from .cell import PressureServo, wrap
 from .contact_laws import Frictionless, LinearFriction, law_from_meta
 from .fire import Fire
-from .integrate import InstabilityError, Simulation, critical_dt
+from .integrate import Guard, InstabilityError, Loop, Simulation, critical_dt
 from ..io import Configuration
 from ..io.simple import write_npz
 from ..analysis.measure import hexatic_order
@@ -852,7 +852,7 @@ def _new_run(protocol, threads, meta):
     st.meta["packing_protocol"] = p.as_dict()
     sim = Simulation(st, law_prep, dt=p.dt_over_dtcrit * critical_dt(st, law_prep),
                      damping=p.damping if p.damping_compaction is None else p.damping_compaction,
-                     check_every=0, threads=threads)
+                     guard=Guard(check_every=0), loop=Loop(threads=threads))
     sim.control = PressureServo(p_target=p.p_target, max_rate=p.max_strain_per_step / sim.dt,
                                 alpha=p.alpha)
     run = _Run(sim, p, phases(p), 0, [])
