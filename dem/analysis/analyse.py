@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from microhom.options import OptionError, real
 from microhom.closure import ClosurePrediction, closure_inputs, predict_closure
 from microhom.hierarchy import DEFAULT_TOL, HierarchyResult, relaxation_hierarchy
 from microhom.moduli import Prediction, predict_from_network
@@ -811,22 +812,8 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
                           warnings=SectionWarnings(**w), notes=tuple(notes))
 
 
-class OptionError(ValueError):
-    """An :class:`AnalysisOptions` field outside its allowed range: ``name`` (the field),
-    ``allowed`` (the range, as text) and ``value``. The command line names its option instead
-    (``--hierarchy-tol`` for ``hierarchy_tol``)."""
-
-    def __init__(self, name, allowed, value):
-        self.name, self.allowed, self.value = name, allowed, value
-        super().__init__(f"{name} must be {allowed}, got {value!r}")
-
-
-def _real(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-
-
 def _finite_real(v) -> bool:
-    return _real(v) and math.isfinite(v)
+    return real(v) and math.isfinite(v)
 
 
 def _flag(v) -> bool:
@@ -846,7 +833,7 @@ _OPTION_RULES = {
     "kt_ratio": ("finite and >= 0", lambda v: _finite_real(v) and v >= 0),
     "kn_convention": ("None, 'standard' or 'oval'", lambda v: v in ("standard", "oval")),
     "branch_length": ("'distance' or 'radii'", lambda v: v in ("distance", "radii")),
-    "alpha": ("in [0, 2]", lambda v: _real(v) and 0 <= v <= 2),
+    "alpha": ("in [0, 2]", lambda v: real(v) and 0 <= v <= 2),
     "prestress": ("True or False", _flag),
     "min_contacts": ("an integer >= 1", lambda v: _integer(v) and v >= 1),
     "frame": ("an integer (0 the first frame, -1 the last)", _integer),
@@ -854,7 +841,7 @@ _OPTION_RULES = {
     "exact": ("True or False", _flag),
     "hierarchy": ("True or False", _flag),
     "spin_arm": ("None, 'contact' or 'radius'", lambda v: v in ("contact", "radius")),
-    "hierarchy_tol": ("a relative width in (0, 1)", lambda v: _real(v) and 0 < v < 1),
+    "hierarchy_tol": ("a relative width in (0, 1)", lambda v: real(v) and 0 < v < 1),
     "rho_neighbours": ("'near' or 'contacts'", lambda v: v in ("near", "contacts")),
 }
 #: the options that may be None (meaning: from the file, or the documented default)
