@@ -220,6 +220,13 @@ def _check_pencil(H, M, guess=None):
     return H, M
 
 
+def _start_vector(n: int) -> np.ndarray:
+    """The Lanczos start vector, (n,): fixed (seeded), so that a certificate is the same on every
+    run (scipy's ``eigsh`` draws a new random one per call otherwise, which moved the estimate,
+    and with it the certified bound, by up to 1e-4 relative between two runs)."""
+    return np.random.default_rng(20261202).standard_normal(n)
+
+
 def certified_bound(H, M, options: CertificateOptions | None = None, *, Minv_sqrt=None, lam_max=None,
                     guess=None, null_basis=None, keep_factor=False, **overrides):
     """Certified lower bound of the smallest eigenvalue of the pencil ``(H, M)`` above the zero
@@ -344,7 +351,7 @@ class _Certificate:
             return float(w[w > eps].min())
         op = LinearOperator((n, n), matvec=self.fac.solve, dtype=float)
         w = eigsh(self.H, k=k, M=self.M, sigma=eps, which="LA", OPinv=op, tol=self.o.tol,
-                  ncv=min(n - 1, int(self.o.ncv)), return_eigenvectors=False)
+                  ncv=min(n - 1, int(self.o.ncv)), v0=_start_vector(n), return_eigenvectors=False)
         w = w[w > eps]
         return float(w.min()) if w.size else None
 
@@ -409,5 +416,5 @@ def _lam_max_estimate(H, M):
     d = np.where(d > 0, d, 1.0)
     s = sp.diags(1.0 / np.sqrt(d))
     A = s @ H @ s
-    w = eigsh(A, k=1, which="LM", return_eigenvectors=False, tol=1e-3)
+    w = eigsh(A, k=1, which="LM", v0=_start_vector(n), return_eigenvectors=False, tol=1e-3)
     return 2.0 * float(np.abs(w).max())
