@@ -138,7 +138,9 @@ class HierarchyResult(Result):
     K_orders, G_orders : ndarray, shape (k+1,)
         Upper bounds of orders 0..k (order 0 = affine, non-increasing) [N/m].
     K_lower_orders, G_lower_orders : ndarray, shape (k+1,)
-        Rigorous lower bounds per order (NaN where unavailable) [N/m].
+        Rigorous lower bounds per order (NaN where unavailable; with the dual bound, an order
+        where it was not evaluated keeps the last evaluated one, ``docs/theory.md`` section 12)
+        [N/m].
     C_orders : ndarray, shape (k+1, 3, 3)
         Mandel tensors of orders 0..k [N/m].
     C_upper, C_lower : ndarray, shape (3, 3)
