@@ -363,3 +363,22 @@ def test_bench_spheres_runs_small(capsys):
     assert row["N"] == 256 and "hierarchy" in capsys.readouterr().out
     for m in "KG":
         assert row[f"{m}_lower"] - 1e-9 <= row[f"{m}_exact"] <= row[f"{m}_upper"] + 1e-9
+
+
+@pytest.mark.parametrize("chunk", [7, 1000, 1 << 22])
+def test_particle_blocks_read_in_slices_equal_the_coo_selection(chunk):
+    """``_own_blocks`` (slices of H's columns) gives, bit for bit, the entries of H whose row and
+    column belong to the same particle, selected on a full COO copy (the former code)."""
+    import scipy.sparse as sps
+    from microhom.hierarchy import _own_blocks
+    net = packing(3, n=3, kt=0.5, keep=0.5)          # with rattlers and two-contact spheres
+    asm = assemble(net, pin=True)
+    owner = dof_layout(asm)[0]
+    H = asm.H.tocoo()
+    keep = owner[H.row] == owner[H.col]
+    M0 = sps.csr_matrix((H.data[keep], (H.row[keep], H.col[keep])), shape=H.shape)
+    M1 = _own_blocks(asm.H, owner, chunk=chunk)
+    assert M1.shape == M0.shape and M0.nnz > 0
+    np.testing.assert_array_equal(M1.indptr, M0.indptr)
+    np.testing.assert_array_equal(M1.indices, M0.indices)
+    np.testing.assert_array_equal(M1.data, M0.data)
