@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -53,12 +54,60 @@ _VALID_RESIDUAL = 1e-9  # relative equilibrium residual above which the field is
 
 
 # ---- local statics (numba) ----------------------------------------------------------------------
+class _Graph(NamedTuple):
+    """The network as the statics kernels read it (C contacts, N particles, d dimensions, nl = d +
+    rotations unknowns per particle): per particle its contact slots ``ptr`` (N + 1,) into
+    ``adj_e`` (contact), ``adj_s`` (0 if the particle is the contact's first end, 1 if the second)
+    and ``adj_q`` (the other end) (2 C,); ``usable`` (C,) bool; ``pdof`` (N, nl) the global unknown
+    of each particle's component (-1: eliminated); ``pairs`` (C, 2); ``B`` (C, d, 2 nl) the contact
+    kinematics; per contact the force basis ``Q`` (C, d, d), its size ``nk`` (C,) and the stiffness
+    in it ``Kq`` (C, d, d); ``nl``."""
+    ptr: np.ndarray
+    adj_e: np.ndarray
+    adj_s: np.ndarray
+    adj_q: np.ndarray
+    usable: np.ndarray
+    pdof: np.ndarray
+    pairs: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    nk: np.ndarray
+    Kq: np.ndarray
+    nl: int
+
+
+class _Order(NamedTuple):
+    """The construction order being built (N particles): ``idx`` (N,) each particle's unit
+    position (``BIG``: not built), ``cnt`` (N,) force unknowns to built particles, ``slot`` (N,)
+    scratch (-1), the breadth-first ``queue`` (N,), the units' ``members`` (N,) and ``uptr``
+    (N + 1,), and the counters ``st`` = (head, tail, nm, nu, pos)."""
+    idx: np.ndarray
+    cnt: np.ndarray
+    slot: np.ndarray
+    queue: np.ndarray
+    members: np.ndarray
+    uptr: np.ndarray
+    st: np.ndarray
+
+
+class _Tree(NamedTuple):
+    """The units' local operators (construction order): parent contacts ``pe[pptr[a]:pptr[a+1]]``,
+    unknowns ``rdof[rptr[a]:rptr[a+1]]`` and the flat operator ``Y[yptr[a]:yptr[a+1]]`` of unit a."""
+    pptr: np.ndarray
+    pe: np.ndarray
+    rptr: np.ndarray
+    rdof: np.ndarray
+    yptr: np.ndarray
+    Y: np.ndarray
+
+
 @numba.njit(cache=True)
-def _unit_local(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+def _unit_local(mem, slot, idx, before, g):
     """Equilibrium matrix ``A`` (rows, cols) of the unit ``mem`` (one or two particles, marked in
     ``slot``) on its usable contacts to particles with ``idx < before`` and between its members,
-    in the force unknowns of each contact; the block-diagonal stiffness ``Kl`` of those unknowns,
-    the contacts and the unknowns (rows) of the unit."""
+    in the force unknowns of each contact (:class:`_Graph` ``g``); the block-diagonal stiffness
+    ``Kl`` of those unknowns, the contacts and the unknowns (rows) of the unit."""
+    ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl = g
     d = B.shape[1]
     nrow = 0
     rowof = np.full((mem.shape[0], nl), -1, np.int64)
@@ -132,12 +181,11 @@ def _operator(A, Kl):
 
 
 @numba.njit(cache=True)
-def _try_unit(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+def _try_unit(mem, slot, idx, before, g):
     """Does the unit carry any load on its contacts to the built particles (full row rank)?"""
     for u in range(mem.shape[0]):
         slot[mem[u]] = u
-    A, Kl, _, _ = _unit_local(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs,
-                              B, Q, nk, Kq, nl)
+    A, Kl, _, _ = _unit_local(mem, slot, idx, before, g)
     for u in range(mem.shape[0]):
         slot[mem[u]] = -1
     if A.shape[0] == 0 or A.shape[1] < A.shape[0]:
@@ -148,24 +196,28 @@ def _try_unit(mem, slot, idx, before, ptr, adj_e, adj_s, adj_q, usable, pdof, pa
 
 
 @numba.njit(cache=True)
-def _attach(mem, idx, pos, queue, tail, members, nm, uptr, nu):
-    """Join the unit ``mem`` at position ``pos``; returns the new (tail, nm, nu)."""
+def _attach(mem, o):
+    """Join the unit ``mem`` at the next position of the :class:`_Order` ``o`` (its counters
+    ``st`` updated)."""
+    st = o.st
     for x in mem:
-        idx[x] = pos
-        queue[tail] = x
-        tail += 1
-        members[nm] = x
-        nm += 1
-    nu += 1
-    uptr[nu] = nm
-    return tail, nm, nu
+        o.idx[x] = st[4]
+        o.queue[st[1]] = x
+        st[1] += 1
+        o.members[st[2]] = x
+        st[2] += 1
+    st[3] += 1
+    o.uptr[st[3]] = st[2]
+    st[4] += 1
 
 
 @numba.njit(cache=True)
-def _grow(q, kmax, cnt, idx, regular, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl, slot):
+def _grow(q, kmax, o, regular, g):
     """A unit of up to ``kmax`` unbuilt particles around ``q`` (each step the unbuilt neighbour with
     the most contacts to the built set) that carries any load; empty if none does."""
     BIG = 1 << 60
+    idx, cnt = o.idx, o.cnt
+    ptr, adj_e, adj_q, usable = g.ptr, g.adj_e, g.adj_q, g.usable
     mem = np.empty(kmax, np.int64)
     mem[0] = q
     m = 1
@@ -186,19 +238,20 @@ def _grow(q, kmax, cnt, idx, regular, ptr, adj_e, adj_s, adj_q, usable, pdof, pa
             break
         mem[m] = best
         m += 1
-        if _try_unit(mem[:m], slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+        if _try_unit(mem[:m], o.slot, idx, BIG, g):
             return mem[:m].copy()
     return mem[:0].copy()
 
 
 @numba.njit(cache=True)
-def _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q, usable,
-           pdof, pairs, B, Q, nk, Kq, nl):
-    """Breadth-first growth by single particles; ``st`` = (head, tail, nm, nu, pos), updated."""
+def _drain(o, regular, neq, g):
+    """Breadth-first growth of the :class:`_Order` ``o`` by single particles."""
     BIG = 1 << 60
+    st, idx, cnt = o.st, o.idx, o.cnt
+    ptr, adj_e, adj_q, usable, nk = g.ptr, g.adj_e, g.adj_q, g.usable, g.nk
     one = np.empty(1, np.int64)
     while st[0] < st[1]:
-        p = queue[st[0]]
+        p = o.queue[st[0]]
         st[0] += 1
         for t in range(ptr[p], ptr[p + 1]):
             q = adj_q[t]
@@ -209,13 +262,12 @@ def _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, a
             if cnt[q] < neq[q]:
                 continue
             one[0] = q
-            if _try_unit(one, slot, idx, BIG, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
-                st[1], st[2], st[3] = _attach(one, idx, st[4], queue, st[1], members, st[2], uptr, st[3])
-                st[4] += 1
+            if _try_unit(one, o.slot, idx, BIG, g):
+                _attach(one, o)
 
 
 @numba.njit(cache=True)
-def _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl, kmax):
+def _bootstrap(seed, regular, neq, g, kmax):
     """Construction order from the seed: a regular particle joins once its usable contacts to the
     particles already in carry any load (full row rank), or, failing that, together with unbuilt
     neighbours as one unit of up to ``kmax`` particles (in 3D two contacts leave a sphere a twist
@@ -224,45 +276,37 @@ def _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
     the units' members in order (``members``, ``uptr``)."""
     N = neq.shape[0]
     BIG = 1 << 60
-    idx = np.full(N, BIG, np.int64)
-    cnt = np.zeros(N, np.int64)
-    slot = np.full(N, -1, np.int64)
-    queue = np.empty(N, np.int64)
-    members = np.empty(N, np.int64)
-    uptr = np.zeros(N + 1, np.int64)
-    nu, nm = 0, 0
-    head, tail = 0, 0
+    o = _Order(np.full(N, BIG, np.int64), np.zeros(N, np.int64), np.full(N, -1, np.int64),
+               np.empty(N, np.int64), np.empty(N, np.int64), np.zeros(N + 1, np.int64),
+               np.zeros(5, np.int64))
+    tail = 0
     for p in seed:
-        idx[p] = 0
-        queue[tail] = p
+        o.idx[p] = 0
+        o.queue[tail] = p
         tail += 1
-    pos = 1
-    st = np.array([head, tail, nm, nu, pos])
+    o.st[1] = tail
+    o.st[4] = 1                 # st = (head, tail, nm, nu, pos)
     while True:
-        _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q, usable,
-               pdof, pairs, B, Q, nk, Kq, nl)
+        _drain(o, regular, neq, g)
         progressed = False      # stalled: units of several particles on the frontier, pass by pass
         for q in range(N):
-            if idx[q] < BIG or not regular[q] or cnt[q] == 0:
+            if o.idx[q] < BIG or not regular[q] or o.cnt[q] == 0:
                 continue
-            mem = _grow(q, kmax, cnt, idx, regular, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q,
-                        nk, Kq, nl, slot)
+            mem = _grow(q, kmax, o, regular, g)
             if mem.shape[0]:
-                st[1], st[2], st[3] = _attach(mem, idx, st[4], queue, st[1], members, st[2], uptr, st[3])
-                st[4] += 1
+                _attach(mem, o)
                 progressed = True
-                _drain(st, idx, cnt, slot, queue, members, uptr, regular, neq, ptr, adj_e, adj_s, adj_q,
-                       usable, pdof, pairs, B, Q, nk, Kq, nl)
+                _drain(o, regular, neq, g)
         if not progressed:
             break
-    nm, nu = st[2], st[3]
-    return idx, members[:nm], uptr[:nu + 1]
+    nm, nu = o.st[2], o.st[3]
+    return o.idx, o.members[:nm], o.uptr[:nu + 1]
 
 
 @numba.njit(cache=True)
-def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
+def _operators(members, uptr, idx, g):
     """Per unit (construction order): its parent contacts (to earlier units, and between its
-    members), its unknowns, the flat operator ``Y`` and its rank deficit."""
+    members), its unknowns, the flat operator ``Y`` (a :class:`_Tree`) and its rank deficit."""
     n = uptr.shape[0] - 1
     N = idx.shape[0]
     slot = np.full(N, -1, np.int64)
@@ -275,8 +319,7 @@ def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
         mem = members[uptr[a]:uptr[a + 1]]
         for u in range(mem.shape[0]):
             slot[mem[u]] = u
-        A, Kl, es, rd = _unit_local(mem, slot, idx, idx[mem[0]], ptr, adj_e, adj_s, adj_q, usable, pdof,
-                                    pairs, B, Q, nk, Kq, nl)
+        A, Kl, es, rd = _unit_local(mem, slot, idx, idx[mem[0]], g)
         for u in range(mem.shape[0]):
             slot[mem[u]] = -1
         Yp, rank = _operator(A, Kl)
@@ -294,14 +337,17 @@ def _operators(members, uptr, idx, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs
         pe[pptr[a]:pptr[a + 1]] = es_l[a]
         rdof[rptr[a]:rptr[a + 1]] = rd_l[a]
         Y[yptr[a]:yptr[a + 1]] = y_l[a]
-    return pptr, pe, rptr, rdof, yptr, Y, deficit
+    return _Tree(pptr, pe, rptr, rdof, yptr, Y), deficit
 
 
 @numba.njit(cache=True)
-def _peel(load, c, pptr, pe, rptr, rdof, yptr, Y, pdof, pairs, B, Q, nk, nl, a0, a1):
-    """Leaf to root: each unit (reversed construction order) hands its load to its parent contacts
-    (``c`` += forces, (C, d, s)); the reactions load the other ends. ``load`` (ndof, s) keeps what
-    is left (round-off where the local solve has full rank)."""
+def _peel(load, c, tree, g, a0, a1):
+    """Leaf to root: each unit ``a0 <= a < a1`` of the :class:`_Tree` ``tree`` (reversed
+    construction order) hands its load to its parent contacts (``c`` += forces, (C, d, s)); the
+    reactions load the other ends (:class:`_Graph` ``g``). ``load`` (ndof, s) keeps what is left
+    (round-off where the local solve has full rank)."""
+    pptr, pe, rptr, rdof, yptr, Y = tree
+    pdof, pairs, B, Q, nk, nl = g.pdof, g.pairs, g.B, g.Q, g.nk, g.nl
     d = B.shape[1]
     s = load.shape[1]
     for a in range(a1 - 1, a0 - 1, -1):
@@ -408,8 +454,6 @@ class Equilibrator:
         D = self._data
         load = np.array(r, dtype=float, order="C", copy=True)
         c = np.zeros((D["C"], D["d"], r.shape[1]))
-        args = (D["pptr"], D["pe"], D["rptr"], D["rdof"], D["yptr"], D["Y"], D["pdof"], D["pairs"], D["B"],
-                D["Q"], D["nk"], D["nl"])
         if D["block"] is not None:        # the particles the order could not attach: one sparse solve
             A, AS, KAT, lu, be, bcols = D["block"]
             rhs = np.ascontiguousarray(load[D["block_dofs"]])
@@ -423,7 +467,7 @@ class Equilibrator:
                 f[ok] += D["Q"][be[ok], :, b][:, :, None] * y[bcols[ok, b]][:, None, :]
             np.add.at(c, be, f)
             load -= A @ y
-        _peel(load, c, *args, 0, D["n_tree"])
+        _peel(load, c, D["tree"], D["graph"], 0, D["n_tree"])
         if D["seed_Y"] is not None and len(D["seed_e"]):   # the seed: dense least squares on its contacts
             ls = load[D["seed_dofs"]]
             y = D["seed_Y"] @ ls
@@ -489,8 +533,10 @@ def _ball(start, target, ptr, adj_q, regular):
     return ball[:target]
 
 
-def _seed_matrix(seed, usable, pairs, pdof, B, Q, nk, Kq, nl, d):
+def _seed_matrix(seed, g):
     """Equilibrium matrix of the seed on its internal contacts (rows: the seed's unknowns)."""
+    usable, pdof, pairs, B, Q, nk, Kq, nl = g.usable, g.pdof, g.pairs, g.B, g.Q, g.nk, g.Kq, g.nl
+    d = B.shape[1]
     ins = np.zeros(pdof.shape[0], bool)
     ins[seed] = True
     se = np.flatnonzero(usable & ins[pairs[:, 0]] & ins[pairs[:, 1]])
@@ -511,16 +557,18 @@ def _seed_matrix(seed, usable, pairs, pdof, B, Q, nk, Kq, nl, d):
     return A, Kl, se, sd
 
 
-def _seed(deg, target, ptr, adj_q, regular, usable, pairs, pdof, B, Q, nk, Kq, nl, d, tries=20):
+def _seed(deg, target, g, regular, tries=20):
     """A rigid seed cluster: a ball around a well-connected particle, trimmed (the particle with
     the fewest contacts inside first) until its internal contacts carry every self-equilibrated
     load (rank = unknowns - rigid motions)."""
+    ptr, adj_q, usable, pairs, pdof = g.ptr, g.adj_q, g.usable, g.pairs, g.pdof
+    d = g.B.shape[1]
     rigid = d + rotational_dofs(d)
     cand = np.argsort(-np.where(regular, deg, -1), kind="stable")[:tries]
     for start in cand:
         ball = _ball(start, target, ptr, adj_q, regular)
         while len(ball) >= 2:
-            A, Kl, se, sd = _seed_matrix(np.array(ball), usable, pairs, pdof, B, Q, nk, Kq, nl, d)
+            A, Kl, se, sd = _seed_matrix(np.array(ball), g)
             if len(se):
                 w = np.linalg.eigvalsh(A @ Kl @ A.T)
                 if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
@@ -565,22 +613,20 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000) 
     ptr, adj_e, adj_s, adj_q = _adjacency(pairs, N)
     stick = net.effective_kt > 0
     usable = pairs[:, 0] != pairs[:, 1]                 # a particle touching its own image: unused
-    args = (ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
-    regular = _regular(neq, *args)
+    g = _Graph(ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
+    regular = _regular(neq, g)
     reserved = _reserve(asm, usable, stick & regular[pairs[:, 0]] & regular[pairs[:, 1]])
     usable[reserved] = False
-    regular2 = _regular(neq, *args)
+    regular2 = _regular(neq, g)
     back = reserved[~(regular2[pairs[reserved, 0]] & regular2[pairs[reserved, 1]])]
     if len(back):                 # a reservation must not leave a particle unable to carry its load
         usable[back] = True
         reserved = np.setdiff1d(reserved, back)
-        regular2 = _regular(neq, *args)
+        regular2 = _regular(neq, g)
     regular = regular2
     deg = np.bincount(pairs[usable].ravel(), minlength=N)
-    seed = _seed(deg, seed_size or (12 if d == 2 else 30), ptr, adj_q, regular, usable, pairs, pdof,
-                 B, Q, nk, Kq, nl, d)
-    idx, members, uptr = _bootstrap(seed, regular, neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs,
-                                    B, Q, nk, Kq, nl, 16)
+    seed = _seed(deg, seed_size or (12 if d == 2 else 30), g, regular)
+    idx, members, uptr = _bootstrap(seed, regular, neq, g, 16)
     BIG = 1 << 60
     live = neq > 0
     stalled = np.flatnonzero(live & (idx == BIG) & regular)
@@ -588,11 +634,11 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000) 
     n_tree = len(uptr) - 1
     idx[stalled] = n_tree + 1        # one block after every attached unit: the stalled and deficient
     idx[deficient] = n_tree + 1      # particles (its load is the network's own: consistent)
-    pptr, pe, rptr, rdof, yptr, Y, deficit = _operators(members, uptr, idx, *args)
-    data = dict(C=C, d=d, nl=nl, pairs=pairs, B=B, Q=Q, nk=nk, pdof=pdof, pptr=pptr, pe=pe, rptr=rptr,
-                rdof=rdof, yptr=yptr, Y=Y, seed_Y=None, Lres=None, n_tree=n_tree, block=None)
+    tree, deficit = _operators(members, uptr, idx, g)
+    data = dict(C=C, d=d, nl=nl, pairs=pairs, B=B, Q=Q, nk=nk, pdof=pdof, graph=g, tree=tree,
+                seed_Y=None, Lres=None, n_tree=n_tree, block=None)
     resolved = _block(data, asm, np.concatenate([stalled, deficient]), idx, usable, Kq, block_max)
-    _seed_solve(data, seed, usable, Kq)
+    _seed_solve(data, seed)
     _reserved_fields(data, asm, reserved)
     return Equilibrator(n_seed=len(seed), n_attached=int(uptr[n_tree]), n_stalled=len(stalled),
                         n_deficient=len(deficient), n_reserved=len(reserved), block_solved=resolved,
@@ -650,8 +696,8 @@ def _block(data, asm, stalled, idx, usable, Kq, block_max):
 
 
 @numba.njit(cache=True)
-def _regular(neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl):
-    """Particles whose whole usable contact set carries any load."""
+def _regular(neq, g):
+    """Particles whose whole usable contact set carries any load (:class:`_Graph` ``g``)."""
     N = neq.shape[0]
     idx = np.zeros(N, np.int64)
     slot = np.full(N, -1, np.int64)
@@ -660,15 +706,13 @@ def _regular(neq, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, n
     for p in range(N):
         if neq[p] > 0:
             one[0] = p
-            out[p] = _try_unit(one, slot, idx, 1, ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
+            out[p] = _try_unit(one, slot, idx, 1, g)
     return out
 
 
-def _seed_solve(data, seed, usable, Kq):
+def _seed_solve(data, seed):
     """Dense least-``K^+``-norm operator of the seed on its internal contacts."""
-    d = data["d"]
-    A, Kl, se, sd = _seed_matrix(seed, usable, data["pairs"], data["pdof"], data["B"], data["Q"],
-                                 data["nk"], Kq, data["nl"], d)
+    A, Kl, se, sd = _seed_matrix(seed, data["graph"])
     data["seed_dofs"] = sd
     if not len(sd):
         return

@@ -139,7 +139,9 @@ class HierarchyResult(Result):
     K_orders, G_orders : ndarray, shape (k+1,)
         Upper bounds of orders 0..k (order 0 = affine, non-increasing) [N/m].
     K_lower_orders, G_lower_orders : ndarray, shape (k+1,)
-        Rigorous lower bounds per order (NaN where unavailable) [N/m].
+        Rigorous lower bounds per order (NaN where unavailable; with the dual bound, an order
+        where it was not evaluated keeps the last evaluated one, ``docs/theory.md`` section 12)
+        [N/m].
     C_orders : ndarray, shape (k+1, 3, 3)
         Mandel tensors of orders 0..k [N/m].
     C_upper, C_lower : ndarray, shape (3, 3)
@@ -310,10 +312,8 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     (``q^T H_pp q = sum_c |K_c^1/2 B_c q|^2 = 0``), so ``H q = 0`` and ``q^T F = 0``: the pencil's
     non-zero eigenvalues and the iterates are those of the pseudo-inverse ``M^-1`` returned.
     """
-    H = asm.H.tocoo()
     owner = dof_layout(asm)[0]
-    keep = owner[H.row] == owner[H.col]
-    M = sp.csr_matrix((H.data[keep], (H.row[keep], H.col[keep])), shape=H.shape)
+    M = _own_blocks(asm.H, owner)
     # group unknowns by particle, pad to b x b with identity, invert in one batch
     nbk = asm.net.dim + rotational_dofs(asm.net.dim)           # 3 (disk) or 6 (sphere)
     order = np.argsort(owner, kind="stable")
@@ -348,10 +348,37 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     ok = (r >= 0) & (c >= 0)
     if floppy_shift and has_shift.any():       # M itself is untouched where no block is singular
         sel = ok & np.broadcast_to(has_shift[:, None, None], (nb, nbk, nbk)).ravel()
-        M = (M + sp.csr_matrix((dM.ravel()[sel], (r[sel], c[sel])), shape=H.shape)).tocsr()
-    Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
-    Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=H.shape)
+        M = (M + sp.csr_matrix((dM.ravel()[sel], (r[sel], c[sel])), shape=M.shape)).tocsr()
+    Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=M.shape)
+    Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=M.shape)
     return M, Minv, Minv_sqrt, n_bad
+
+
+def _own_blocks(H, owner, chunk=1 << 22):
+    """CSR of the entries of ``H`` (ndof, ndof) whose row and column belong to the same particle
+    (``owner``, (ndof,)), read in slices of about ``chunk`` non-zeros of its CSC form: the
+    temporaries are bounded by the slice, not by the non-zeros of ``H`` (a full COO copy and
+    two index gathers were 33 bytes per non-zero, 0.8 GiB at 1e5 spheres); the entries come in the
+    column-major order of ``H.tocoo()``, so ``M`` is the same matrix bit for bit."""
+    H = H.tocsc()
+    n = H.shape[1]
+    ptr = H.indptr
+    data, rows, cols = [], [], []
+    a = 0
+    while a < n:
+        b = int(np.searchsorted(ptr, ptr[a] + chunk, side="right")) - 1
+        b = min(max(b, a + 1), n)
+        lo, hi = ptr[a], ptr[b]
+        r = H.indices[lo:hi]
+        c = np.repeat(np.arange(a, b, dtype=r.dtype), np.diff(ptr[a:b + 1]))
+        keep = owner[r] == owner[c]
+        data.append(H.data[lo:hi][keep])
+        rows.append(r[keep])
+        cols.append(c[keep])
+        a = b
+    if not data:
+        return sp.csr_matrix(H.shape)
+    return sp.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))), shape=H.shape)
 
 
 def spectral_lower_bound(asm: Assembly, Minv_sqrt=None, *, dense_max=3000, return_max=False,
@@ -703,10 +730,10 @@ class MemoryPlan(Result):
     ----------
     assembly : int
         ``H``, ``F`` and the contact matrices: 128 bytes per predicted non-zero of ``H``
-        (``9 N + 18 N_c``) [bytes].
+        (``9 N + 18 N_c``; spheres: 48 bytes per non-zero, ``36 N + 72 N_c``) [bytes].
     preconditioner : int
         Particle blocks ``M``, ``M^-1``, ``M^-1/2`` (700 bytes per unknown) plus, with "amg", the
-        multilevel hierarchy (600 bytes per non-zero of ``H``) [bytes].
+        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 100) [bytes].
     basis : int
         Re-orthogonalisation basis ``P``, ``HP`` (2 x 8 bytes x ndof x (3 max_order + soft modes),
         in chunks of 48 columns), or the recurrence's 12 blocks of 3 columns [bytes].
@@ -744,8 +771,10 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     """Predicted peak memory of :func:`relaxation_hierarchy` before anything is assembled (see
     :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
     disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
-    figures of 2D are kept, with ``b^2 N + 2 b^2 N_c`` non-zeros and ``m = 6`` load columns
-    (checked against the measured peak by tests/test_hierarchy_3d.py). ``factor``: the sparse
+    figures of 2D are kept except per non-zero (``b^2 N + 2 b^2 N_c`` of them): 48 bytes for the
+    assembly and 100 for the multilevel hierarchy, the peaks measured on the built FCC networks
+    of ``studies.bench_spheres`` (1.1e4 and 1.08e5 spheres: 33 and 79-90 bytes per non-zero,
+    rounded up; docs/results/spheres.md, "Cost"); ``m = 6`` load columns. ``factor``: the sparse
     certificate's factorisation of ``H - s M`` is made and kept for the factorised steps
     (``microhom.factor.predicted_factor_bytes`` of the back end it takes)."""
     if dim not in (2, 3):
@@ -755,8 +784,9 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     m = 3 if dim == 2 else 6
     ndof = b * N
     nnz = b * b * N + 2 * b * b * Nc
-    asm = 128 * nnz
-    prec = 700 * ndof * (b // 3) + (600 * nnz if preconditioner == "amg" else 0)
+    per_asm, per_amg = (128, 600) if dim == 2 else (48, 100)
+    asm = per_asm * nnz
+    prec = 700 * ndof * (b // 3) + (per_amg * nnz if preconditioner == "amg" else 0)
     cols = m * int(max_order) + int(soft_modes) * 2
     basis = 16 * ndof * (_CHUNK * -(-cols // _CHUNK) if full else 12 * m)
     soft = 1000 * ndof * int(soft_modes) * 2
@@ -842,6 +872,8 @@ class _Run:
     n_cert_fact: int = 0             # numeric factorisations of the sparse certificate
     no_certificate: bool = False     # its factor does not fit in memory (_memory_guard)
     dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
+    dual_last: tuple = None          # the last evaluated dual bound: (C_lower, gap (K, G), CG residual norm)
+    n_dual: int = 0                  # dual bounds evaluated
 
 
 def _max_order_ok(v):
@@ -1597,18 +1629,45 @@ def _best_lower(run, C, cg):
     if run.lam_n is not None:
         cands.append(_lower(C, cg, run.Ninv, run.lam_n, None, run.area))
     cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
-    if run.dual is not None:      # its own round-off margin is subtracted already
+    if run.dual is not None and _dual_due(run, C, cg):   # its own round-off margin is subtracted already
         tb = time.perf_counter()
         b = dual_lower_bound(run.asm, cg.X, run.area, run.dual)
+        run.n_dual += 1
         if b.valid:
-            cands.append(b.C_lower)
+            run.dual_last = (b.C_lower, np.abs(np.array(_iso(b.gap))), float(np.linalg.norm(cg.Rt)))
         run.t_bound += time.perf_counter() - tb
+    if run.dual is not None and run.dual_last is not None:   # any order's field bounds the exact C
+        cands.append(run.dual_last[0])
     if not cands:
         return None
     L = max(cands, key=lambda L: sum(_iso(L)))
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)
     return L
+
+
+#: the dual bound is evaluated at an order only when its gap, predicted from the last evaluated
+#: one, is below this many times the width the tolerance allows (_dual_due)
+_DUAL_DUE = 10.0
+
+
+def _dual_due(run, C, cg):
+    """Whether this order evaluates the dual bound (its cost is about one CG step's): always the
+    first time, at the last order the loop can reach and when CG is done; otherwise only when the
+    gap ``Corr^T K^+ Corr`` of the last evaluated bound, scaled by the squared ratio of the CG
+    residual norms (the gap is quadratic in the residual), is within ``_DUAL_DUE`` times
+    ``tol`` times the upper bound for both K and G. A skipped order keeps the last evaluated
+    lower bound (a bound of the exact tensor from any order's field)."""
+    if run.dual_last is None or cg.done:
+        return True
+    order = len(run.Cs) - 1
+    cap = max(run.max_order, run.certify_max_order) if run.factor is None else run.max_order + run.factor_steps
+    if order >= cap:
+        return True
+    _, gap, rho = run.dual_last
+    r = float(np.linalg.norm(cg.Rt))
+    pred = gap * (r / rho) ** 2 if rho > 0 else np.zeros(2)
+    return bool(np.all(pred <= _DUAL_DUE * run.tol * np.abs(np.array(_iso(C)))))
 
 
 def _met(C, L, tol, Cs, calibrated=True, prestress=True, floor=(0.0, 0.0)):

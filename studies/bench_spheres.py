@@ -1,7 +1,7 @@
 """Cost of the relaxation hierarchy on sphere networks (3D) against the exact solve.
 
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
-                                    [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES]
+                                    [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -10,10 +10,15 @@ assembly, the hierarchy (multilevel CG to ``--tol``, no soft-mode search; the ce
 bound by the sparse inertia count up to ``microhom.spectral.CERTIFIED_MAX_DOF`` unknowns) and
 the exact sparse solve (``dem.analysis.stiffness``) in the same run, with K and G of both,
 wall times and the peak resident memory. The machine is shared: the load average is printed.
+``--phases`` prints a line per phase of the hierarchy (assembly, particle blocks, the dual bound's
+statics, the multilevel setup, each CG order, each dual bound): wall and CPU time and the peak
+resident memory of the phase (``VmHWM`` of /proc/self/status, reset before each phase through
+/proc/self/clear_refs where the kernel allows it), and ``plan_memory``'s prediction.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import resource
 import time
@@ -23,7 +28,7 @@ import numpy as np
 
 from dem.analysis.stiffness import stiffness
 from microhom import lattices
-from microhom.hierarchy import relaxation_hierarchy
+from microhom.hierarchy import plan_memory, relaxation_hierarchy
 from microhom.network import from_overlaps, from_pairs
 
 
@@ -44,6 +49,52 @@ def _rss_gb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
 
 
+def _status_gb():
+    """(VmHWM, VmRSS) of this process [GiB] (NaN where /proc is missing)."""
+    out = {"VmHWM": float("nan"), "VmRSS": float("nan")}
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                key = line.split(":")[0]
+                if key in out:
+                    out[key] = int(line.split()[1]) / 2 ** 20
+    except OSError:
+        pass
+    return out["VmHWM"], out["VmRSS"]
+
+
+def _reset_peak():
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")                 # resets VmHWM to the current RSS (Linux >= 4.0)
+    except OSError:
+        pass
+
+
+def instrument_phases():
+    """Wrap the hierarchy's phases (module docstring, ``--phases``) to print one line each."""
+    import microhom.hierarchy as hi
+
+    def wrap(owner, name, label):
+        f = getattr(owner, name)
+
+        @functools.wraps(f)
+        def timed(*a, **k):
+            _reset_peak()
+            t, c = time.perf_counter(), time.process_time()
+            r = f(*a, **k)
+            peak, rss = _status_gb()
+            print(f"    phase {label:20s} wall {time.perf_counter() - t:8.2f} s  cpu {time.process_time() - c:8.2f} s  "
+                  f"peak {peak:6.2f} GiB  rss {rss:6.2f} GiB  load {os.getloadavg()[0]:.1f}", flush=True)
+            return r
+        setattr(owner, name, timed)
+    for name, label in (("assemble", "assembly"), ("block_preconditioner", "particle blocks"),
+                        ("build_equilibrator", "dual statics"), ("amg_preconditioner", "multilevel setup"),
+                        ("dual_lower_bound", "dual bound")):
+        wrap(hi, name, label)
+    wrap(hi._BlockPCG, "step", "CG order")
+
+
 #: --bound: the lower-bound route of the hierarchy (relaxation_hierarchy's spectral_bound, dual_bound)
 BOUNDS = {"auto": dict(), "dual": dict(spectral_bound="none", dual_bound=True),
           "spectral": dict(dual_bound=False)}
@@ -55,6 +106,10 @@ def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto"
     t_build = time.perf_counter() - t0
     print(f"N = {net.n_particles}, contacts {net.n_contacts} (Z = {2 * net.n_contacts / net.n_particles:.2f}), "
           f"built in {t_build:.1f} s; load {os.getloadavg()[0]:.1f}", flush=True)
+    plan = plan_memory(net.n_particles, net.n_contacts, max_order=max_order, full=False, soft_modes=0,
+                       dense=False, dim=net.dim)
+    print(f"  plan_memory: {plan.total / 2 ** 30:.2f} GiB (assembly {plan.assembly / 2 ** 30:.2f}, "
+          f"preconditioner {plan.preconditioner / 2 ** 30:.2f}, basis {plan.basis / 2 ** 30:.2f})", flush=True)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -90,7 +145,10 @@ def main(argv=None):
     ap.add_argument("--bound", choices=tuple(BOUNDS), default="auto",
                     help="lower bound: auto (spectral certificate where it applies, else dual), dual, spectral")
     ap.add_argument("--hier-memory", type=float, default=None, help="bytes, the hierarchy's max_memory")
+    ap.add_argument("--phases", action="store_true", help="a line per phase: time and peak memory")
     a = ap.parse_args(argv)
+    if a.phases:
+        instrument_phases()
     rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
             for n in a.n]
     for r in rows:

@@ -137,3 +137,38 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="dual_bound"):
         relaxation_hierarchy(net, dual_bound="yes")
     assert isinstance(net, ContactNetwork)
+
+
+@pytest.mark.parametrize("name", ["2D sliding", "3D"])
+def test_dual_bound_evaluated_only_when_due(name, monkeypatch):
+    """The hierarchy evaluates the dual bound at fewer orders than it runs (the skipped ones keep
+    the last evaluated bound, ``_dual_due``) and still certifies an interval that holds the exact
+    moduli; forcing an evaluation at every order (``_DUAL_DUE`` infinite) gives the same orders'
+    upper bounds, and at every order one of the every-order run's lower bounds so far."""
+    import microhom.hierarchy as hi
+    net = NETS[name]
+    ex = stiffness(net)
+    calls = []
+    real = hi.dual_lower_bound
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+    monkeypatch.setattr(hi, "dual_lower_bound", counting)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = relaxation_hierarchy(net, spectral_bound="none", dual_bound=True, soft_modes=0, tol=1e-6)
+        n_skip = len(calls)
+        monkeypatch.setattr(hi, "_DUAL_DUE", np.inf)
+        calls.clear()
+        every = relaxation_hierarchy(net, spectral_bound="none", dual_bound=True, soft_modes=0, tol=1e-6)
+    assert h.certified and every.certified
+    assert len(calls) == every.order and n_skip < h.order        # orders were skipped
+    for e, x in ((h.K, ex.K), (h.G, ex.G)):
+        assert e.lower <= x * (1 + 1e-12) and x <= e.upper * (1 + 1e-12)
+        assert e.upper - e.lower <= 1e-6 * e.upper
+    k = min(h.order, every.order)
+    np.testing.assert_array_equal(h.K_orders[:k + 1], every.K_orders[:k + 1])
+    for j in range(1, k + 1):     # a skipped order keeps an earlier order's bound, bit for bit
+        assert h.K_lower_orders[j] in every.K_lower_orders[1:j + 1]
+        assert h.G_lower_orders[j] in every.G_lower_orders[1:j + 1]
