@@ -30,7 +30,7 @@ __all__ = ["Options", "OptionError", "merged", "real", "finite_real", "flag", "i
 
 
 class OptionError(ValueError):
-    """A field of an :class:`Options` bundle outside its allowed range: ``name`` (the field),
+    """A field of an :class:`~microhom.options.Options` bundle outside its allowed range: ``name`` (the field),
     ``allowed`` (the range, as text) and ``value``; the message is
     ``"<name> must be <allowed>, got <value>"``."""
 
