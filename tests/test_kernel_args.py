@@ -19,14 +19,10 @@ PACKAGES = ("dem", "microhom")
 MAX_ARGS = 10
 DECORATORS = ("njit", "jit")
 
-_S4MEGA = "bundled on branch s4mega"
 #: (path relative to the repository, kernel name) -> why it is allowed for now; the entries go when
-#: the kernels are bundled (the test below fails on a stale entry)
-ALLOWED = {
-    ("microhom/dual_bound.py", name): _S4MEGA
-    for name in ("_grow", "_drain", "_unit_local", "_try_unit", "_bootstrap", "_operators",
-                 "_peel", "_regular")
-}
+#: the kernel is bundled (the test below fails on an entry that no longer needs it). Empty since the
+#: dual bound's statics kernels read _Graph/_Order/_Tree bundles.
+ALLOWED = {}
 
 
 def _decorator_name(d):
