@@ -308,12 +308,13 @@ def compare_counted(a, sides, state, work):
             res, counts = run_counted(path, WORKER, [state, spec, WARM, 1, a.count_steps],
                                       os.path.join(work, f"cg_{side.replace(' ', '_')}"),
                                       os.path.join(work, f"cg_{name}_{side.replace(' ', '_')}.out"))
-            per[side] = (counts["steps"] / res["steps"], res["hash"])
+            per[side] = (counts["steps"] / res["steps"], res["hash"], counts["steps:jit"] / res["steps"])
             print(f"  {name:8s} {side:9s} {per[side][0]:.6e} instructions per step ({res['steps']} steps, "
                   f"N={res['n']}, contacts={res['contacts']}, hash={res['hash']})", flush=True)
         same = "bit-identical" if per["this code"][1] == per["revision"][1] else "DIFFER"
         print(f"  {name:8s} this code / revision: {per['this code'][0] / per['revision'][0]:.4f} "
-              f"(instructions per step, haswell build); trajectories {same}", flush=True)
+              f"(instructions per step, haswell build; compiled code only "
+              f"{per['this code'][2] / per['revision'][2]:.4f}); trajectories {same}", flush=True)
 
 
 def _ab_summary(name, runs):
