@@ -25,7 +25,10 @@ alternating from round to round), the inputs restored before every call (untimed
 
 (The Python side of a step, numba's dispatch included, is not timed here: the revision's
 ``Simulation`` imported a second time dispatches ten times slower than in its own process. The
-separate processes of :mod:`studies.bench_ab_worker` time it, on a 100-disk system.)
+separate processes of :mod:`studies.bench_ab_worker` time it, on a 100-disk system. The same
+slow dispatch is inside every timed call of the revision: about 2e6 instructions per call, most
+of the revision's extra time in the pair-force kernel; ``--instructions --parts`` separates the
+compiled code's count from it, see ``docs/dem.md``.)
 
 Under ``valgrind --tool=callgrind --instr-atstart=no`` (``python -m studies.bench_throughput
 --against REV --parts --instructions``) it counts instead of timing: each component of each code
