@@ -25,7 +25,15 @@ alternating from round to round), the inputs restored before every call (untimed
 
 (The Python side of a step, numba's dispatch included, is not timed here: the revision's
 ``Simulation`` imported a second time dispatches ten times slower than in its own process. The
-separate processes of :mod:`studies.bench_ab_worker` time it, on a 100-disk system.)
+separate processes of :mod:`studies.bench_ab_worker` time it, on a 100-disk system. The same
+slow dispatch is inside every timed call of the revision: about 2e6 instructions per call, most
+of the revision's extra time in the pair-force kernel; ``--instructions --parts`` separates the
+compiled code's count from it, see ``docs/dem.md``.)
+
+Under ``valgrind --tool=callgrind --instr-atstart=no`` (``python -m studies.bench_throughput
+--against REV --parts --instructions``) it counts instead of timing: each component of each code
+runs twice from the same inputs, callgrind's counters zeroed before and dumped after every call
+(dumps named ``COMPONENT-this-K``, ``COMPONENT-rev-K``; the caller reads the instructions retired).
 
 Prints one JSON line: per component and code the minimum and median over calls of the wall time
 [µs] (``perf_counter``: the minimum of a call is its uninterrupted time), the ratios this/revision
@@ -139,6 +147,18 @@ def _check_same(calls, restore, outputs):
     return all(np.array_equal(a, b) for a, b in zip(*res))
 
 
+def _count(cg, parts, restore, parity):
+    """Instructions instead of time: every component of each code twice, callgrind's counters
+    zeroed before and dumped after each call (dump ``NAME-this-K`` / ``NAME-rev-K``)."""
+    for k in range(2):
+        for name, pair in parts.items():
+            for side, (fn, args) in zip(("this", "rev"), pair):
+                restore()
+                cg.cg_zero()
+                fn(*args) if name != "rebuild" else fn(*args, sort=False, history=parity)
+                cg.cg_dump(f"{name}-{side}-{k}".encode())
+
+
 def main(argv):
     revdir, path, spec_path, rounds, calls = argv[0], argv[1], argv[2], int(argv[3]), int(argv[4])
     this = _this()
@@ -162,6 +182,12 @@ def main(argv):
     same_k = _check_same([ours_k, rk], restore, [st.x, st.v] + ([st.omega, st.theta] if st.omega is not None else []))
     rb = [(m[2].rebuild, (st, sim.skin)) for m in (this, rev)]
     parts = {"forces": [ours_f, rf], "kick": [ours_k, rk], "rebuild": rb}
+    from bench_ab_worker import callgrind   # this folder is sys.path[0]
+    cg = callgrind()
+    if cg is not None:
+        _count(cg, parts, restore, sim.law.history_parity)
+        print(json.dumps({"same_forces": bool(same_f), "same_kick": bool(same_k), "counted": sorted(parts)}))
+        return 0
     times = {k: ([], []) for k in parts}
     ratios = {k: [] for k in parts}
     for r in range(rounds):

@@ -12,14 +12,50 @@ and prints one JSON line: the CPU time per step of the fastest and the median ch
 CPU and wall rates of the whole timed run [particle-steps/s and contact-steps/s], the number of
 contacts at the end, the load average and a hash of the final positions and velocities (equal
 hashes: the two codes gave the same trajectory bit for bit).
+
+Under ``valgrind --tool=callgrind --instr-atstart=no`` (``python -m studies.bench_throughput
+--against REV --instructions``) it counts instead of timing: after the warm-up, callgrind's
+counters are zeroed, ``CHUNKS`` x ``CHUNK_STEPS`` steps run and the counts are dumped (the dump
+named ``steps``); the instructions retired per step are read from that dump by the caller. The
+client requests go through a small C helper compiled with ``cc`` against
+``valgrind/callgrind.h`` (:func:`callgrind`).
 """
+import ctypes
 import hashlib
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
+
+_CG_SOURCE = r"""
+#include <valgrind/callgrind.h>
+void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
+void cg_zero(void) { CALLGRIND_ZERO_STATS; }
+void cg_dump(const char *name) { CALLGRIND_DUMP_STATS_AT(name); }
+int cg_running(void) { return RUNNING_ON_VALGRIND; }
+"""
+
+
+def callgrind():
+    """Callgrind's client requests (``cg_start``, ``cg_zero``, ``cg_dump(bytes)``) as a ctypes
+    library, or None when this process does not run under valgrind. Compiled with ``cc`` into a
+    temporary folder (needs the valgrind headers: Debian ``valgrind``)."""
+    if "valgrind" not in os.environ.get("LD_PRELOAD", "") and not os.environ.get("DEM_CALLGRIND"):
+        return None
+    folder = tempfile.mkdtemp(prefix="dem-cg-")
+    src, lib = os.path.join(folder, "cg.c"), os.path.join(folder, "libcg.so")
+    with open(src, "w") as fh:
+        fh.write(_CG_SOURCE)
+    subprocess.run(["cc", "-O1", "-shared", "-fPIC", "-o", lib, src], check=True)
+    cg = ctypes.CDLL(lib)
+    if not cg.cg_running():
+        return None
+    cg.cg_start()
+    return cg
 
 
 def _engine():
@@ -49,6 +85,15 @@ def main(argv):
     else:
         sim = Simulation(st, law, dt=spec["dt"], damping=0.0, startup=spec["startup"], **loop, **guard)
     sim.run(warm)
+    cg = callgrind()
+    if cg is not None:   # instructions, not time: the caller reads the dump named "steps"
+        cg.cg_zero()
+        sim.run(chunks * chunk_steps)
+        cg.cg_dump(b"steps")
+        digest = hashlib.sha1(st.x.tobytes() + st.v.tobytes()).hexdigest()[:16]
+        print(json.dumps({"steps": chunks * chunk_steps, "n": st.n, "hash": digest,
+                          "contacts": int(sim.measure()["n_contacts"])}))
+        return 0
     ts = np.empty(chunks)
     w0 = time.perf_counter()
     for k in range(chunks):

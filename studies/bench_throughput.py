@@ -43,6 +43,16 @@ steps (the fastest chunk is the steadier figure under load), and the CPU rates o
 spread, the median of the paired ratios (this code over the revision), and whether the two codes
 ended on the same positions and velocities bit for bit.
 
+``--instructions`` (with ``--against``; needs ``valgrind`` and ``cc``) counts instead of timing,
+independent of the machine's load: each code's worker runs under ``valgrind --tool=callgrind``
+and reports the instructions retired per step (``--count-steps`` steps after the warm-up; with
+``--parts``, per call of each component, both codes in one process). Valgrind 3.19 runs no
+AVX-512, so both codes are compiled for ``haswell`` (AVX2, FMA; ``NUMBA_CPU_NAME`` and
+``NUMBA_CPU_FEATURES``, the numba cache filled by a short native run first): the counts are of
+that build, not of the one a run on this machine's CPU uses. An instruction count is not a time
+(an atomic reference-count update or a cache miss costs many cycles per instruction); it is the
+load-independent half of the comparison.
+
 ``--parts`` (with ``--against``) times the step's components instead, each code's kernels on the
 same arrays in one process (``studies/bench_ab_parts.py``: the pair-force kernel, the kick, the
 neighbour rebuild as the control; the revision's package imported a second time as ``dem_rev``),
@@ -52,6 +62,7 @@ median of the per-round ratios (this code over the revision, > 1 slower).
 from __future__ import annotations
 
 import argparse
+import glob
 import io as _io
 import json
 import math
@@ -225,6 +236,87 @@ def run_worker(checkout, state, spec, chunks, chunk_steps, cache):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+#: the build counted under valgrind (no AVX-512 in valgrind 3.19): NUMBA_CPU_NAME, NUMBA_CPU_FEATURES
+CG_CPU = ("haswell", "+64bit,+avx,+avx2,+bmi,+bmi2,+cmov,+cx16,+cx8,+f16c,+fma,+fxsr,+lzcnt,+mmx,+movbe,+popcnt,"
+                     "+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,+xsave")
+
+
+def callgrind_counts(out):
+    """{dump name: instructions retired} of the callgrind dumps ``out.1``, ``out.2``, ... written
+    at the client requests of :func:`studies.bench_ab_worker.callgrind` (``out`` itself, the
+    total at exit, is left out)."""
+    res = {}
+    for f in glob.glob(glob.escape(out) + ".*"):
+        name = total = None
+        for line in open(f, errors="replace"):
+            if line.startswith("desc: Trigger: Client Request: "):
+                name = line.split("Client Request: ", 1)[1].strip()
+            elif line.startswith("summary:"):
+                total = int(line.split()[1])
+        if name is not None and total is not None:
+            res[name] = total
+            res[name + ":jit"] = _jit_instructions(f)
+    return res
+
+
+def _jit_instructions(dump):
+    """The instructions of a callgrind dump in code without a symbol file: numba's compiled
+    kernels (the rest is CPython, numpy, numba's dispatch, libc)."""
+    r = subprocess.run(["callgrind_annotate", "--inclusive=no", "--threshold=100", dump], capture_output=True,
+                       text=True)
+    return sum(int(m.group(1).replace(",", "")) for m in re.finditer(r"^\s*([\d,]+) \([^)]*\)\s+\?\?\?:", r.stdout,
+                                                                        re.M))
+
+
+def run_counted(checkout, script, args, cache, out):
+    """``script args`` on ``checkout`` under callgrind (the haswell build of :data:`CG_CPU`, its
+    numba cache in ``cache`` filled by a native run first); returns (its JSON line, its counts)."""
+    env = dict(os.environ, PYTHONPATH=str(checkout), NUMBA_CACHE_DIR=str(cache), NUMBA_NUM_THREADS="1",
+               OMP_NUM_THREADS="1", NUMBA_CPU_NAME=CG_CPU[0], NUMBA_CPU_FEATURES=CG_CPU[1])
+    for cmd, extra in (([sys.executable], {}), (["valgrind", "--tool=callgrind", "--instr-atstart=no",
+                                                  f"--callgrind-out-file={out}", sys.executable],
+                                                 {"DEM_CALLGRIND": "1"})):
+        r = subprocess.run(cmd + [str(script)] + [str(x) for x in args], cwd=str(checkout), env=dict(env, **extra),
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"{script} failed on {checkout} ({cmd[0]}):\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1]), callgrind_counts(out)
+
+
+def compare_counted(a, sides, state, work):
+    """``--instructions``: instructions retired per step (or per component call with ``--parts``)."""
+    other = sides["revision"][0]
+    for name in a.laws:
+        cls, kw, startup = AB_LAWS[name]
+        spec = os.path.join(work, f"law_{name}.json")
+        with open(spec, "w") as fh:
+            json.dump({"law": cls, "kwargs": kw, "startup": startup, "dt": DT, "skin": SKIN}, fh)
+        if a.parts:
+            res, counts = run_counted(ROOT, PARTS, [other, state, spec, 1, 1], os.path.join(work, "cg_parts"),
+                                      os.path.join(work, f"cg_parts_{name}.out"))
+            same = "bit-identical" if res["same_forces"] and res["same_kick"] else "DIFFER"
+            print(f"  {name:8s} outputs {same}; instructions per call (haswell build), this code / revision:")
+            for part in res["counted"]:
+                t = [counts[f"{part}-this-{k}"] for k in range(2)]
+                r = [counts[f"{part}-rev-{k}"] for k in range(2)]
+                tj, rj = counts[f"{part}-this-1:jit"], counts[f"{part}-rev-1:jit"]
+                print(f"    {part:8s} {t[0]:.6e} / {r[0]:.6e} = {t[0] / r[0]:.4f} (second call {t[1] / r[1]:.4f}); "
+                      f"compiled code only (second call) {tj:.6e} / {rj:.6e} = {tj / rj:.4f}", flush=True)
+            continue
+        per = {}
+        for side, (path, _) in sides.items():
+            res, counts = run_counted(path, WORKER, [state, spec, WARM, 1, a.count_steps],
+                                      os.path.join(work, f"cg_{side.replace(' ', '_')}"),
+                                      os.path.join(work, f"cg_{name}_{side.replace(' ', '_')}.out"))
+            per[side] = (counts["steps"] / res["steps"], res["hash"], counts["steps:jit"] / res["steps"])
+            print(f"  {name:8s} {side:9s} {per[side][0]:.6e} instructions per step ({res['steps']} steps, "
+                  f"N={res['n']}, contacts={res['contacts']}, hash={res['hash']})", flush=True)
+        same = "bit-identical" if per["this code"][1] == per["revision"][1] else "DIFFER"
+        print(f"  {name:8s} this code / revision: {per['this code'][0] / per['revision'][0]:.4f} "
+              f"(instructions per step, haswell build; compiled code only "
+              f"{per['this code'][2] / per['revision'][2]:.4f}); trajectories {same}", flush=True)
+
+
 def _ab_summary(name, runs):
     """Print the medians, spreads and paired ratios of one law's runs ({side: [dict, ...]})."""
     ours, old = runs["this code"], runs["revision"]
@@ -278,6 +370,11 @@ def compare_revision(a, base, work):
     state = os.path.join(work, "ab_state.npz")
     np.savez(state, x=st.x, r=st.radius, h=st.h, rho=RHO)
     sides = {"this code": (ROOT, os.path.join(work, "numba_this")), "revision": (other, os.path.join(work, "numba_rev"))}
+    if a.instructions:
+        print(f"\n--against {label} --instructions{' --parts' if a.parts else ''}: N={a.ab_n}, callgrind, "
+              f"build {CG_CPU[0]}", flush=True)
+        compare_counted(a, sides, state, work)
+        return None
     if a.parts:
         print(f"\n--against {label} --parts: N={a.ab_n}, {a.parts_rounds} rounds of {a.parts_calls} calls "
               f"per component and code (wall time, one thread, both codes in one process)", flush=True)
@@ -328,6 +425,9 @@ def main(argv=None):
     ap.add_argument("--parts", action="store_true",
                     help="with --against: time the pair-force kernel, the kick and the rebuild of both codes "
                          "in one process on the same arrays (studies/bench_ab_parts.py)")
+    ap.add_argument("--instructions", action="store_true",
+                    help="with --against: count the instructions retired (callgrind) instead of timing")
+    ap.add_argument("--count-steps", type=int, default=50, help="counted steps per process of --instructions")
     ap.add_argument("--parts-rounds", type=int, default=30, help="rounds of --parts")
     ap.add_argument("--parts-calls", type=int, default=20, help="calls per component, code and round of --parts")
     add_out(ap, "bench_throughput")
