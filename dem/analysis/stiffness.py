@@ -639,33 +639,47 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, d
     return (X, resid, n_ref) + ((path,) if details else ())
 
 
-def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA):
+#: the non-symmetric solve's back ends (:func:`relax_tangential`)
+TANGENTIAL_SOLVERS = ("auto", "pardiso", "splu")
+
+
+def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA, *, solver="auto",
+                     max_memory=None, details=False):
     """:func:`relax` for spheres with tangential forces under pre-stress: solve the
     non-symmetric ``(H + Hn) Q = -(F + Fn)`` (``microhom.kinematics.Assembly``) on the unknowns of
-    ``red`` with SuperLU of ``H + Hn + eta diag`` and refinement against the unshifted matrix.
-    Returns (Q (m, k), residual, n_refine) as :func:`relax`."""
-    from scipy.sparse.linalg import splu
+    ``red``, factorising ``H + Hn + eta diag`` (:func:`microhom.factor.factor_general`) and
+    refining against the unshifted matrix. ``solver``: ``"pardiso"`` (MKL PARDISO, real
+    non-symmetric), ``"splu"`` (SuperLU) or ``"auto"`` (PARDISO where it loads and the system has
+    at least ``AUTO_PARDISO_DOF`` unknowns, else SuperLU). ``max_memory`` [bytes]: a factor
+    predicted above it (or above the available memory) is refused with
+    :class:`MemoryGuardError` naming the figure, before it allocates. Returns (Q (m, k),
+    residual, n_refine) as :func:`relax` (and the back end's name, if ``details``)."""
+    if solver not in TANGENTIAL_SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} for the non-symmetric solve; allowed: "
+                         f"{', '.join(TANGENTIAL_SOLVERS)}")
     if red.H.shape[0] == 0:
-        return np.zeros((0, red.F.shape[1])), 0.0, 0
+        return (np.zeros((0, red.F.shape[1])), 0.0, 0) + (("empty",) if details else ())
     A = (asm.H + asm.Hn).tocsr()[red.idx][:, red.idx].tocsc()
     M = (A + sp.diags(eta * red.d)).tocsc()
-    try:            # the pattern is symmetric: diagonal pivots first (3-5x less fill than COLAMD)
-        lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    except RuntimeError:                  # a zero diagonal pivot: partial pivoting
-        lu = splu(M)
-    Xr = lu.solve(-red.F)
-    fn_ = F_scale if F_scale > 0 else 1.0
-    n_ref = 0
-    for n_ref in range(1, max_refine + 1):
-        R = -red.F - A @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-        if resid <= rtol or not np.isfinite(resid):
-            break
-        Xr = Xr + lu.solve(R)
-    else:
-        R = -red.F - A @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-    return Xr, resid, n_ref
+    if solver == "auto":
+        solver = "pardiso" if have_pardiso() and A.shape[0] >= AUTO_PARDISO_DOF else "splu"
+    lu = _factor.factor_general(M, backend=solver, max_memory=max_memory, dim=asm.net.dim)
+    try:
+        Xr = lu.solve(-red.F)
+        fn_ = F_scale if F_scale > 0 else 1.0
+        n_ref = 0
+        for n_ref in range(1, max_refine + 1):
+            R = -red.F - A @ Xr
+            resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+            if resid <= rtol or not np.isfinite(resid):
+                break
+            Xr = Xr + lu.solve(R)
+        else:
+            R = -red.F - A @ Xr
+            resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+    finally:
+        lu.release()
+    return (Xr, resid, n_ref) + ((lu.name,) if details else ())
 
 
 # ---- step 6: the tensor ----------------------------------------------------------------------
@@ -782,17 +796,18 @@ def _fluctuation_fields(asm, Q, N, dim):
     return u_f, w_f
 
 
-def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memory=None):
+def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memory=None, solver="auto"):
     """The relaxation step of :func:`stiffness`: the symmetric solve on ``factor`` (or, for spheres
     with pre-stress and tangential forces, the non-symmetric one), then the factor's memory freed.
     Returns ``(Xr, residual, n_refine, solver name, path)`` (``path``: see :func:`relax`)."""
     if tangential:
-        Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
-        path = "splu (non-symmetric)"
+        Xr, resid, n_ref, used = relax_tangential(asm, red, asm.F_scale, rtol, max_refine, solver=solver,
+                                                  max_memory=max_memory, details=True)
+        path = f"{used} (non-symmetric)"
     else:
         Xr, resid, n_ref, path = relax(factor, red, asm.F_scale, rtol, max_refine, max_memory=max_memory,
                                        details=True, psd=asm.Kgs is None)
-    used = "splu" if tangential else factor.name if factor is not None else "none"
+        used = factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
     return Xr, resid, n_ref, used, path
@@ -884,7 +899,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
     Xr, resid, n_ref, used, path = _relax_and_release(factor, asm, red, tangential, rtol, max_refine,
-                                                      max_memory)
+                                                      max_memory, "auto" if solver == "cholmod" else solver)
     steps["relax"] = time.perf_counter() - tc
     del factor
     Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
