@@ -762,7 +762,7 @@ def predicted_memory(n_particles, n_dof=None, solver="auto"):
     return predicted_factor_bytes(n_dof, solver) + _BYTES_PER_PARTICLE * int(n_particles)
 
 
-def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory):
+def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory, deflate=True):
     """The argument checks of :func:`stiffness`: a ``TypeError`` or ``ValueError`` naming the
     parameter and its allowed values or range."""
     if not isinstance(network, ContactNetwork):
@@ -780,6 +780,20 @@ def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_mem
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
     if max_memory is not None and not (np.isfinite(max_memory) and max_memory > 0):
         raise ValueError(f"max_memory must be a finite number of bytes > 0, got {max_memory!r}")
+    if not isinstance(deflate, (bool, np.bool_)):
+        raise ValueError(f"deflate must be True or False, got {deflate!r}")
+
+
+def _reduce_and_deflate(asm, tangential, deflate):
+    """The reduce step of :func:`stiffness`: the system without its stiffness-free unknowns
+    (for the non-symmetric tangent, its symmetric part, whose modes are counted), then, with
+    ``deflate`` (spheres without pre-stress), without one rotation unknown per two-contact sphere
+    (its turn, a known null vector; under pre-stress not a null vector of the tangent). Returns
+    ``(reduced, deflated, turns)``."""
+    red_all = reduce_system(asm if not tangential else
+                            replace(asm, H=(asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc(), F=asm.F + asm.Fn))
+    turns = two_contact_turns(asm, red_all) if deflate else _no_turns()
+    return red_all, deflate_turns(red_all, turns), turns
 
 
 def _fluctuation_fields(asm, Q, N, dim):
@@ -848,21 +862,16 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     spin_arm : ``"contact"`` (default: spins turn the contact point, arms ``|c| r_i/(r_i+r_j)``)
         or ``"radius"`` (arms ``r_i``, LAMMPS's ``gran/*`` kinematics); see
         :mod:`microhom.kinematics`. They agree on touching disks.
-    deflate : spheres without pre-stress: remove the known floppy mode of every frictional sphere
-        with exactly two contacts (its turn about its chord, :func:`two_contact_turns`) before the
-        factorisation, one rotation unknown each (:func:`deflate_turns`), and count it
-        (``n_turns``, included in ``n_floppy``); the tensor is the same, and the factorisation
-        sees no near-zero pivots from the turns (``docs/spheres.md``, "The exact solver on
-        spheres"). ``False`` leaves them to the mode count. No effect in 2D or with pre-stress.
+    deflate : spheres without pre-stress: remove each two-contact sphere's turn (a known floppy
+        mode, :func:`two_contact_turns`) before the factorisation and count it (``n_turns``, in
+        ``n_floppy``); the same tensor, no near-zero pivots (``docs/spheres.md``). No effect in 2D.
 
     Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
     "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
     lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
-    _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory)
-    if not isinstance(deflate, (bool, np.bool_)):
-        raise ValueError(f"deflate must be True or False, got {deflate!r}")
+    _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory, deflate)
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
@@ -874,15 +883,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     sigma0 = stress0(net) if prestress else None
     t_asm = time.perf_counter() - t0
 
-    t1 = time.perf_counter()
-    steps = {"assemble": t_asm}
+    t1, steps = time.perf_counter(), {"assemble": t_asm}
     tangential = asm.Hn is not None        # spheres, pre-stress, tangential forces: modes of sym(H + Hn)
-    red_all = reduce_system(asm if not tangential else
-                            replace(asm, H=(asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc(), F=asm.F + asm.Fn))
-    # spheres without pre-stress: the two-contact spheres' turns are known null vectors, removed
-    # before the factorisation (under pre-stress they are not null vectors of the tangent)
-    turns = two_contact_turns(asm, red_all) if deflate and not prestress else _no_turns()
-    red = deflate_turns(red_all, turns)
+    red_all, red, turns = _reduce_and_deflate(asm, tangential, deflate and not prestress)
     steps["reduce"] = time.perf_counter() - t1
     factor = None
     tc = time.perf_counter()
@@ -903,10 +906,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     steps["relax"] = time.perf_counter() - tc
     del factor
     Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
-    if turns.n:
-        Q[red_all.idx] = restore_turns(Xr, red_all, turns)
-    else:
-        Q[red.idx] = Xr
+    Q[red_all.idx] = restore_turns(Xr, red_all, turns)
     t_solve = time.perf_counter() - t1
     if resid > INACCURATE:
         flags.append(f"inaccurate: the relaxation solve did not converge (relative residual "
