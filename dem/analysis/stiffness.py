@@ -320,6 +320,7 @@ class Turns:
 
     @property
     def n(self) -> int:
+        """Number of turns (two-contact spheres deflated)."""
         return int(self.particle.size)
 
 
