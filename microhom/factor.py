@@ -660,18 +660,20 @@ def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching
 
 
 #: predicted fill of SuperLU's LU of a 3D sphere tangent (3 translations + 3 rotations per sphere):
-#: non-zeros of L + U ~ _NNZ_COEF_3D * n^(4/3) for n unknowns (the fill growth of nested dissection
-#: on a 3D graph). Measured (MMD_AT_PLUS_A, diagonal pivots): 1.89e6 at 5085 unknowns (LAMMPS, 1000
-#: spheres, Z = 3.9), coefficient 22; 4.57e7 at 23 967 (built FCC, Z = 6.8), coefficient 66; the
-#: densest network's, with a margin (docs/spheres.md, "The non-symmetric solve")
-_NNZ_COEF_3D = 70.0
-#: bytes per non-zero of SuperLU's 3D LU, resident memory included (measured 24 on the FCC network)
+#: non-zeros of L + U ~ _NNZ_COEF_3D * n^_NNZ_EXP_3D for n unknowns. Measured (MMD_AT_PLUS_A,
+#: diagonal pivots) on the built FCC network (Z = 6.8): 4.57e7 at 23 967 unknowns, 2.28e8 at 65 811
+#: (exponent 1.59 between them, coefficient 4.4-4.5 at 1.6); 1.89e6 at 5085 on a sparser LAMMPS
+#: packing (Z = 3.9; 3.8e6 predicted). Fitted with a 12 % margin (docs/spheres.md, "The
+#: non-symmetric solve")
+_NNZ_COEF_3D = 5.0
+_NNZ_EXP_3D = 1.6
+#: bytes per non-zero of SuperLU's 3D LU, resident memory included (measured 24-28 on the FCC network)
 _BYTES_PER_NNZ_LU3D = 32.0
 
 
 def predicted_general_bytes(n: int, backend: str = "splu", dim: int = 3) -> float:
     """Predicted memory [bytes] of the LU factorisation of a non-symmetric contact tangent with
-    ``n`` unknowns (before anything is allocated): in 3D ``_NNZ_COEF_3D n^(4/3)`` non-zeros of
+    ``n`` unknowns (before anything is allocated): in 3D ``_NNZ_COEF_3D n^1.6`` non-zeros of
     ``L + U`` times the measured bytes per non-zero (SuperLU: ``_BYTES_PER_NNZ_LU3D``), plus
     ``_FIXED_BYTES``; in 2D
     :func:`predicted_factor_bytes`. PARDISO predicts its own in its analysis (this is its
@@ -680,7 +682,7 @@ def predicted_general_bytes(n: int, backend: str = "splu", dim: int = 3) -> floa
         return predicted_factor_bytes(n, backend)
     n = max(int(n), 2)
     per = _BYTES_PER_NNZ_LU3D if backend == "splu" else _BYTES_PER_NNZ.get(backend, 40.0)
-    return _NNZ_COEF_3D * n ** (4.0 / 3.0) * per + _FIXED_BYTES
+    return _NNZ_COEF_3D * n ** _NNZ_EXP_3D * per + _FIXED_BYTES
 
 
 class _SuperLUGeneral(Factor):

@@ -92,7 +92,12 @@ def test_the_nonsymmetric_solve_refuses_a_factor_above_max_memory(backend):
         relax_tangential(asm, red, asm.F_scale, solver="cholmod")
 
 
-def test_the_superlu_prediction_grows_as_n_to_the_four_thirds():
+def test_the_superlu_prediction_covers_the_measured_lu():
+    """Above the resident memory SuperLU's 3D LU added on the built FCC networks (measured:
+    1.17 GB at 23 967 unknowns, 6.39 GB at 65 811; docs/spheres.md) by at most 2x, and grows as
+    n^1.6 (its fit between them)."""
+    for n, used in ((23_967, 1.17e9), (65_811, 6.39e9)):
+        assert used < predicted_general_bytes(n) < 2 * used
     a, b = predicted_general_bytes(10_000), predicted_general_bytes(80_000)
-    assert (b - 32e6) / (a - 32e6) == pytest.approx(8 ** (4 / 3), rel=1e-12)
+    assert (b - 32e6) / (a - 32e6) == pytest.approx(8 ** 1.6, rel=1e-12)
     assert predicted_general_bytes(10_000, dim=2) < a
