@@ -48,7 +48,7 @@ __all__ = ["BACKENDS", "COUNTS", "ETA", "ZERO_PIVOT", "AMBIGUOUS_PIVOTS", "RESCA
            "ZeroModes",
            "Factor", "factor", "inertia", "count_zero_modes", "available_backends", "have_pardiso",
            "have_cholmod", "NotPositiveDefinite", "FactorisationError", "MemoryGuardError",
-           "memory_check", "predicted_factor_bytes"]
+           "memory_check", "predicted_factor_bytes", "predicted_general_bytes", "factor_general"]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "splu")
 #: the rules of :func:`count_zero_modes` for the pivots of CHOLMOD and SuperLU
@@ -332,14 +332,20 @@ class _Pardiso(Factor):
     reshifts_in_place = True
 
     def __init__(self, A, spd=False, *, max_memory=None, perm=None, threads=None, upper=False,
-                 matching=True, shift=0.0, scale=None, ordering="metis"):
+                 matching=True, shift=0.0, scale=None, ordering="metis", general=False):
         lib = _load_mkl()
         if not lib:
             raise RuntimeError("backend 'pardiso' needs the mkl wheel: pip install mkl (x86-64)")
         self._lib = lib
         n = A.shape[0]
         self._pencil = None
-        if scale is not None:     # A + shift diag(scale) = the pencil (A, -diag(scale)) at shift
+        if general:     # real non-symmetric (matrix type 11): the whole matrix, CSR, sorted
+            if scale is not None or spd:
+                raise ValueError("general=True takes the matrix as is (no scale, not spd)")
+            U = sp.csr_matrix(A, dtype=np.float64, copy=True)
+            U.sum_duplicates()
+            U.sort_indices()
+        elif scale is not None:     # A + shift diag(scale) = the pencil (A, -diag(scale)) at shift
             self.A, self.scale, self.shift = A, scale, shift
             self._pencil = _Pencil(A, sp.diags(-scale).tocsr())
             U = self._pencil.matrix(shift)
@@ -349,7 +355,7 @@ class _Pardiso(Factor):
             U = sp.triu(A, format="csr")
             U.sort_indices()
         self.n = n
-        self.mtype = 2 if spd else -2
+        self.mtype = 11 if general else 2 if spd else -2
         self._a = np.ascontiguousarray(U.data, dtype=np.float64)
         self._ia = (U.indptr + 1).astype(np.int32)
         self._ja = (U.indices + 1).astype(np.int32)
@@ -366,8 +372,8 @@ class _Pardiso(Factor):
         # symmetric scaling and weighted matching (congruences: the inertia is kept) for strongly
         # indefinite matrices: fewer perturbed pivots; off for nearly semi-definite ones (the
         # stiffness H - eta diag H without pre-stress), where they cost 17 % of the time at 1e5
-        ip[10] = 1 if matching else 0
-        ip[12] = 1 if matching else 0
+        ip[10] = 1 if matching or general else 0
+        ip[12] = 1 if matching or general else 0
         ip[17] = -1        # report nnz of the factor
         ip[20] = 1         # Bunch-Kaufman 1x1 and 2x2 pivoting (type -2)
         ip[23] = 0
@@ -383,7 +389,7 @@ class _Pardiso(Factor):
         self._call(11)
         self.predicted_bytes = 1024.0 * (max(int(ip[14]), int(ip[15]) + int(ip[16])))
         try:
-            memory_check(self.predicted_bytes, f"PARDISO factorisation of {n} unknowns "
+            memory_check(self.predicted_bytes, f"PARDISO {'non-symmetric ' if general else ''}factorisation of {n} unknowns "
                          f"({int(ip[17]):,} non-zeros in the factor)", max_memory)
         except MemoryGuardError:
             self.release()
@@ -460,8 +466,11 @@ class _Pardiso(Factor):
     def inertia(self):
         """Numbers of positive / negative pivots of the Bunch-Kaufman ``LDL^T`` (type -2), or
         (n, 0) for a successful Cholesky; ``n_zero`` counts perturbed pivots, which make the
-        count that of a perturbed matrix (callers refuse to certify with them)."""
+        count that of a perturbed matrix (callers refuse to certify with them). None for a
+        non-symmetric matrix (type 11)."""
         ip = self.iparm
+        if self.mtype == 11:
+            return None
         if self.mtype == 2:
             return Inertia(self.n, 0, int(ip[13]), "pardiso")
         npos, nneg = int(ip[21]), int(ip[22])
@@ -648,6 +657,81 @@ def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching
     if backend == "cholmod":
         return _Cholmod(A, perm=perm, max_memory=max_memory, shift=shift, scale=scale)
     return _SuperLU(A, max_memory=max_memory, shift=shift, scale=scale)
+
+
+#: predicted fill of SuperLU's LU of a 3D sphere tangent (3 translations + 3 rotations per sphere):
+#: non-zeros of L + U ~ _NNZ_COEF_3D * n^_NNZ_EXP_3D for n unknowns. Measured (MMD_AT_PLUS_A,
+#: diagonal pivots) on the built FCC network (Z = 6.8): 4.57e7 at 23 967 unknowns, 2.28e8 at 65 811
+#: (exponent 1.59 between them, coefficient 4.4-4.5 at 1.6); 1.89e6 at 5085 on a sparser LAMMPS
+#: packing (Z = 3.9; 3.8e6 predicted). Fitted with a 12 % margin (docs/spheres.md, "The
+#: non-symmetric solve")
+_NNZ_COEF_3D = 5.0
+_NNZ_EXP_3D = 1.6
+#: bytes per non-zero of SuperLU's 3D LU, resident memory included (measured 24-28 on the FCC network)
+_BYTES_PER_NNZ_LU3D = 32.0
+
+
+def predicted_general_bytes(n: int, backend: str = "splu", dim: int = 3) -> float:
+    """Predicted memory [bytes] of the LU factorisation of a non-symmetric contact tangent with
+    ``n`` unknowns (before anything is allocated): in 3D ``_NNZ_COEF_3D n^1.6`` non-zeros of
+    ``L + U`` times the measured bytes per non-zero (SuperLU: ``_BYTES_PER_NNZ_LU3D``), plus
+    ``_FIXED_BYTES``; in 2D
+    :func:`predicted_factor_bytes`. PARDISO predicts its own in its analysis (this is its
+    fallback's figure)."""
+    if dim == 2:
+        return predicted_factor_bytes(n, backend)
+    n = max(int(n), 2)
+    per = _BYTES_PER_NNZ_LU3D if backend == "splu" else _BYTES_PER_NNZ.get(backend, 40.0)
+    return _NNZ_COEF_3D * n ** _NNZ_EXP_3D * per + _FIXED_BYTES
+
+
+class _SuperLUGeneral(Factor):
+    """scipy SuperLU of a real non-symmetric matrix with a symmetric pattern: diagonal pivots on
+    ``MMD_AT_PLUS_A`` first (3-5x less fill than COLAMD), partial pivoting on COLAMD when a
+    diagonal pivot is exactly zero."""
+
+    name = "splu"
+
+    def __init__(self, A):
+        A = sp.csc_matrix(A)
+        try:
+            self.lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options=dict(SymmetricMode=True))
+        except RuntimeError:
+            try:
+                self.lu = splu(A)
+            except RuntimeError as exc:       # exactly singular
+                raise FactorisationError(f"SuperLU: {exc}") from None
+        self.nnz = int(self.lu.L.nnz + self.lu.U.nnz)
+
+    def solve(self, b):
+        return self.lu.solve(np.asarray(b, dtype=np.float64))
+
+
+def factor_general(A, *, backend="auto", max_memory=None, dim=3) -> Factor:
+    """Factorise the real **non-symmetric** sparse matrix ``A`` (n, n) (its pattern symmetric, as
+    a contact tangent's): ``backend`` ``"pardiso"`` (MKL PARDISO, matrix type 11: METIS ordering,
+    weighted matching and scaling, pivot perturbation 1e-13; its analysis predicts the memory),
+    ``"splu"`` (scipy SuperLU) or ``"auto"`` (PARDISO when loadable, else SuperLU; CHOLMOD is for
+    positive definite matrices only). ``max_memory`` [bytes]: refuse a predicted factor above it
+    or above the available memory (:class:`MemoryGuardError`, before allocating; SuperLU's figure
+    is :func:`predicted_general_bytes` for the dimension ``dim``). The factor's ``solve(b)``
+    takes (n,) or (n, k) ``b``; callers refine against ``A`` (PARDISO's perturbed pivots,
+    ``n_perturbed``, make its factor that of a nearby matrix)."""
+    if backend not in ("auto", "pardiso", "splu"):
+        raise ValueError(f"unknown backend {backend!r} for a non-symmetric matrix; allowed: auto, "
+                         "pardiso, splu")
+    if not sp.issparse(A):
+        A = sp.csr_matrix(A)
+    if A.shape[0] != A.shape[1]:
+        raise ValueError(f"A must be square, got shape {A.shape}")
+    if backend == "auto":
+        backend = "pardiso" if have_pardiso() else "splu"
+    if backend == "pardiso":
+        return _Pardiso(A, max_memory=max_memory, general=True)
+    memory_check(predicted_general_bytes(A.shape[0], "splu", dim),
+                 f"SuperLU non-symmetric factorisation of {A.shape[0]} unknowns", max_memory)
+    return _SuperLUGeneral(A)
 
 
 def inertia(A, *, backend="auto", max_memory=None) -> Inertia:

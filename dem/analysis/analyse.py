@@ -787,10 +787,10 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
     elif net.cell is None:
         hier = SectionError("open packing: the hierarchy estimates the stiffness of a periodic cell")
     else:
-        # spheres: the exact solver's spin arms, so that its tensor lies in the interval (the 2D
-        # report keeps contact arms: its output is pinned, tests/data/analyse_expected.json)
+        # the exact solver's spin arms (disks and spheres), so that its tensor is the one the
+        # interval bounds (issue 26: the 2D report had kept contact arms on LAMMPS files)
         h, w["hierarchy"] = _section(_hierarchy, snet, prestress, min_contacts, hierarchy_tol,
-                                     "contact" if disks else spin_arm)
+                                     spin_arm)
         hier, hier_s = h if _ok(h) else (h, None)
     if not exact:
         stiff = SectionError("not computed")
@@ -980,7 +980,7 @@ def analyse_file(path, options=None, **overrides) -> AnalysisResult:
                "the distance to the contact point |c| r_i/(r_i + r_j)")
             + "; --spin-arm contact|radius chooses; "
             + ("the hierarchy uses the same arms)" if net.dim == 3 else
-               "the theory and the hierarchy use contact arms)"))
+               "the hierarchy uses the same arms, the theory contact arms)"))
     res = analyse(net, alpha=o.alpha, prestress=o.prestress, min_contacts=o.min_contacts,
                   exact=o.exact, hierarchy=o.hierarchy, spin_arm=spin_arm,
                   hierarchy_tol=o.hierarchy_tol, rho_neighbours=o.rho_neighbours)

@@ -66,6 +66,7 @@ _cholmod = _factor._cholmod     # optional CHOLMOD (scikit-sparse); tests set th
 __all__ = ["StiffnessResult", "RIGIDITY_CHECK_MAX_DOF", "rigidity_factor", "stiffness", "affine_stiffness", "stress_increment", "reduce_system",
            "factorise", "count_modes", "relax", "relax_tangential", "relaxed_tensor", "degeneracy_flags", "have_cholmod",
            "have_pardiso", "particle_ordering", "predicted_memory", "Reduced", "ModeCount",
+           "Turns", "two_contact_turns", "deflate_turns", "restore_turns",
            "MemoryGuardError"]
 # the tensor-notation helpers (mandel_to_tensor, isotropic_moduli, ...) live in microhom.tensors and
 # the assembly in microhom.kinematics; they are imported here for the solver, not re-exported.
@@ -82,7 +83,9 @@ class StiffnessResult(Result):
     Counts: ``n_rattlers`` particles removed (iteratively, fewer than ``min_contacts`` contacts);
     ``n_floppy`` zero-energy modes of the reduced Hessian (after removing rattlers, dropped spins
     and the two global translations); ``n_unstable`` negative modes of the Hessian (pre-stress
-    only); ``n_dof`` the number of unknowns solved for. ``solve_time`` is factorisation + mode
+    only); ``n_turns`` of the floppy modes, the turns of two-contact spheres removed before the
+    factorisation (3D without pre-stress, ``stiffness(deflate=True)``); ``n_dof`` the number of
+    unknowns solved for. ``solve_time`` is factorisation + mode
     count + solves [s]; ``assembly_time`` the assembly [s]. ``solver`` the back end that ran
     (``"pardiso"``, ``"cholmod"`` or ``"splu"``; ``"splu"`` for the non-symmetric solve of
     spheres with tangential forces under pre-stress, whose modes are counted on the symmetric
@@ -123,6 +126,7 @@ class StiffnessResult(Result):
     n_contacts: int = 0            # contacts kept (between non-rattlers)
     n_spins: int = 0               # spin unknowns kept
     n_unstable: int = 0            # negative-stiffness modes of the Hessian (only possible with prestress)
+    n_turns: int = 0               # floppy turns of two-contact spheres deflated before the factorisation
     prestress: bool = False
     solver: str = "splu"
     residual: float = 0.0          # max_j |H q_j + F_j| / (norm of the per-contact affine forces) after refinement
@@ -257,7 +261,9 @@ class Reduced:
     H : (m, m) CSC Hessian of the unknowns that carry stiffness; F : (m, 3) their loads;
     d : (m,) positive diagonal scale of H (``|diag H|``, zeros replaced by its max);
     idx : (m,) their index among the assembly's unknowns; n_zero : unknowns dropped (each is a
-    floppy mode: a dof with no stiffness at all); particle : (m,) particle of each unknown."""
+    floppy mode: a dof with no stiffness at all); particle : (m,) particle of each unknown;
+    n_turns : unknowns removed by :func:`deflate_turns` (each one floppy mode: the turn of a
+    two-contact sphere), 0 unless deflated."""
 
     H: sp.csc_matrix
     F: np.ndarray
@@ -265,6 +271,7 @@ class Reduced:
     idx: np.ndarray
     n_zero: int
     particle: np.ndarray
+    n_turns: int = 0
 
 
 def reduce_system(asm) -> Reduced:
@@ -284,6 +291,107 @@ def reduce_system(asm) -> Reduced:
     part = np.empty(asm.ndof, dtype=np.int64)
     part[asm.dof_map[full]] = np.where(full < dim * N, full // dim, (full - dim * N) // rot)
     return Reduced(H=Hr, F=asm.F[idx], d=dr, idx=idx, n_zero=int(zero.sum()), particle=part[idx])
+
+
+# ---- step 2b: deflate the turns of two-contact spheres ---------------------------------------
+#: a two-contact sphere's turn is deflated when the smallest singular value of its (6, 6)
+#: compatibility block is below this fraction of the largest (exactly zero but for rounding) and
+#: the next one above ``TURN_RANK`` of it (one free motion, no other)
+TURN_TOL = 1e-12
+TURN_RANK = 1e-8
+
+
+@dataclass(frozen=True, eq=False)
+class Turns:
+    """The known floppy modes of the frictional spheres with exactly two contacts (3D, no
+    pre-stress; ``docs/spheres.md``, "The exact solver on spheres"): the sphere turns about its
+    chord, ``omega`` along ``c_1 - c_2`` and ``u = -omega x c_1``, with ``c_k = a_k n_k`` its
+    contact points (arm ``a_k``, normal ``n_k`` towards neighbour ``k``), deforming neither contact.
+
+    particle : (t,) the spheres; dropped : (t,) the reduced unknown removed for each (its rotation
+    component along the chord's largest direction); local : (t, 6) the unknowns of each sphere
+    (translations, then rotations) in the reduced numbering *before* the removal; vector : (t, 6)
+    the unit turn on those unknowns."""
+
+    particle: np.ndarray
+    dropped: np.ndarray
+    local: np.ndarray
+    vector: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of turns (two-contact spheres deflated)."""
+        return int(self.particle.size)
+
+
+def _no_turns() -> Turns:
+    return Turns(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 6), np.int64), np.zeros((0, 6)))
+
+
+def two_contact_turns(asm, red) -> Turns:
+    """The turns of the two-contact spheres of a 3D assembly whose six unknowns are all in
+    ``red``: the null vector of the sphere's (6, 6) block of its two contacts' compatibility
+    ``B`` (its neighbours held), which :class:`Turns` states in closed form; kept when that block
+    has rank 5 to rounding (``TURN_TOL``, ``TURN_RANK``). Empty in 2D (a two-contact disk has no
+    zero mode) and without candidates."""
+    empty = _no_turns()
+    net = asm.net
+    if net.dim != 3 or net.n_contacts == 0:
+        return empty
+    N = net.n_particles
+    ends = net.pairs.ravel()                                  # contact k: ends 2k (side i), 2k + 1 (j)
+    cand = np.flatnonzero(np.bincount(ends, minlength=N) == 2)
+    if cand.size == 0:
+        return empty
+    pos = np.full(asm.ndof + 1, -1, dtype=np.int64)           # asm unknown -> reduced position
+    pos[red.idx] = np.arange(red.idx.size)
+    full = np.concatenate([3 * cand[:, None] + np.arange(3), 3 * N + 3 * cand[:, None] + np.arange(3)], axis=1)
+    local = pos[asm.dof_map[full]]                            # (t, 6); -1 where not an unknown
+    ok = np.all(local >= 0, axis=1)
+    cand, local = cand[ok], local[ok]
+    order = np.argsort(ends, kind="stable")
+    first = np.searchsorted(ends[order], cand)
+    end2 = order[np.stack([first, first + 1], axis=1)]       # (t, 2) contact ends of each sphere
+    k, side = end2 // 2, end2 % 2
+    B = asm.matrices.B
+    blk = np.stack([B[k[:, 0]], B[k[:, 1]]], axis=1)          # (t, 2, 3, 12)
+    cols = 6 * side[:, :, None] + np.arange(6)                # the sphere's six columns per contact
+    M = np.take_along_axis(blk, cols[:, :, None, :], axis=3).reshape(-1, 6, 6)
+    _, sv, Vt = np.linalg.svd(M) if M.size else (None, np.zeros((0, 6)), np.zeros((0, 6, 6)))
+    good = (sv[:, 5] <= TURN_TOL * sv[:, 0]) & (sv[:, 4] >= TURN_RANK * sv[:, 0])
+    v = Vt[good, 5]
+    drop = 3 + np.argmax(np.abs(v[:, 3:]), axis=1)            # the rotation most along the chord
+    return Turns(cand[good], local[good][np.arange(v.shape[0]), drop], local[good], v)
+
+
+def deflate_turns(red, turns) -> Reduced:
+    """``red`` without the unknown ``turns.dropped`` of each turn: the reduced Hessian then has
+    none of these null vectors (each had a non-zero component on its dropped unknown, and the
+    turns have disjoint supports), the system stays consistent (the load is orthogonal to them),
+    and each removal is one floppy mode, counted in ``Reduced.n_turns``."""
+    if turns.n == 0:
+        return red
+    keep = np.ones(red.idx.size, dtype=bool)
+    keep[turns.dropped] = False
+    k = np.flatnonzero(keep)
+    return replace(red, H=red.H[k][:, k].tocsc(), F=red.F[k], d=red.d[k], idx=red.idx[k],
+                   particle=red.particle[k], n_turns=turns.n)
+
+
+def restore_turns(X, red_full, turns):
+    """The solution ``X`` (m', k) of the deflated system on the unknowns of ``red_full`` (m, k),
+    the dropped unknowns zero, then each turn removed in the ``diag(red_full.d)`` inner product:
+    the solution the shifted solve of the undeflated system returns (orthogonal to the null
+    vectors in that metric), up to the other floppy modes."""
+    full = np.zeros((red_full.idx.size, X.shape[1]))
+    keep = np.ones(red_full.idx.size, dtype=bool)
+    keep[turns.dropped] = False
+    full[keep] = X
+    if turns.n:
+        dv = red_full.d[turns.local] * turns.vector                       # (t, 6)
+        coef = np.einsum("tl,tlk->tk", dv, full[turns.local]) / np.einsum("tl,tl->t", dv, turns.vector)[:, None]
+        np.subtract.at(full, turns.local, turns.vector[:, :, None] * coef[:, None, :])
+    return full
 
 
 # ---- step 3: factorise -----------------------------------------------------------------------
@@ -442,10 +550,10 @@ def count_modes(factor, red, count="auto", eta=_ETA, *, psd=False, max_memory=No
     if count not in COUNTS:
         raise ValueError(f"unknown count {count!r}; allowed: {', '.join(COUNTS)}")
     if red.H.shape[0] == 0:
-        return ModeCount(red.n_zero, 0, (np.nan, np.nan), count)
+        return ModeCount(red.n_zero + red.n_turns, 0, (np.nan, np.nan), count)
     z = _factor.count_zero_modes(factor, count, eta=eta, psd=psd, max_memory=max_memory,
                                  rigidity=rigidity)
-    return ModeCount(red.n_zero + z.n_zero, z.n_negative, z.gap, z.method, factor=z.factor)
+    return ModeCount(red.n_zero + red.n_turns + z.n_zero, z.n_negative, z.gap, z.method, factor=z.factor)
 
 
 # ---- step 5: solve ---------------------------------------------------------------------------
@@ -532,33 +640,47 @@ def relax(factor, red, F_scale, rtol=1e-13, max_refine=50, *, max_memory=None, d
     return (X, resid, n_ref) + ((path,) if details else ())
 
 
-def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA):
+#: the non-symmetric solve's back ends (:func:`relax_tangential`)
+TANGENTIAL_SOLVERS = ("auto", "pardiso", "splu")
+
+
+def relax_tangential(asm, red, F_scale, rtol=1e-13, max_refine=50, eta=_ETA, *, solver="auto",
+                     max_memory=None, details=False):
     """:func:`relax` for spheres with tangential forces under pre-stress: solve the
     non-symmetric ``(H + Hn) Q = -(F + Fn)`` (``microhom.kinematics.Assembly``) on the unknowns of
-    ``red`` with SuperLU of ``H + Hn + eta diag`` and refinement against the unshifted matrix.
-    Returns (Q (m, k), residual, n_refine) as :func:`relax`."""
-    from scipy.sparse.linalg import splu
+    ``red``, factorising ``H + Hn + eta diag`` (:func:`microhom.factor.factor_general`) and
+    refining against the unshifted matrix. ``solver``: ``"pardiso"`` (MKL PARDISO, real
+    non-symmetric), ``"splu"`` (SuperLU) or ``"auto"`` (PARDISO where it loads and the system has
+    at least ``AUTO_PARDISO_DOF`` unknowns, else SuperLU). ``max_memory`` [bytes]: a factor
+    predicted above it (or above the available memory) is refused with
+    :class:`MemoryGuardError` naming the figure, before it allocates. Returns (Q (m, k),
+    residual, n_refine) as :func:`relax` (and the back end's name, if ``details``)."""
+    if solver not in TANGENTIAL_SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} for the non-symmetric solve; allowed: "
+                         f"{', '.join(TANGENTIAL_SOLVERS)}")
     if red.H.shape[0] == 0:
-        return np.zeros((0, red.F.shape[1])), 0.0, 0
+        return (np.zeros((0, red.F.shape[1])), 0.0, 0) + (("empty",) if details else ())
     A = (asm.H + asm.Hn).tocsr()[red.idx][:, red.idx].tocsc()
     M = (A + sp.diags(eta * red.d)).tocsc()
-    try:            # the pattern is symmetric: diagonal pivots first (3-5x less fill than COLAMD)
-        lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    except RuntimeError:                  # a zero diagonal pivot: partial pivoting
-        lu = splu(M)
-    Xr = lu.solve(-red.F)
-    fn_ = F_scale if F_scale > 0 else 1.0
-    n_ref = 0
-    for n_ref in range(1, max_refine + 1):
-        R = -red.F - A @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-        if resid <= rtol or not np.isfinite(resid):
-            break
-        Xr = Xr + lu.solve(R)
-    else:
-        R = -red.F - A @ Xr
-        resid = float((np.linalg.norm(R, axis=0) / fn_).max())
-    return Xr, resid, n_ref
+    if solver == "auto":
+        solver = "pardiso" if have_pardiso() and A.shape[0] >= AUTO_PARDISO_DOF else "splu"
+    lu = _factor.factor_general(M, backend=solver, max_memory=max_memory, dim=asm.net.dim)
+    try:
+        Xr = lu.solve(-red.F)
+        fn_ = F_scale if F_scale > 0 else 1.0
+        n_ref = 0
+        for n_ref in range(1, max_refine + 1):
+            R = -red.F - A @ Xr
+            resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+            if resid <= rtol or not np.isfinite(resid):
+                break
+            Xr = Xr + lu.solve(R)
+        else:
+            R = -red.F - A @ Xr
+            resid = float((np.linalg.norm(R, axis=0) / fn_).max())
+    finally:
+        lu.release()
+    return (Xr, resid, n_ref) + ((lu.name,) if details else ())
 
 
 # ---- step 6: the tensor ----------------------------------------------------------------------
@@ -641,7 +763,7 @@ def predicted_memory(n_particles, n_dof=None, solver="auto"):
     return predicted_factor_bytes(n_dof, solver) + _BYTES_PER_PARTICLE * int(n_particles)
 
 
-def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory):
+def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory, deflate=True):
     """The argument checks of :func:`stiffness`: a ``TypeError`` or ``ValueError`` naming the
     parameter and its allowed values or range."""
     if not isinstance(network, ContactNetwork):
@@ -659,6 +781,20 @@ def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_mem
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
     if max_memory is not None and not (np.isfinite(max_memory) and max_memory > 0):
         raise ValueError(f"max_memory must be a finite number of bytes > 0, got {max_memory!r}")
+    if not isinstance(deflate, (bool, np.bool_)):
+        raise ValueError(f"deflate must be True or False, got {deflate!r}")
+
+
+def _reduce_and_deflate(asm, tangential, deflate):
+    """The reduce step of :func:`stiffness`: the system without its stiffness-free unknowns
+    (for the non-symmetric tangent, its symmetric part, whose modes are counted), then, with
+    ``deflate`` (spheres without pre-stress), without one rotation unknown per two-contact sphere
+    (its turn, a known null vector; under pre-stress not a null vector of the tangent). Returns
+    ``(reduced, deflated, turns)``."""
+    red_all = reduce_system(asm if not tangential else
+                            replace(asm, H=(asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc(), F=asm.F + asm.Fn))
+    turns = two_contact_turns(asm, red_all) if deflate else _no_turns()
+    return red_all, deflate_turns(red_all, turns), turns
 
 
 def _fluctuation_fields(asm, Q, N, dim):
@@ -675,17 +811,18 @@ def _fluctuation_fields(asm, Q, N, dim):
     return u_f, w_f
 
 
-def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memory=None):
+def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memory=None, solver="auto"):
     """The relaxation step of :func:`stiffness`: the symmetric solve on ``factor`` (or, for spheres
     with pre-stress and tangential forces, the non-symmetric one), then the factor's memory freed.
     Returns ``(Xr, residual, n_refine, solver name, path)`` (``path``: see :func:`relax`)."""
     if tangential:
-        Xr, resid, n_ref = relax_tangential(asm, red, asm.F_scale, rtol, max_refine)
-        path = "splu (non-symmetric)"
+        Xr, resid, n_ref, used = relax_tangential(asm, red, asm.F_scale, rtol, max_refine, solver=solver,
+                                                  max_memory=max_memory, details=True)
+        path = f"{used} (non-symmetric)"
     else:
         Xr, resid, n_ref, path = relax(factor, red, asm.F_scale, rtol, max_refine, max_memory=max_memory,
                                        details=True, psd=asm.Kgs is None)
-    used = "splu" if tangential else factor.name if factor is not None else "none"
+        used = factor.name if factor is not None else "none"
     if factor is not None and hasattr(factor, "release"):
         factor.release()
     return Xr, resid, n_ref, used, path
@@ -693,7 +830,7 @@ def _relax_and_release(factor, asm, red, tangential, rtol, max_refine, max_memor
 
 def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rtol=1e-13,
               max_refine=50, count="auto", ordering="auto", spin_arm="contact",
-              max_memory=None) -> StiffnessResult:
+              max_memory=None, deflate=True) -> StiffnessResult:
     """Exact linear-response stiffness tensor of a periodic contact network.
 
     The named steps, each usable on its own: ``_check_arguments`` (argument checks),
@@ -726,13 +863,16 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     spin_arm : ``"contact"`` (default: spins turn the contact point, arms ``|c| r_i/(r_i+r_j)``)
         or ``"radius"`` (arms ``r_i``, LAMMPS's ``gran/*`` kinematics); see
         :mod:`microhom.kinematics`. They agree on touching disks.
+    deflate : spheres without pre-stress: remove each two-contact sphere's turn (a known floppy
+        mode, :func:`two_contact_turns`) before the factorisation and count it (``n_turns``, in
+        ``n_floppy``); the same tensor, no near-zero pivots (``docs/spheres.md``). No effect in 2D.
 
     Degenerate results (not jammed, floppy, unstable, ill-conditioned) carry ``flags``; all but
     "floppy" (a zero-energy direction of an otherwise jammed network, e.g. the frictionless square
     lattice in shear) also raise a ``RuntimeWarning`` with the reason.
     """
     t0 = time.perf_counter()
-    _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory)
+    _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory, deflate)
     net, s, flags = _normalise(network, prestress)
     if flags:
         count = "rescale"
@@ -744,11 +884,9 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     sigma0 = stress0(net) if prestress else None
     t_asm = time.perf_counter() - t0
 
-    t1 = time.perf_counter()
-    steps = {"assemble": t_asm}
+    t1, steps = time.perf_counter(), {"assemble": t_asm}
     tangential = asm.Hn is not None        # spheres, pre-stress, tangential forces: modes of sym(H + Hn)
-    red = reduce_system(asm if not tangential else
-                        replace(asm, H=(asm.H + 0.5 * (asm.Hn + asm.Hn.T)).tocsc(), F=asm.F + asm.Fn))
+    red_all, red, turns = _reduce_and_deflate(asm, tangential, deflate and not prestress)
     steps["reduce"] = time.perf_counter() - t1
     factor = None
     tc = time.perf_counter()
@@ -765,11 +903,11 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     steps["count"] = time.perf_counter() - tc
     tc = time.perf_counter()
     Xr, resid, n_ref, used, path = _relax_and_release(factor, asm, red, tangential, rtol, max_refine,
-                                                      max_memory)
+                                                      max_memory, "auto" if solver == "cholmod" else solver)
     steps["relax"] = time.perf_counter() - tc
     del factor
     Q = np.zeros((asm.ndof, asm.F.shape[1]))          # 3 Mandel strains in 2D, 6 in 3D
-    Q[red.idx] = Xr
+    Q[red_all.idx] = restore_turns(Xr, red_all, turns)
     t_solve = time.perf_counter() - t1
     if resid > INACCURATE:
         flags.append(f"inaccurate: the relaxation solve did not converge (relative residual "
@@ -805,7 +943,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
         C_mandel=c_rel, C_affine_mandel=c_aff, K=K_, G=G_, K_affine=Ka, G_affine=Ga,
         n_rattlers=int(asm.rattlers.sum()), n_floppy=int(modes.n_floppy), n_dof=int(asm.ndof),
         solve_time=t_solve, assembly_time=t_asm, n_particles=N,
-        n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(modes.n_unstable),
+        n_contacts=asm.net.n_contacts, n_spins=asm.n_spins, n_unstable=int(modes.n_unstable), n_turns=turns.n,
         prestress=bool(prestress), solver=used, residual=resid,
         consistency=consistency, n_refine=n_ref, relax_path=path, pivot_gap=modes.gap,
         stress0_mandel=None if sigma0 is None else strain_to_mandel(sigma0) * s,
