@@ -3,14 +3,13 @@ non-symmetric, matrix type 11) and SuperLU give the same tensor, and both refuse
 ``max_memory`` with an error naming it and the predicted need, before allocating.
 
 The network: 32 compressed, jittered FCC spheres (Z = 12) whose tangential forces balance every
-force and torque (least squares written here, as in ``tests/test_kinematics3d_tangential.py``,
+force and torque (the least squares of ``tests/test_kinematics3d_tangential.py``, imported,
 where the same solve is checked against a dense relaxation of LAMMPS's update)."""
 import dataclasses
 import warnings
 
 import numpy as np
 import pytest
-import scipy.linalg as la
 import scipy.sparse as sp
 
 from dem.analysis.stiffness import (MemoryGuardError, have_pardiso, reduce_system, relax_tangential,
@@ -19,6 +18,7 @@ from microhom import lattices
 from microhom.factor import factor_general, predicted_general_bytes
 from microhom.kinematics import assemble
 from microhom.network import from_overlaps
+from test_kinematics3d_tangential import _equilibrium_ft  # noqa: E402  (the same solve, one definition)
 
 BACKENDS = ["splu"] + (["pardiso"] if have_pardiso() else [])
 
@@ -30,24 +30,7 @@ def _cluster(arm, kt=0.7):
     radii = 0.5 * (1 + rng.uniform(-0.01, 0.01, len(pos)))
     net = from_overlaps(pos * 0.98, radii, base.cell * 0.98, kn=1.0, kt=kt)
     net = dataclasses.replace(net, fn=net.kn * net.overlaps)
-    N, C = net.n_particles, net.n_contacts
-    i, j, n, L = net.pairs[:, 0], net.pairs[:, 1], net.normals, net.lengths
-    ri, rj = net.radii[i], net.radii[j]
-    ai, aj = (ri, rj) if arm == "radius" else (L * ri / (ri + rj), L * rj / (ri + rj))
-    e1 = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    e1 /= np.linalg.norm(e1, axis=1)[:, None]
-    e2 = np.cross(n, e1)
-    A, b = np.zeros((6 * N, 2 * C)), np.zeros(6 * N)
-    for c in range(C):
-        for k, e in enumerate((e1[c], e2[c])):
-            A[3 * j[c]:3 * j[c] + 3, 2 * c + k] += e
-            A[3 * i[c]:3 * i[c] + 3, 2 * c + k] -= e
-            A[3 * N + 3 * i[c]:3 * N + 3 * i[c] + 3, 2 * c + k] -= ai[c] * np.cross(n[c], e)
-            A[3 * N + 3 * j[c]:3 * N + 3 * j[c] + 3, 2 * c + k] -= aj[c] * np.cross(n[c], e)
-        b[3 * j[c]:3 * j[c] + 3] -= net.fn[c] * n[c]
-        b[3 * i[c]:3 * i[c] + 3] += net.fn[c] * n[c]
-    x = la.lstsq(A, b)[0]
-    return dataclasses.replace(net, ft=x[0::2, None] * e1 + x[1::2, None] * e2)
+    return dataclasses.replace(net, ft=_equilibrium_ft(net, arm))
 
 
 @pytest.mark.parametrize("arm", ["radius", "contact"])
