@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from microhom.options import OptionError, real
+from microhom.options import finite_real as _finite_real, flag as _flag, integer as _integer
 from microhom.closure import ClosurePrediction, closure_inputs, predict_closure
 from microhom.hierarchy import DEFAULT_TOL, HierarchyResult, relaxation_hierarchy
 from microhom.moduli import Prediction, predict_from_network
@@ -810,18 +811,6 @@ def analyse(net, *, alpha=None, prestress=False, min_contacts=None, exact=True,
                           hierarchy=hier, hierarchy_s=hier_s, stiffness=stiff,
                           rho_neighbours=rho_neighbours,
                           warnings=SectionWarnings(**w), notes=tuple(notes))
-
-
-def _finite_real(v) -> bool:
-    return real(v) and math.isfinite(v)
-
-
-def _flag(v) -> bool:
-    return isinstance(v, (bool, np.bool_))
-
-
-def _integer(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
 #: the check of each option: (allowed range as text, test of a value that is not None); the
