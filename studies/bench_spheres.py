@@ -2,7 +2,7 @@
 
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
-                                    [--setup-options [NAME ...]]
+                                    [--setup-options [NAME ...]] [--setup-only]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -115,7 +115,10 @@ SETUP_OPTIONS = {
     "theta0.25": dict(theta=0.25),
     "coarse2000": dict(max_coarse=2000),           # larger coarsest level
     "noimprove": dict(improve=False),              # candidates not relaxed before aggregation
-    "float32": dict(dtype=np.float32),             # the hierarchy in single precision
+    "float32": dict(dtype=np.float32),             # the hierarchy in single precision (3D default since issue 26)
+    "float64": dict(dtype=np.float64),             # the 3D default before issue 26 (2D default)
+    "jacobi+float32": dict(smooth="jacobi", dtype=np.float32),
+    "plain+float32": dict(smooth="none", dtype=np.float32),
 }
 
 #: pyamg's stages, wrapped by name in pyamg.aggregation.aggregation (setup_stages)
@@ -171,6 +174,30 @@ def setup_stages(build, *args, **kwargs):
     return out, stages
 
 
+def setups_only(n, keep, kt, names):
+    """``--setup-options ... --setup-only``: the multilevel setup alone per option on one assembly
+    (no CG): CPU, peak, levels and operator complexity, one row each."""
+    from microhom.kinematics import assemble
+    from microhom.multilevel import amg_preconditioner
+    net = fcc_network(n, keep=keep, kt=kt)
+    asm = assemble(net, pin=False)
+    print(f"N = {net.n_particles}, contacts {net.n_contacts}, unknowns {asm.ndof}, H non-zeros {asm.H.nnz}; "
+          f"RSS {_status_gb()[1]:.2f} GiB; load {os.getloadavg()[0]:.1f}", flush=True)
+    rows = []
+    for name in names:
+        rss = _status_gb()[1]
+        c = time.process_time()
+        (op, info), stages = setup_stages(amg_preconditioner, asm, **SETUP_OPTIONS[name])
+        row = dict(option=name, setup_cpu=time.process_time() - c, setup_peak=max(v[1] for v in stages.values()),
+                   rss_before=rss, levels=info.levels, complexity=info.operator_complexity)
+        del op
+        rows.append(row)
+        print(f"  {name:11s} setup {row['setup_cpu']:6.1f} s CPU, peak {row['setup_peak']:.2f} GiB (RSS before "
+              f"{rss:.2f}), {info.levels} levels, complexity {info.operator_complexity:.3f}", flush=True)
+        print("      stages: " + "  ".join(f"{k} {v[0]:.2f} s/{v[1]:.2f} GiB" for k, v in stages.items()), flush=True)
+    return rows
+
+
 def compare_setups(n, keep, kt, tol, exact, names, max_order=60):
     """``--setup-options``: one hierarchy (dual bound, no soft-mode search) per option; a row each."""
     import microhom.hierarchy as hi
@@ -213,7 +240,8 @@ def compare_setups(n, keep, kt, tol, exact, names, max_order=60):
         print(f"  {name:11s} setup {row['setup_cpu']:6.1f} s CPU, peak {row['setup_peak']:.2f} GiB (RSS before the run {got['rss']:.2f}), "
               f"{row['levels']} levels, complexity {row['complexity']:.3f}; orders {h.order} "
               f"(certified {h.certified}), K [{h.K.lower:.6f}, {h.K.upper:.6f}], G [{h.G.lower:.6f}, "
-              f"{h.G.upper:.6f}], exact inside {inside}; hierarchy {cpu:.1f} s CPU", flush=True)
+              f"{h.G.upper:.6f}], exact inside {inside}; hierarchy {cpu:.1f} s CPU; process peak RSS so far "
+              f"{_rss_gb():.2f} GiB", flush=True)
         print(f"      stages: {st}", flush=True)
     return rows
 
@@ -266,9 +294,12 @@ def main(argv=None):
     ap.add_argument("--phases", action="store_true", help="a line per phase: time and peak memory")
     ap.add_argument("--setup-options", nargs="*", choices=tuple(SETUP_OPTIONS), default=None,
                     help="compare the multilevel setup's options (all if none named)")
+    ap.add_argument("--setup-only", action="store_true", help="with --setup-options: the setup alone, no CG")
     a = ap.parse_args(argv)
     if a.setup_options is not None:
         names = a.setup_options or list(SETUP_OPTIONS)
+        if a.setup_only:
+            return [setups_only(n, a.keep, a.kt, names) for n in a.n]
         return [compare_setups(n, a.keep, a.kt, a.tol, a.exact, names, a.max_order) for n in a.n]
     if a.phases:
         instrument_phases()
