@@ -15,9 +15,10 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
   local QR);
 * energy-minimising prolongation smoothing (deterministic: no random spectral-radius estimate);
 * symmetric block Gauss-Seidel smoothing (two sweeps each way) on the particles' 3 x 3 (or 2 x 2)
-  blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator;
-* for spheres, the hierarchy in float32 (the CG stays float64): the bounds hold for any
-  preconditioner (``amg_preconditioner``'s options change the speed, never the rigour).
+  blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator.
+
+``amg_preconditioner``'s options (issue 26) change the setup's cost and the CG's speed; their
+defaults are the call above.
 
 Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
 (three translations, three rigid rotations with their spins, three spins alone).
@@ -154,7 +155,7 @@ def _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype):
 
 
 def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all", smooth: str = "energy",
-                       theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=None):
+                       theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64):
     """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
 
     The bounds of ``microhom.hierarchy`` hold for any preconditioner (each CG block is
@@ -181,12 +182,13 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     improve : bool
         Relax the candidates on ``H B = 0`` before the first aggregation (pyamg's default, four
         symmetric block Gauss-Seidel sweeps).
-    dtype : None, float64 or float32
+    dtype : float64 or float32
         Precision of the hierarchy (its matrices, transfer operators and V-cycle); residuals
-        come in and corrections go out in float64. None: float64 for disks (2D), float32 for
-        spheres (3D; issue 26, docs/results/spheres.md, "The multilevel setup": at 1.08e5
-        spheres the setup's peak 1.0 GiB lower, 17 CG orders instead of 19 to the same
-        tolerance, the hierarchy's CPU 188 s instead of 247 s).
+        come in and corrections go out in float64. float32 (issue 26, docs/results/spheres.md,
+        "The multilevel setup"): at 1.08e5 spheres and tol = 0.01 the setup's peak 1.0 GiB lower,
+        17 CG orders instead of 19, the hierarchy's CPU 188 s instead of 247 s; but at tol = 1e-3
+        on 256 frictional spheres the CG stagnates near 1e-8 (not certified after 23 orders, the
+        upper bounds up to 6e-9 of the modulus below the exact one): not the default.
 
     Returns
     -------
@@ -197,8 +199,6 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     except ImportError as exc:  # pragma: no cover - pyamg is a core dependency
         raise ImportError("preconditioner='amg' needs pyamg (pip install pyamg); "
                           "preconditioner='block' works without it") from exc
-    if dtype is None:
-        dtype = np.float32 if asm.net.dim == 3 else np.float64
     _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype)
     dtype = np.dtype(dtype)
     t0 = time.perf_counter()

@@ -115,8 +115,7 @@ SETUP_OPTIONS = {
     "theta0.25": dict(theta=0.25),
     "coarse2000": dict(max_coarse=2000),           # larger coarsest level
     "noimprove": dict(improve=False),              # candidates not relaxed before aggregation
-    "float32": dict(dtype=np.float32),             # the hierarchy in single precision (3D default since issue 26)
-    "float64": dict(dtype=np.float64),             # the 3D default before issue 26 (2D default)
+    "float32": dict(dtype=np.float32),             # the hierarchy in single precision
     "jacobi+float32": dict(smooth="jacobi", dtype=np.float32),
     "plain+float32": dict(smooth="none", dtype=np.float32),
 }
