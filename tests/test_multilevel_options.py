@@ -92,11 +92,11 @@ def test_bad_options_are_refused_by_name(kw, word):
 
 
 def test_setup_only_rows_per_option():
-    """``bench_spheres --setup-options ... --setup-only`` (108 spheres): a row per option; plain
+    """``bench_spheres --setup-options ... --setup-only`` (500 spheres): a row per option; plain
     aggregation's operator complexity is below the smoothed one's (its P has the aggregates'
     pattern only) and every stage's figures are finite."""
     from studies import bench_spheres
-    (rows,) = bench_spheres.main(["--n", "100", "--setup-options", "default", "plain", "--setup-only"])
+    (rows,) = bench_spheres.main(["--n", "400", "--setup-options", "default", "plain", "--setup-only"])
     by = {r["option"]: r for r in rows}
     assert set(by) == {"default", "plain"}
     assert 1.0 <= by["plain"]["complexity"] < by["default"]["complexity"]
