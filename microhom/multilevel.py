@@ -17,6 +17,9 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
 * symmetric block Gauss-Seidel smoothing (two sweeps each way) on the particles' 3 x 3 (or 2 x 2)
   blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator.
 
+``amg_preconditioner``'s options (issue 26) change the setup's cost and the CG's speed; their
+defaults are the call above.
+
 Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
 (three translations, three rigid rotations with their spins, three spins alone).
 
@@ -100,6 +103,12 @@ def near_null_space(asm: Assembly) -> np.ndarray:
     return B[:, np.abs(B).sum(axis=0) > 0]
 
 
+def _n_rigid(dim, m):
+    """Columns of ``near_null_space`` that are rigid motions: translations and rigid rotations
+    (3 of 4 in 2D, 6 of 9 in 3D; fewer where the spins are absent and those columns dropped)."""
+    return min(m, 3 if dim == 2 else 6)
+
+
 @dataclass(frozen=True)
 class AMGInfo(Result):
     """What was built.
@@ -122,8 +131,36 @@ class AMGInfo(Result):
     setup_time: float
 
 
-def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
+#: smooth= of amg_preconditioner: pyamg's prolongation smoother (Jacobi: local weighting, no random
+#: spectral-radius estimate; deterministic like the energy minimisation)
+SMOOTHERS = {"energy": ("energy", {}), "jacobi": ("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
+             "none": None}
+#: candidates= of amg_preconditioner: the near-null vectors kept (columns of near_null_space)
+CANDIDATES = ("all", "rigid")
+
+
+def _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype):
+    if int(sweeps) != sweeps or not 1 <= sweeps <= 10:
+        raise ValueError(f"sweeps must be an integer in [1, 10], got {sweeps!r}")
+    if candidates not in CANDIDATES:
+        raise ValueError(f"candidates must be one of {CANDIDATES}, got {candidates!r}")
+    if smooth not in SMOOTHERS:
+        raise ValueError(f"smooth must be one of {tuple(SMOOTHERS)}, got {smooth!r}")
+    if not (isinstance(theta, (int, float)) and 0.0 <= theta < 1.0):
+        raise ValueError(f"theta must be a number in [0, 1), got {theta!r}")
+    if int(max_coarse) != max_coarse or not 1 <= max_coarse <= 10 ** 6:
+        raise ValueError(f"max_coarse must be an integer in [1, 1e6], got {max_coarse!r}")
+    if np.dtype(dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ValueError(f"dtype must be float64 or float32, got {dtype!r}")
+
+
+def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all", smooth: str = "energy",
+                       theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64):
     """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
+
+    The bounds of ``microhom.hierarchy`` hold for any preconditioner (each CG block is
+    H-orthonormalised explicitly and the energy estimate is that of the iterate), so the options
+    below change the speed of convergence only, never the rigour of an interval.
 
     Parameters
     ----------
@@ -131,6 +168,27 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
         From ``microhom.kinematics.assemble`` (``pin=False`` or True).
     sweeps : int
         Symmetric Gauss-Seidel sweeps before and after each coarse correction, 1..10.
+    candidates : {"all", "rigid"}
+        Near-null vectors: all of ``near_null_space`` (4 per disk, 9 per sphere) or the rigid
+        motions only (translations and rigid rotations with their spins: 3 per disk, 6 per sphere).
+    smooth : {"energy", "jacobi", "none"}
+        Prolongation smoother: energy minimisation, one weighted-Jacobi step (omega 4/3, local
+        weighting), or none (plain aggregation).
+    theta : float
+        Strength-of-connection threshold of pyamg's symmetric measure, in [0, 1) (0: every
+        coupling is strong).
+    max_coarse : int
+        Largest coarsest level (block rows), solved directly; 1..1e6.
+    improve : bool
+        Relax the candidates on ``H B = 0`` before the first aggregation (pyamg's default, four
+        symmetric block Gauss-Seidel sweeps).
+    dtype : float64 or float32
+        Precision of the hierarchy (its matrices, transfer operators and V-cycle); residuals
+        come in and corrections go out in float64. float32 (issue 26, docs/results/spheres.md,
+        "The multilevel setup"): at 1.08e5 spheres and tol = 0.01 the setup's peak 1.0 GiB lower,
+        17 CG orders instead of 19, the hierarchy's CPU 188 s instead of 247 s; but at tol = 1e-3
+        on 256 frictional spheres the CG stagnates near 1e-8 (not certified after 23 orders, the
+        upper bounds up to 6e-9 of the modulus below the exact one): not the default.
 
     Returns
     -------
@@ -141,8 +199,8 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
     except ImportError as exc:  # pragma: no cover - pyamg is a core dependency
         raise ImportError("preconditioner='amg' needs pyamg (pip install pyamg); "
                           "preconditioner='block' works without it") from exc
-    if int(sweeps) != sweeps or not 1 <= sweeps <= 10:
-        raise ValueError(f"sweeps must be an integer in [1, 10], got {sweeps!r}")
+    _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype)
+    dtype = np.dtype(dtype)
     t0 = time.perf_counter()
     n = asm.ndof
     part, comp = dof_layout(asm)
@@ -153,21 +211,34 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2):
     bs = int(counts[0]) if counts.size and np.all(counts == counts[0]) else 1
     H = asm.H.tocsr()[order][:, order]
     H = (H + _SHIFT * float(H.diagonal().mean()) * sp.identity(n, format="csr")).tocsr()
+    if dtype != H.dtype:                                 # float32: the shift is below its precision; the
+        H = H.astype(dtype)                              # coarsest level's pseudo-inverse takes the translations
+    B = near_null_space(asm)
+    if candidates == "rigid":
+        B = B[:, :_n_rigid(asm.net.dim, B.shape[1])]
     smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
                 {"sweep": "symmetric", "iterations": int(sweeps)})
+    extra = {}                                           # only what differs from pyamg's defaults
+    if theta != 0.0:
+        extra["strength"] = ("symmetric", {"theta": float(theta)})
+    if max_coarse != 10:
+        extra["max_coarse"] = int(max_coarse)
+    if not improve:
+        extra["improve_candidates"] = None
     ml = pyamg.smoothed_aggregation_solver(H.tobsr(blocksize=(bs, bs)) if bs > 1 else H,
-                                           B=near_null_space(asm)[order],
+                                           B=np.ascontiguousarray(B[order], dtype=dtype),
                                            presmoother=smoother, postsmoother=smoother,
-                                           smooth=("energy", {}))
+                                           smooth=SMOOTHERS[smooth], **extra)
+    del H
     vcycle = ml.aspreconditioner(cycle="V")
 
     def apply(r):
         r = np.asarray(r, dtype=float)
         if r.ndim == 1:
-            return (vcycle @ r[order])[inv]
+            return np.asarray(vcycle @ r[order].astype(dtype, copy=False), dtype=float)[inv]
         out = np.empty_like(r)
         for j in range(r.shape[1]):
-            out[:, j] = (vcycle @ r[order, j])[inv]
+            out[:, j] = np.asarray(vcycle @ r[order, j].astype(dtype, copy=False), dtype=float)[inv]
         return out
 
     op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)

@@ -2,6 +2,7 @@
 
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
+                                    [--setup-options [NAME ...]] [--setup-only]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -14,6 +15,10 @@ wall times and the peak resident memory. The machine is shared: the load average
 statics, the multilevel setup, each CG order, each dual bound): wall and CPU time and the peak
 resident memory of the phase (``VmHWM`` of /proc/self/status, reset before each phase through
 /proc/self/clear_refs where the kernel allows it), and ``plan_memory``'s prediction.
+``--setup-options`` (issue 26) runs the hierarchy (dual bound) once per multilevel option of
+``SETUP_OPTIONS`` (all by default) on the same network and prints, per option, the setup's CPU
+time and peak per pyamg stage (``setup_stages``), the operator complexity and levels, the orders
+to ``--tol`` and the interval, the hierarchy's CPU; the exact solve once where ``--exact`` asks.
 """
 from __future__ import annotations
 
@@ -100,6 +105,146 @@ BOUNDS = {"auto": dict(), "dual": dict(spectral_bound="none", dual_bound=True),
           "spectral": dict(dual_bound=False)}
 
 
+#: --setup-options: keyword arguments of microhom.multilevel.amg_preconditioner, one at a time
+SETUP_OPTIONS = {
+    "default": {},
+    "rigid": dict(candidates="rigid"),             # 6 near-null vectors per sphere instead of 9
+    "jacobi": dict(smooth="jacobi"),               # one Jacobi step instead of energy minimisation
+    "plain": dict(smooth="none"),                  # plain aggregation
+    "theta0.1": dict(theta=0.1),                   # strength threshold 0.1 instead of 0
+    "theta0.25": dict(theta=0.25),
+    "coarse2000": dict(max_coarse=2000),           # larger coarsest level
+    "noimprove": dict(improve=False),              # candidates not relaxed before aggregation
+    "float32": dict(dtype=np.float32),             # the hierarchy in single precision
+    "jacobi+float32": dict(smooth="jacobi", dtype=np.float32),
+    "plain+float32": dict(smooth="none", dtype=np.float32),
+}
+
+#: pyamg's stages, wrapped by name in pyamg.aggregation.aggregation (setup_stages)
+_STAGES = (("symmetric_strength_of_connection", "strength"), ("standard_aggregation", "aggregation"),
+           ("fit_candidates", "tentative P"), ("energy_prolongation_smoother", "smooth P"),
+           ("jacobi_prolongation_smoother", "smooth P"))
+
+
+def setup_stages(build, *args, **kwargs):
+    """Call ``build(*args, **kwargs)`` (``amg_preconditioner``) and time its pyamg stages.
+
+    Returns (build's result, {stage: [cpu s, peak GiB]}): CPU summed over the levels, peak the
+    largest ``VmHWM`` of the stage (reset at each stage's start where the kernel allows it). The
+    intervals between the wrapped calls are named by position: before the first strength, "copy
+    of H" (permutation, shift, BSR); between aggregation and tentative P, "improve candidates";
+    after a level's smoothing, "RAP" (Galerkin product; the last one also the coarse solver's
+    and smoothers' setup)."""
+    import pyamg.aggregation.aggregation as agg
+    marks = []                                           # (label of the interval that ends here, cpu, peak)
+
+    def mark(label):
+        marks.append((label, time.process_time(), _status_gb()[0]))
+        _reset_peak()
+
+    def gap_label(name):
+        if name == "strength":
+            return "copy of H" if not any(m[0] == "strength" for m in marks) else "RAP"
+        return "improve candidates" if name == "tentative P" else "other"
+
+    saved = {}
+    for fn, label in _STAGES:
+        f = saved[fn] = getattr(agg, fn)
+
+        def timed(*a, _f=f, _label=label, **k):
+            mark(gap_label(_label))
+            r = _f(*a, **k)
+            mark(_label)
+            return r
+        setattr(agg, fn, timed)
+    try:
+        _reset_peak()
+        marks.append(("start", time.process_time(), 0.0))
+        out = build(*args, **kwargs)
+        mark("RAP")
+    finally:
+        for fn, f in saved.items():
+            setattr(agg, fn, f)
+    stages = {}
+    for (_, c0, _), (label, c1, peak) in zip(marks[:-1], marks[1:]):
+        s = stages.setdefault(label, [0.0, 0.0])
+        s[0] += c1 - c0
+        s[1] = max(s[1], peak)
+    return out, stages
+
+
+def setups_only(n, keep, kt, names):
+    """``--setup-options ... --setup-only``: the multilevel setup alone per option on one assembly
+    (no CG): CPU, peak, levels and operator complexity, one row each."""
+    from microhom.kinematics import assemble
+    from microhom.multilevel import amg_preconditioner
+    net = fcc_network(n, keep=keep, kt=kt)
+    asm = assemble(net, pin=False)
+    print(f"N = {net.n_particles}, contacts {net.n_contacts}, unknowns {asm.ndof}, H non-zeros {asm.H.nnz}; "
+          f"RSS {_status_gb()[1]:.2f} GiB; load {os.getloadavg()[0]:.1f}", flush=True)
+    rows = []
+    for name in names:
+        rss = _status_gb()[1]
+        c = time.process_time()
+        (op, info), stages = setup_stages(amg_preconditioner, asm, **SETUP_OPTIONS[name])
+        row = dict(option=name, setup_cpu=time.process_time() - c, setup_peak=max(v[1] for v in stages.values()),
+                   rss_before=rss, levels=info.levels, complexity=info.operator_complexity)
+        del op
+        rows.append(row)
+        print(f"  {name:11s} setup {row['setup_cpu']:6.1f} s CPU, peak {row['setup_peak']:.2f} GiB (RSS before "
+              f"{rss:.2f}), {info.levels} levels, complexity {info.operator_complexity:.3f}", flush=True)
+        print("      stages: " + "  ".join(f"{k} {v[0]:.2f} s/{v[1]:.2f} GiB" for k, v in stages.items()), flush=True)
+    return rows
+
+
+def compare_setups(n, keep, kt, tol, exact, names, max_order=60):
+    """``--setup-options``: one hierarchy (dual bound, no soft-mode search) per option; a row each."""
+    import microhom.hierarchy as hi
+    from microhom.multilevel import amg_preconditioner
+    net = fcc_network(n, keep=keep, kt=kt)
+    print(f"N = {net.n_particles}, contacts {net.n_contacts}; load {os.getloadavg()[0]:.1f}", flush=True)
+    ex = None
+    if exact == "yes" or (exact == "auto" and net.n_particles <= 20_000):
+        c = time.process_time()
+        ex = stiffness(net)
+        print(f"  exact: K = {ex.K:.6g}, G = {ex.G:.6g} ({time.process_time() - c:.1f} s CPU)", flush=True)
+    with warnings.catch_warnings():                      # compile the numba kernels outside the rows
+        warnings.simplefilter("ignore")
+        relaxation_hierarchy(fcc_network(100, keep=keep, kt=kt), tol=tol, soft_modes=0, **BOUNDS["dual"])
+    rows = []
+    for name in names:
+        got = {"rss": _status_gb()[1]}
+
+        def built(asm, _opts=SETUP_OPTIONS[name], **k):
+            c = time.process_time()
+            (op, info), got["stages"] = setup_stages(amg_preconditioner, asm, **{**k, **_opts})
+            got.update(info=info, cpu=time.process_time() - c, peak=max(v[1] for v in got["stages"].values()))
+            return op, info
+        hi.amg_preconditioner = built
+        try:
+            c = time.process_time()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order, **BOUNDS["dual"])
+            cpu = time.process_time() - c
+        finally:
+            hi.amg_preconditioner = amg_preconditioner
+        inside = (None if ex is None else
+                  bool(h.K.lower <= ex.K <= h.K.upper and h.G.lower <= ex.G <= h.G.upper))
+        row = dict(option=name, setup_cpu=got["cpu"], setup_peak=got["peak"], rss_before=got["rss"], levels=got["info"].levels,
+                   complexity=got["info"].operator_complexity, orders=h.order, certified=h.certified,
+                   K=(h.K.lower, h.K.upper), G=(h.G.lower, h.G.upper), exact_inside=inside, cpu=cpu)
+        rows.append(row)
+        st = "  ".join(f"{k} {v[0]:.2f} s/{v[1]:.2f} GiB" for k, v in got["stages"].items())
+        print(f"  {name:11s} setup {row['setup_cpu']:6.1f} s CPU, peak {row['setup_peak']:.2f} GiB (RSS before the run {got['rss']:.2f}), "
+              f"{row['levels']} levels, complexity {row['complexity']:.3f}; orders {h.order} "
+              f"(certified {h.certified}), K [{h.K.lower:.6f}, {h.K.upper:.6f}], G [{h.G.lower:.6f}, "
+              f"{h.G.upper:.6f}], exact inside {inside}; hierarchy {cpu:.1f} s CPU; process peak RSS so far "
+              f"{_rss_gb():.2f} GiB", flush=True)
+        print(f"      stages: {st}", flush=True)
+    return rows
+
+
 def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto", hier_memory=None):
     t0 = time.perf_counter()
     net = fcc_network(n, keep=keep, kt=kt)
@@ -146,7 +291,15 @@ def main(argv=None):
                     help="lower bound: auto (spectral certificate where it applies, else dual), dual, spectral")
     ap.add_argument("--hier-memory", type=float, default=None, help="bytes, the hierarchy's max_memory")
     ap.add_argument("--phases", action="store_true", help="a line per phase: time and peak memory")
+    ap.add_argument("--setup-options", nargs="*", choices=tuple(SETUP_OPTIONS), default=None,
+                    help="compare the multilevel setup's options (all if none named)")
+    ap.add_argument("--setup-only", action="store_true", help="with --setup-options: the setup alone, no CG")
     a = ap.parse_args(argv)
+    if a.setup_options is not None:
+        names = a.setup_options or list(SETUP_OPTIONS)
+        if a.setup_only:
+            return [setups_only(n, a.keep, a.kt, names) for n in a.n]
+        return [compare_setups(n, a.keep, a.kt, a.tol, a.exact, names, a.max_order) for n in a.n]
     if a.phases:
         instrument_phases()
     rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
