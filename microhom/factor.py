@@ -48,7 +48,7 @@ __all__ = ["BACKENDS", "COUNTS", "ETA", "ZERO_PIVOT", "AMBIGUOUS_PIVOTS", "RESCA
            "ZeroModes",
            "Factor", "factor", "inertia", "count_zero_modes", "available_backends", "have_pardiso",
            "have_cholmod", "NotPositiveDefinite", "FactorisationError", "MemoryGuardError",
-           "memory_check", "predicted_factor_bytes", "predicted_general_bytes", "factor_general"]
+           "memory_check", "predicted_factor_bytes", "predicted_factor_nnz", "predicted_general_bytes", "factor_general"]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "splu")
 #: the rules of :func:`count_zero_modes` for the pivots of CHOLMOD and SuperLU
@@ -209,11 +209,51 @@ _BYTES_PER_NNZ = {"pardiso": 20.0, "cholmod": 12.0, "splu": 80.0}
 _FIXED_BYTES = 32e6
 
 
-def predicted_factor_bytes(n: int, backend: str = "pardiso") -> float:
-    """Predicted memory [bytes] of the sparse factorisation of a 2D contact Hessian with ``n``
-    unknowns (before anything is allocated): ``_NNZ_COEF n log2 n`` non-zeros of ``L`` times the
-    measured bytes per non-zero of the back end, plus ``_FIXED_BYTES`` (``docs/stiffness.md``, "Memory guard")."""
+#: fitted fill of SuperLU's LU of a 3D sphere Hessian or tangent (3 translations + 3 rotations per
+#: sphere; ``MMD_AT_PLUS_A``, diagonal pivots, the symmetric and the non-symmetric factor alike):
+#: non-zeros of L + U ~ _NNZ_COEF_3D * n^_NNZ_EXP_3D for n unknowns. Measured on the built FCC network
+#: of ``studies.bench_spheres`` (keep 0.6, Z = 6.8; ``python -m studies.bench_splu_fill``): symmetric
+#: factor 1.52e6 at 2996 unknowns, 7.80e6 at 8213, 2.67e7 at 17 459, 4.62e7 at 23 944; non-symmetric
+#: 4.57e7 at 23 967 and 2.28e8 at 65 811. A free power-law fit gives 3.37 n^1.63 (within 4 % of all
+#: six); the stored law is 10-22 % above every measured FCC size from 1533 to 65 811 unknowns, and
+#: 2.2x above a sparser LAMMPS packing (Z = 3.9: 1.89e6 at 5085). MMD's fill grows faster than
+#: nested dissection's n^(4/3) here: an n^(4/3) law fitted to the same points is 1.9x high at 1533
+#: and 0.65x low at 65 811 unknowns (docs/spheres.md, "The memory guard of SuperLU's factor in 3D").
+_NNZ_COEF_3D = 5.0
+_NNZ_EXP_3D = 1.6
+#: bytes per non-zero of SuperLU's 3D factor, resident memory included (measured 22-24 on the
+#: symmetric factor, 24-28 on the non-symmetric one, FCC network)
+_BYTES_PER_NNZ_LU3D = 32.0
+
+
+def _check_dim(dim):
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
+    return dim
+
+
+def predicted_factor_nnz(n: int, dim: int = 2) -> float:
+    """Predicted non-zeros of the sparse factor of a contact Hessian with ``n`` unknowns in
+    dimension ``dim``: in 2D ``_NNZ_COEF n log2 n`` (of ``L``; nested-dissection fill of a planar
+    graph, ``docs/stiffness.md``, "Memory guard"), in 3D ``_NNZ_COEF_3D n^_NNZ_EXP_3D`` (of
+    SuperLU's ``L + U``, measured: ``docs/spheres.md``, "The memory guard of SuperLU's factor in 3D")."""
     n = max(int(n), 2)
+    if _check_dim(dim) == 2:
+        return _NNZ_COEF * n * np.log2(n)
+    return _NNZ_COEF_3D * n ** _NNZ_EXP_3D
+
+
+def predicted_factor_bytes(n: int, backend: str = "pardiso", dim: int = 2) -> float:
+    """Predicted memory [bytes] of the sparse factorisation of a contact Hessian with ``n``
+    unknowns (before anything is allocated): :func:`predicted_factor_nnz` times the measured
+    bytes per non-zero of the back end, plus ``_FIXED_BYTES``. ``dim = 3`` changes SuperLU's
+    figure only (``_NNZ_COEF_3D n^1.6`` non-zeros, ``_BYTES_PER_NNZ_LU3D`` each): PARDISO and
+    CHOLMOD order by nested dissection or AMD, whose 3D fill is not calibrated, and keep the 2D
+    figure (PARDISO's own analysis then guards its factorisation). ``docs/stiffness.md``, "Memory
+    guard"; ``docs/spheres.md``."""
+    n = max(int(n), 2)
+    if _check_dim(dim) == 3 and backend == "splu":
+        return predicted_factor_nnz(n, 3) * _BYTES_PER_NNZ_LU3D + _FIXED_BYTES
     return _NNZ_COEF * n * np.log2(n) * _BYTES_PER_NNZ.get(backend, 40.0) + _FIXED_BYTES
 
 
@@ -287,6 +327,7 @@ class Factor:
 
     name = "?"
     nnz = None
+    dim = 2     # the dimension of the contact network (SuperLU's memory guard, set by factor())
     A = None
     scale = None
     shift = 0.0
@@ -498,10 +539,11 @@ class _SuperLU(Factor):
 
     name = "splu"
 
-    def __init__(self, A, *, max_memory=None, shift=0.0, scale=None, _guard=True):
+    def __init__(self, A, *, max_memory=None, shift=0.0, scale=None, _guard=True, dim=2):
+        self.dim = dim
         if _guard:
-            memory_check(predicted_factor_bytes(A.shape[0], "splu"),
-                         f"SuperLU factorisation of {A.shape[0]} unknowns", max_memory)
+            memory_check(predicted_factor_bytes(A.shape[0], "splu", dim),
+                         f"SuperLU factorisation of {A.shape[0]} unknowns ({dim}D)", max_memory)
         if scale is not None:
             self.A, self.scale, self.shift = A, scale, shift
             A = A + sp.diags(shift * scale)
@@ -519,7 +561,7 @@ class _SuperLU(Factor):
         """The factor of ``A + shift diag(scale)`` (a new object; this one stays valid), or None
         if SuperLU chose another ordering (its pivots would not compare one to one)."""
         self._need_scale()
-        new = _SuperLU(self.A, shift=shift, scale=self.scale, _guard=False)
+        new = _SuperLU(self.A, shift=shift, scale=self.scale, _guard=False, dim=self.dim)
         return new if np.array_equal(new.lu.perm_c, self.lu.perm_c) else None
 
     def _diag_pivots(self):
@@ -571,7 +613,7 @@ class _Cholmod(Factor):
             self._dp = None if scale is None else (scale[perm] if perm is not None else scale)
             self.f = None
         else:   # take over the base's permuted matrix and factor (numeric values replaced)
-            self.A, self.scale, self.n = _base.A, _base.scale, _base.n
+            self.A, self.scale, self.n, self.dim = _base.A, _base.scale, _base.n, _base.dim
             self._Ap, self._dp, self.f = _base._Ap, _base._dp, _base.f
         self.perm, self.shift = perm, shift
         Mp = self._Ap if self._dp is None else (self._Ap + sp.diags(shift * self._dp)).tocsc()
@@ -626,7 +668,7 @@ def _check_scale(scale, shift, n):
 
 
 def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching=True, shift=0.0,
-           scale=None) -> Factor:
+           scale=None, dim=2) -> Factor:
     """Factorise the real symmetric sparse matrix ``A`` (n, n), or ``A + shift diag(scale)``.
 
     backend: one of ``BACKENDS``; ``"auto"`` takes PARDISO (Bunch-Kaufman ``LDL^T``, with the
@@ -639,7 +681,9 @@ def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching
     ``scale`` (n,) positive and ``shift`` [-]: factorise ``A + shift diag(scale)`` (a Tikhonov
     shift relative to the diagonal scale); the factor keeps ``A``, ``scale`` and ``shift`` and
     its ``reshift(s)`` factorises ``A + s diag(scale)`` on the same ordering, as
-    :func:`count_zero_modes` needs."""
+    :func:`count_zero_modes` needs. ``dim``: 2 (disks) or 3 (spheres), the dimension of the
+    network whose Hessian ``A`` is; SuperLU's memory guard predicts its fill by it
+    (:func:`predicted_factor_bytes`), and the factor keeps it (``dim``) for the factors made from it."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
     if not sp.issparse(A) or A.format not in ("csr", "csc"):
@@ -648,27 +692,19 @@ def factor(A, *, backend="auto", spd=False, perm=None, max_memory=None, matching
         raise ValueError(f"A must be square, got shape {A.shape}")
     if scale is not None:
         scale = _check_scale(scale, shift, A.shape[0])
+    _check_dim(dim)
     if backend == "auto":
         backend = available_backends()[0]
         if backend == "cholmod" and not spd:
             backend = "splu"
     if backend == "pardiso":
-        return _Pardiso(A, spd=False, max_memory=max_memory, matching=matching, shift=shift, scale=scale)
-    if backend == "cholmod":
-        return _Cholmod(A, perm=perm, max_memory=max_memory, shift=shift, scale=scale)
-    return _SuperLU(A, max_memory=max_memory, shift=shift, scale=scale)
-
-
-#: predicted fill of SuperLU's LU of a 3D sphere tangent (3 translations + 3 rotations per sphere):
-#: non-zeros of L + U ~ _NNZ_COEF_3D * n^_NNZ_EXP_3D for n unknowns. Measured (MMD_AT_PLUS_A,
-#: diagonal pivots) on the built FCC network (Z = 6.8): 4.57e7 at 23 967 unknowns, 2.28e8 at 65 811
-#: (exponent 1.59 between them, coefficient 4.4-4.5 at 1.6); 1.89e6 at 5085 on a sparser LAMMPS
-#: packing (Z = 3.9; 3.8e6 predicted). Fitted with a 12 % margin (docs/spheres.md, "The
-#: non-symmetric solve")
-_NNZ_COEF_3D = 5.0
-_NNZ_EXP_3D = 1.6
-#: bytes per non-zero of SuperLU's 3D LU, resident memory included (measured 24-28 on the FCC network)
-_BYTES_PER_NNZ_LU3D = 32.0
+        f = _Pardiso(A, spd=False, max_memory=max_memory, matching=matching, shift=shift, scale=scale)
+    elif backend == "cholmod":
+        f = _Cholmod(A, perm=perm, max_memory=max_memory, shift=shift, scale=scale)
+    else:
+        return _SuperLU(A, max_memory=max_memory, shift=shift, scale=scale, dim=dim)
+    f.dim = dim
+    return f
 
 
 def predicted_general_bytes(n: int, backend: str = "splu", dim: int = 3) -> float:
@@ -678,11 +714,11 @@ def predicted_general_bytes(n: int, backend: str = "splu", dim: int = 3) -> floa
     ``_FIXED_BYTES``; in 2D
     :func:`predicted_factor_bytes`. PARDISO predicts its own in its analysis (this is its
     fallback's figure)."""
-    if dim == 2:
+    if _check_dim(dim) == 2:
         return predicted_factor_bytes(n, backend)
     n = max(int(n), 2)
     per = _BYTES_PER_NNZ_LU3D if backend == "splu" else _BYTES_PER_NNZ.get(backend, 40.0)
-    return _NNZ_COEF_3D * n ** _NNZ_EXP_3D * per + _FIXED_BYTES
+    return predicted_factor_nnz(n, 3) * per + _FIXED_BYTES
 
 
 class _SuperLUGeneral(Factor):
@@ -837,7 +873,7 @@ def _count_inertia(f, count, eta, psd, max_memory):
     if f.n_perturbed:   # the inertia is that of a perturbed matrix: count with SuperLU
         warnings.warn(f"PARDISO perturbed {f.n_perturbed} pivot(s): modes counted with SuperLU",
                       RuntimeWarning, stacklevel=5)
-        slu = _SuperLU(f.A, max_memory=max_memory, shift=eta, scale=f.scale)
+        slu = _SuperLU(f.A, max_memory=max_memory, shift=eta, scale=f.scale, dim=f.dim)
         m = count_zero_modes(slu, count, eta=eta)
         return replace(m, factor=m.factor or slu)
     n_below = f.inertia().n_neg

@@ -1,6 +1,7 @@
 """Error against wall time for every way of getting the moduli: the figure to choose a method by.
 
     python -m studies.error_vs_runtime [--quick] [--out DIR]
+    python -m studies.error_vs_runtime --replot docs/results/error_vs_runtime.md docs/img/error_vs_runtime.png
 
 Reference: the exact linear response (pre-stress included) of a packing of ``N_ref`` disks in
 the seed's conditions. On that same packing, the whole ladder of estimates:
@@ -22,11 +23,13 @@ different, smaller packing: its "error" is the finite-size and sample difference
 packings, not an error of the method; the plot draws these apart, grey, outside the ladder). Each
 row has the method's own wall time and the time including the packing it needs (the theory needs
 the measured statistics of a packing too, unless they are known). Writes a table (CSV, markdown)
-and a log-log plot.
+and a log-log plot. ``--replot MD PNG`` redraws the plot from the table recorded on the results
+page ``MD`` (:func:`read_table`), without running anything.
 """
 from __future__ import annotations
 
 import argparse
+import re
 import time
 
 import numpy as np
@@ -53,7 +56,14 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="small sizes, for CI")
     ap.add_argument("--n-ref", type=int, default=None, help="reference packing size (default 2000; quick 300)")
     ap.add_argument("--out", default="out/error_vs_runtime")
+    ap.add_argument("--replot", nargs=2, metavar=("MD", "PNG"), default=None,
+                    help="redraw the figure PNG from the recorded table of the markdown page MD (no run)")
     args = ap.parse_args(argv)
+    if args.replot:
+        df = read_table(args.replot[0])
+        _plot(df, args.replot[1])
+        print(f"redrawn from {args.replot[0]} ({len(df)} rows): {args.replot[1]}")
+        return 0
     n_ref = args.n_ref or (300 if args.quick else 2000)
     sizes = [100, 200] if args.quick else [250, 500, 1000]
     out = cli_out_dir(args.out)  # checked before computing (one line and exit 1 otherwise)
@@ -135,6 +145,39 @@ def main(argv=None):
     print(f"written: {md}, {out / 'error_vs_runtime.png'}")
 
 
+#: the columns of the recorded table (docs/results/error_vs_runtime.md), in its order
+TABLE_COLUMNS = ("method", "parameter", "K", "G", "err_K", "err_G", "time_s", "time_with_packing_s",
+                 "stated_err_K", "stated_err_G", "steps", "contact_events")
+
+
+def read_table(md_path) -> pd.DataFrame:
+    """The recorded table of a results page (the first markdown table whose header is
+    ``TABLE_COLUMNS``) as the frame :func:`_plot` draws: numbers parsed ("nan" as NaN), and
+    ``measured_against`` restored ("other packing" for the exact solves of other packings, the
+    rows ``exact linear response`` / ``N = n`` without "(reference)"; else "same packing").
+    Raises ``ValueError`` if the page has no such table."""
+    lines = open(md_path, encoding="utf-8").read().splitlines()
+    head = "| " + " | ".join(TABLE_COLUMNS) + " |"
+    try:
+        i = next(k for k, ln in enumerate(lines) if ln.strip() == head)
+    except StopIteration:
+        raise ValueError(f"{md_path}: no table with the columns {', '.join(TABLE_COLUMNS)}") from None
+    rows = []
+    for ln in lines[i + 2:]:
+        if not ln.startswith("|"):
+            break
+        cells = [c.strip() for c in ln.strip().strip("|").split("|")]
+        if len(cells) != len(TABLE_COLUMNS):
+            raise ValueError(f"{md_path}: a row of {len(cells)} cells, expected {len(TABLE_COLUMNS)}: {ln}")
+        rows.append(cells)
+    df = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
+    for c in TABLE_COLUMNS[2:]:
+        df[c] = df[c].astype(float)
+    other = (df.method == "exact linear response") & ~df.parameter.str.contains("reference")
+    df.insert(2, "measured_against", np.where(other, "other packing", "same packing"))
+    return df
+
+
 def _plot(df, path):
     import matplotlib
 
@@ -159,10 +202,11 @@ def _plot(df, path):
         for method, g in df.groupby("method", sort=False):
             mk = next((v for k, v in markers.items() if method.startswith(k)), "x")
             err = np.maximum(g[key].to_numpy(), 1e-12)
-            line = ax.loglog(g["time_s"], err, mk, label=method, ms=7, alpha=0.8)
+            name = re.sub(r";[^)]*\)", ")", method)   # the legend without the row's notes
+            line = ax.loglog(g["time_s"], err, mk, label=name, ms=7, alpha=0.8)
             if stated in g and g[stated].notna().any():   # the method's own error claim, open marker
                 ax.loglog(g["time_s"], g[stated], mk, mfc="none", color=line[0].get_color(), ms=11,
-                          label=f"{method}: stated error")
+                          label=f"{name}: stated error")
         # the ladder as one curve: best error reached so far against time (same packing only)
         lad = df.sort_values("time_s")
         ax.loglog(lad["time_s"], np.minimum.accumulate(np.maximum(lad[key].to_numpy(), 1e-12)), "k-",
@@ -178,7 +222,7 @@ def _plot(df, path):
                  "of other, smaller packings (their finite-size and sample difference)", fontsize=9)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
-    fig.tight_layout(rect=(0, 0, 0.77, 0.9))
+    fig.tight_layout(rect=(0, 0, 0.74, 0.9))
     fig.savefig(path, dpi=130)
     plt.close(fig)
 

@@ -111,6 +111,44 @@ def test_predicted_factor_size_bounds_pardiso_own_count():
     f.release()
 
 
+@pytest.mark.parametrize("m", [4, 6])
+def test_superlu_3d_guard_predicts_the_measured_fill(m):
+    """SuperLU's symmetric factor of a 3D sphere Hessian (the built FCC network of
+    studies.bench_spheres, 4 m^3 spheres; sizes 1533 and 5178 unknowns, not among the calibration
+    points of _NNZ_COEF_3D): the 3D prediction within a factor 2 of the measured L.nnz + U.nnz,
+    the 2D n log n formula below half of it (it predicted 0.29 GB for a 4.3 GiB solve)."""
+    from studies.bench_splu_fill import fill_row
+    _, n, nnz, _, _ = fill_row(m)
+    pred3, pred2 = fm.predicted_factor_nnz(n, 3), fm.predicted_factor_nnz(n, 2)
+    assert 0.5 * nnz <= pred3 <= 2.0 * nnz, (n, nnz, pred3)
+    assert pred2 < 0.5 * nnz, (n, nnz, pred2)       # the former (2D) guard fails this test
+    assert predicted_factor_bytes(n, "splu", 3) == pred3 * fm._BYTES_PER_NNZ_LU3D + fm._FIXED_BYTES
+
+
+def test_superlu_guard_takes_the_dimension(monkeypatch):
+    """factor(dim=3) guards SuperLU with the 3D fill (refused with the figure where the 2D one
+    would pass); 2D figures bit-identical to the former formula; PARDISO and CHOLMOD unchanged by
+    dim; a bad dim named."""
+    for n in (10, 3000, 123_457):
+        for b in ("pardiso", "cholmod", "splu"):
+            old = fm._NNZ_COEF * n * np.log2(n) * fm._BYTES_PER_NNZ[b] + fm._FIXED_BYTES
+            assert predicted_factor_bytes(n, b) == old and predicted_factor_bytes(n, b, 2) == old
+            if b != "splu":
+                assert predicted_factor_bytes(n, b, 3) == old
+        assert fm.predicted_general_bytes(n, "splu", 3) == predicted_factor_bytes(n, "splu", 3)
+    A = sp.diags([-1.0, 4.0, -1.0], [-1, 0, 1], shape=(3000, 3000)).tocsr()
+    limit = 0.5 * (predicted_factor_bytes(3000, "splu", 2) + predicted_factor_bytes(3000, "splu", 3))
+    assert factor(A, backend="splu", max_memory=limit).dim == 2
+    with pytest.raises(MemoryGuardError, match=r"3000 unknowns \(3D\): predicted"):
+        factor(A, backend="splu", max_memory=limit, dim=3)
+    f = factor(A, backend="splu", dim=3, shift=1e-3, scale=np.ones(3000))
+    assert f.dim == 3 and f.reshift(1e-5).dim == 3
+    with pytest.raises(ValueError, match="dim must be 2"):
+        factor(A, backend="splu", dim=4)
+    with pytest.raises(ValueError, match="dim must be 2"):
+        predicted_factor_bytes(100, "splu", 1)
+
+
 def test_bad_input_names_the_parameter():
     with pytest.raises(ValueError, match="backend"):
         factor(sp.identity(3).tocsr(), backend="umfpack")

@@ -1,6 +1,9 @@
 """Every study runs end to end in --quick mode and writes its table; key numbers are sane."""
 import pandas as pd
 import pytest
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -147,3 +150,26 @@ def test_seed_inversion_quick_round_trips_on_a_packing(tmp_path):
     curve = pd.read_csv(tmp_path / "nbar_curve.csv")
     assert len(curve) == len(seed_inversion.NBAR_GRID) and (curve.rho.abs() < 2).all()
     assert (tmp_path / "kuhn.md").exists() and (tmp_path / "inversion.png").exists()
+
+
+def test_error_vs_runtime_figure_is_drawn_from_the_page(tmp_path):
+    """The figure of docs/results/error_vs_runtime.md is redrawn from the page's own table
+    (``--replot``): the table parses whole (3 exact solves of other packings), and the closure row it
+    draws is the one the page's prose states (4.3 % / 0.7 %, stated 9.1 % / 17.9 %)."""
+    import re
+    from studies import error_vs_runtime
+    md = ROOT / "docs" / "results" / "error_vs_runtime.md"
+    df = error_vs_runtime.read_table(md)
+    assert len(df) == 41 and (df.measured_against == "other packing").sum() == 3
+    c = df[df.method.str.startswith("closure")].iloc[0]
+    text = md.read_text()
+    m = re.search(r"statistics-only closure \(([\d.]+) % / ([\d.]+) %; stated ([\d.]+) % / ([\d.]+) %", text)
+    assert m, "the page no longer states the closure row in prose"
+    for value, stated in zip((c.err_K, c.err_G, c.stated_err_K, c.stated_err_G), m.groups()):
+        assert f"{100 * value:.1f}" == stated
+    assert error_vs_runtime.main(["--replot", str(md), str(tmp_path / "f.png")]) == 0
+    assert (tmp_path / "f.png").stat().st_size > 10_000
+    bad = tmp_path / "bad.md"
+    bad.write_text("# no table\n")
+    with pytest.raises(ValueError, match="no table"):
+        error_vs_runtime.read_table(bad)

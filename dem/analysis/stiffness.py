@@ -444,7 +444,7 @@ def _auto_solver(n):
 
 
 def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="auto", eta=_ETA,
-              max_memory=None, psd=True):
+              max_memory=None, psd=True, dim=2):
     """Factorise a :class:`Reduced` system.
 
     solver: ``"pardiso"`` (MKL PARDISO Bunch-Kaufman ``LDL^T`` of ``H - eta diag(H)``: its
@@ -457,7 +457,8 @@ def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="aut
     positive definite (pre-stress with negative modes) goes to SuperLU, whose symmetric pivots
     count the negative modes. ``pairs``/``n_particles`` give the particle graph for the CHOLMOD
     ordering (``ordering``: see :func:`particle_ordering`). ``max_memory`` [bytes]: refuse a
-    factorisation predicted above it (:class:`MemoryGuardError`; default: the available memory)."""
+    factorisation predicted above it (:class:`MemoryGuardError`; default: the available memory).
+    ``dim``: the network's dimension (2 disks, 3 spheres), for SuperLU's memory guard."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
     if solver == "cholmod" and _cholmod is None:
@@ -468,7 +469,7 @@ def factorise(red, solver="auto", *, pairs=None, n_particles=None, ordering="aut
                            "Windows)")
     if solver == "auto":
         solver = _auto_solver(red.H.shape[0])
-    shifted = dict(scale=red.d, max_memory=max_memory)
+    shifted = dict(scale=red.d, max_memory=max_memory, dim=dim)
     if solver == "pardiso":
         if psd:     # H - eta diag(H): its inertia counts the zero modes, and it solves
             return _factor.factor(red.H, backend="pardiso", shift=-eta, matching=False, **shifted)
@@ -597,7 +598,8 @@ def _opposite_shift(factor, max_memory):
             new = None
     if new is not None:
         return new, f"{new.name} reshifted to {s:+.0e}"
-    new = _factor.factor(factor.A, backend="splu", shift=s, scale=factor.scale, max_memory=max_memory)
+    new = _factor.factor(factor.A, backend="splu", shift=s, scale=factor.scale, max_memory=max_memory,
+                         dim=factor.dim)
     return new, f"splu at {s:+.0e}"
 
 
@@ -752,15 +754,16 @@ def degeneracy_flags(C, C_aff, modes, n_particles, n_rattlers, n_dof):
 _BYTES_PER_PARTICLE = 4.0e3
 
 
-def predicted_memory(n_particles, n_dof=None, solver="auto"):
+def predicted_memory(n_particles, n_dof=None, solver="auto", dim=2):
     """Predicted peak memory [bytes] of :func:`stiffness` on a network of ``n_particles`` disks
     with ``n_dof`` unknowns (default ``3 n_particles``): the fitted factor size of the solver
     (:func:`microhom.factor.predicted_factor_bytes`) plus ``_BYTES_PER_PARTICLE`` per particle
-    for the assembly. Measured against it in ``docs/stiffness.md``."""
+    for the assembly. Measured against it in ``docs/stiffness.md``. ``dim`` 3: SuperLU's 3D fill
+    (``docs/spheres.md``)."""
     n_dof = 3 * int(n_particles) if n_dof is None else int(n_dof)
     if solver == "auto":
         solver = _auto_solver(n_dof)
-    return predicted_factor_bytes(n_dof, solver) + _BYTES_PER_PARTICLE * int(n_particles)
+    return predicted_factor_bytes(n_dof, solver, dim) + _BYTES_PER_PARTICLE * int(n_particles)
 
 
 def _check_arguments(network, rtol, max_refine, count, ordering, solver, max_memory, deflate=True):
@@ -877,7 +880,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     if flags:
         count = "rescale"
     memory_check(predicted_memory(net.n_particles, (net.dim + rotational_dofs(net.dim)) * net.n_particles,
-                                  solver=solver),
+                                  solver=solver, dim=net.dim),
                  f"exact stiffness of {net.n_particles} particles ({solver} solver)", max_memory)
     asm = assemble(net, prestress=prestress, min_contacts=min_contacts, spin_arm=spin_arm)
     c_aff = affine_stiffness(net, prestress=prestress, spin_arm=spin_arm)
@@ -892,7 +895,7 @@ def stiffness(network, *, prestress=False, min_contacts=None, solver="auto", rto
     tc = time.perf_counter()
     if red.H.shape[0]:
         factor = factorise(red, solver, pairs=asm.net.pairs, n_particles=net.n_particles,
-                           ordering=ordering, max_memory=max_memory, psd=not prestress)
+                           ordering=ordering, max_memory=max_memory, psd=not prestress, dim=net.dim)
     steps["factorise"] = time.perf_counter() - tc
     tc = time.perf_counter()
     check = not prestress and red.H.shape[0] <= RIGIDITY_CHECK_MAX_DOF
