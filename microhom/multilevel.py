@@ -269,6 +269,59 @@ def blocked_copy(H, order, bs, shift, dtype=np.float64, sort=True):
     return sp.bsr_matrix((bdata, bind, bptr), shape=(n, n))
 
 
+@numba.njit(cache=True)
+def _bsr_rmatvec(indptr, indices, data, x, y):
+    """``y += P^T x`` for a BSR ``P`` (blocks (nblk, r, c)), summed in the order of scipy's BSR
+    product with the transposed copy ``P.T`` (each output's blocks by ascending block row of
+    ``P``, each block's entries in turn)."""
+    r, c = data.shape[1], data.shape[2]
+    for I in range(indptr.size - 1):
+        for k in range(indptr[I], indptr[I + 1]):
+            J = indices[k]
+            for q in range(c):
+                dot = y[J * c + q]
+                for p in range(r):
+                    dot += data[k, p, q] * x[I * r + p]
+                y[J * c + q] = dot
+
+
+class _Restriction:
+    """``P^T`` of a multilevel level without its transposed copy (pyamg keeps ``R = P.T``, as
+    many bytes as ``P``: 6 per non-zero of ``H`` at the finest level of a sphere network; issue
+    26). ``R @ x`` for a vector gives the same numbers as the copy (``_bsr_rmatvec``)."""
+
+    def __init__(self, P):
+        self.P = P
+        self.shape = (P.shape[1], P.shape[0])
+        self.dtype = P.dtype
+
+    def __matmul__(self, x):
+        if x.ndim != 1:
+            return self.P.T @ x
+        y = np.zeros(self.shape[0], dtype=np.result_type(self.dtype, x.dtype))
+        _bsr_rmatvec(self.P.indptr, self.P.indices, self.P.data, x, y)
+        return y
+
+
+def _share_restrictions(ml):
+    """Replace each level's ``R`` by ``_Restriction(P)`` where ``R`` is exactly the transpose of
+    a BSR ``P`` (pyamg's symmetric setup; checked array for array); returns the bytes freed."""
+    freed = 0
+    for lvl in ml.levels[:-1]:
+        P, R = getattr(lvl, "P", None), getattr(lvl, "R", None)
+        if not (sp.issparse(P) and P.format == "bsr" and sp.issparse(R) and R.format == "bsr"):
+            continue
+        T = P.T
+        same = (T.blocksize == R.blocksize and T.shape == R.shape and T.dtype == R.dtype
+                and all(np.array_equal(a, b) for a, b in ((T.indptr, R.indptr), (T.indices, R.indices),
+                                                          (T.data, R.data))))
+        del T
+        if same:
+            freed += R.data.nbytes + R.indices.nbytes + R.indptr.nbytes
+            lvl.R = _Restriction(P)
+    return freed
+
+
 #: smooth= of amg_preconditioner: pyamg's prolongation smoother (Jacobi: local weighting, no random
 #: spectral-radius estimate; deterministic like the energy minimisation)
 SMOOTHERS = {"energy": ("energy", {}), "jacobi": ("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
@@ -373,6 +426,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
                                            presmoother=smoother, postsmoother=smoother,
                                            smooth=SMOOTHERS[smooth], **extra)
     del H
+    _share_restrictions(ml)
     vcycle = ml.aspreconditioner(cycle="V")
 
     def apply(r):

@@ -82,9 +82,29 @@ def test_vcycle_is_the_former_one_bit_for_bit(name, opts, monkeypatch):
     r = np.random.default_rng(1).standard_normal((asm.ndof, 2))
     P_new, info_new = ml.amg_preconditioner(asm, **opts)
     monkeypatch.setattr(ml, "blocked_copy", lambda H, order, bs, shift, dtype, sort: _former_copy(asm, order, bs, dtype))
+    monkeypatch.setattr(ml, "_share_restrictions", lambda m: 0)     # pyamg's own R = P.T copies
     P_old, info_old = ml.amg_preconditioner(asm, **opts)
     assert info_new.levels == info_old.levels and info_new.operator_complexity == info_old.operator_complexity
     assert np.array_equal(P_new @ r, P_old @ r)
+
+
+def test_restriction_without_copy_is_the_transpose_bit_for_bit():
+    """_Restriction(P) @ x is P.T @ x to the last bit (float64 and float32), and
+    _share_restrictions frees the copies of R only where R is P's transpose."""
+    import pyamg
+    asm = assemble(NETS["3d"](), pin=False)
+    order, bs = _layout(asm)
+    for dtype in (np.float64, np.float32):
+        A = _former_copy(asm, order, bs, dtype)
+        m = pyamg.smoothed_aggregation_solver(A, B=ml.near_null_space(asm)[order].astype(dtype))
+        x = np.random.default_rng(4).standard_normal(A.shape[0]).astype(dtype)
+        R0, P0 = m.levels[0].R, m.levels[0].P
+        assert np.array_equal(ml._Restriction(P0) @ x, R0 @ x)
+        assert ml._share_restrictions(m) > 0 and isinstance(m.levels[0].R, ml._Restriction)
+        m.levels[0].P = P0 * 2.0                          # no longer R's transpose: kept
+        m.levels[0].R = R0
+        ml._share_restrictions(m)
+        assert m.levels[0].R is R0
 
 
 def test_blocked_copy_refuses_bad_shapes_by_name():
