@@ -132,3 +132,22 @@ def test_abs_times_is_abs_H_times_X_bit_for_bit():
     ref = abs(H) @ np.abs(X)
     for chunk in (1, 37, 1000, 1 << 22):
         assert np.array_equal(_abs_times(H, np.abs(X), chunk=chunk), ref)
+
+
+def test_bench_spheres_stop_after(capsys):
+    """``--stop-after`` stops the hierarchy after that many CG orders, restores the hierarchy's
+    functions, and is refused without --phases or below 1."""
+    import microhom.hierarchy as hi
+    from studies import bench_spheres
+    step = hi._BlockPCG.step
+    (row,) = bench_spheres.main(["--n", "100", "--bound", "dual", "--exact", "no", "--phases", "--stop-after", "2"])
+    out = capsys.readouterr().out
+    assert row["stopped"] and out.count("phase CG order") == 2 and "stopped after 2 CG order(s)" in out
+    from microhom import kinematics
+    assert hi._BlockPCG.step is step and hi.assemble is kinematics.assemble
+    for bad in (["--stop-after", "0", "--phases"], ["--stop-after", "2"]):
+        with pytest.raises(SystemExit):
+            bench_spheres.main(["--n", "100", "--exact", "no"] + bad)
+    assert "--stop-after needs --phases" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="stop_after must be an integer >= 1"):
+        bench_spheres.instrument_phases(0)
