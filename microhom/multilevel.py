@@ -18,7 +18,10 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
   blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator.
 
 ``amg_preconditioner``'s options (issue 26) change the setup's cost and the CG's speed; their
-defaults are the call above.
+defaults are the call above. Its memory (issue 26, docs/results/spheres.md, "Memory at 1e6
+spheres"): pyamg gets the permuted, shifted ``H`` built once in blocks (``blocked_copy``, int32
+indices, no transient CSR copies) and keeps no transposed copy of each prolongator (``R @ x`` is
+computed from ``P``); both give the former V-cycle bit for bit.
 
 Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
 (three translations, three rigid rotations with their spins, three spins alone).
@@ -46,7 +49,7 @@ import scipy.sparse.linalg as sla
 from .kinematics import Assembly, rotational_dofs
 from .results import Result
 
-__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout"]
+__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout", "blocked_copy"]
 
 _SHIFT = 1e-10        # H + shift * mean(diag H) * I: removes the two global translations (pin=False)
 
