@@ -733,7 +733,7 @@ class MemoryPlan(Result):
         (``9 N + 18 N_c``; spheres: 48 bytes per non-zero, ``36 N + 72 N_c``) [bytes].
     preconditioner : int
         Particle blocks ``M``, ``M^-1``, ``M^-1/2`` (700 bytes per unknown) plus, with "amg", the
-        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 100) [bytes].
+        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 80) [bytes].
     basis : int
         Re-orthogonalisation basis ``P``, ``HP`` (2 x 8 bytes x ndof x (3 max_order + soft modes),
         in chunks of 48 columns), or the recurrence's 12 blocks of 3 columns [bytes].
@@ -772,9 +772,11 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
     disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
     figures of 2D are kept except per non-zero (``b^2 N + 2 b^2 N_c`` of them): 48 bytes for the
-    assembly and 100 for the multilevel hierarchy, the peaks measured on the built FCC networks
-    of ``studies.bench_spheres`` (1.1e4 and 1.08e5 spheres: 33 and 79-90 bytes per non-zero,
-    rounded up; docs/results/spheres.md, "Cost"); ``m = 6`` load columns. ``factor``: the sparse
+    assembly and 80 for the multilevel hierarchy, the peaks measured on the built FCC networks
+    of ``studies.bench_spheres`` (1.1e4 and 1.08e5 spheres: 33 bytes per non-zero for the
+    assembly; the multilevel setup's transient and hierarchy 69 since its one-pass copy of ``H``
+    (issue 26), 79-90 before; rounded up; docs/results/spheres.md, "Cost" and "Memory at 1e6
+    spheres"); ``m = 6`` load columns. ``factor``: the sparse
     certificate's factorisation of ``H - s M`` is made and kept for the factorised steps
     (``microhom.factor.predicted_factor_bytes`` of the back end it takes)."""
     if dim not in (2, 3):
@@ -784,7 +786,7 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     m = 3 if dim == 2 else 6
     ndof = b * N
     nnz = b * b * N + 2 * b * b * Nc
-    per_asm, per_amg = (128, 600) if dim == 2 else (48, 100)
+    per_asm, per_amg = (128, 600) if dim == 2 else (48, 80)
     asm = per_asm * nnz
     prec = 700 * ndof * (b // 3) + (per_amg * nnz if preconditioner == "amg" else 0)
     cols = m * int(max_order) + int(soft_modes) * 2
@@ -1598,6 +1600,24 @@ def _lower(C, cg, Minv, lam, lam_hi, area):
     return C - T / area
 
 
+def _abs_times(H, X, chunk=1 << 22):
+    """``|H| X`` for a CSR ``H`` (n, n) and X (n, s), in slices of about ``chunk`` non-zeros of
+    ``H``'s rows: the same numbers as ``abs(H) @ X`` (each row is summed in the same order) without
+    a copy of ``H`` (issue 26: ``abs(H)`` was held through the CG, 12 bytes per non-zero)."""
+    n = H.shape[0]
+    ptr = H.indptr
+    out = np.empty((n,) + X.shape[1:], dtype=np.result_type(H.dtype, X.dtype))
+    a = 0
+    while a < n:
+        b = int(np.searchsorted(ptr, ptr[a] + chunk, side="right")) - 1
+        b = min(max(b, a + 1), n)
+        lo, hi = ptr[a], ptr[b]
+        S = sp.csr_matrix((np.abs(H.data[lo:hi]), H.indices[lo:hi], ptr[a:b + 1] - lo), shape=(b - a, H.shape[1]))
+        out[a:b] = S @ X
+        a = b
+    return out
+
+
 def _roundoff(cg):
     """A-priori floating-point margin ``s`` of the energy ``2 B^T X - X^T H X`` evaluated as
     ``B^T X + X^T fl(B - H X)`` [unit of R]: the computed 3 x 3 tensor is within ``s I`` of the exact
@@ -1608,12 +1628,11 @@ def _roundoff(cg):
     margin, docs/stiffness.md). Also stores ``cg.E`` (ndof, s), the entrywise bound of the
     residual's error ``g_m (|B| + |H| |X|)``, for the lower bound."""
     u = np.finfo(float).eps
-    if cg.Habs is None:
-        cg.Habs = abs(cg.H)
-        cg.m_row = int(np.diff(cg.Habs.indptr).max(initial=0))
+    if not cg.m_row:
+        cg.m_row = int(np.diff(cg.H.indptr).max(initial=0))
     n = cg.H.shape[0]
     aX, aB = np.abs(cg.X), np.abs(cg.B)
-    cg.E = (cg.m_row + 1) * u * (aB + cg.Habs @ aX)
+    cg.E = (cg.m_row + 1) * u * (aB + _abs_times(cg.H, aX))
     D = np.sqrt(n) * u * (aB.T @ aX + aX.T @ np.abs(cg.Rt)) + aX.T @ cg.E
     D = np.maximum(D, D.T)
     return float(D.sum(axis=1).max(initial=0.0))

@@ -18,7 +18,10 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
   blocks (6 x 6 or 3 x 3 for spheres), so that one V-cycle is a symmetric operator.
 
 ``amg_preconditioner``'s options (issue 26) change the setup's cost and the CG's speed; their
-defaults are the call above.
+defaults are the call above. Its memory (issue 26, docs/results/spheres.md, "Memory at 1e6
+spheres"): pyamg gets the permuted, shifted ``H`` built once in blocks (``blocked_copy``, int32
+indices, no transient CSR copies) and keeps no transposed copy of each prolongator (``R @ x`` is
+computed from ``P``); both give the former V-cycle bit for bit.
 
 Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
 (three translations, three rigid rotations with their spins, three spins alone).
@@ -38,6 +41,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
@@ -45,7 +49,7 @@ import scipy.sparse.linalg as sla
 from .kinematics import Assembly, rotational_dofs
 from .results import Result
 
-__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout"]
+__all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout", "blocked_copy"]
 
 _SHIFT = 1e-10        # H + shift * mean(diag H) * I: removes the two global translations (pin=False)
 
@@ -131,6 +135,196 @@ class AMGInfo(Result):
     setup_time: float
 
 
+@numba.njit(cache=True)
+def _blocked_pattern(indptr, indices, data, order, inv, bs):
+    """Block rows' lengths of ``P H P^T`` in ``bs x bs`` blocks (``H`` CSC, exact zeros dropped,
+    every diagonal block kept): (n/bs + 1,) int64 row pointer."""
+    nb = order.size // bs
+    count = np.zeros(nb + 1, dtype=np.int64)
+    mark = np.full(nb, -1, dtype=np.int64)
+    for J in range(nb):
+        mark[J] = J                                    # the diagonal block (the shift's entries)
+        count[J + 1] += 1
+        for bj in range(bs):
+            c = order[J * bs + bj]
+            for k in range(indptr[c], indptr[c + 1]):
+                if data[k] == 0.0:
+                    continue
+                I = inv[indices[k]] // bs
+                if mark[I] != J:
+                    mark[I] = J
+                    count[I + 1] += 1
+    for I in range(nb):
+        count[I + 1] += count[I]
+    return count
+
+
+@numba.njit(cache=True)
+def _blocked_fill(indptr, indices, data, order, inv, bs, shift, bptr, bind, bdata, key):
+    """Fill ``bind`` (block columns, ascending per block row) and ``bdata`` (blocks, bs x bs) of
+    ``P H P^T + shift I`` (see ``_blocked_pattern``); an entry that becomes 0.0 is left 0.0 in its
+    block (as ``tobsr`` of a CSR matrix without it). ``key`` (blocks,) gets each block's first
+    position in a scan of its block row's rows (top down) each in descending column of ``H``."""
+    nb = order.size // bs
+    n = order.size
+    fill = bptr[:-1].copy()
+    mark = np.full(nb, -1, dtype=np.int64)
+    slot = np.zeros(nb, dtype=np.int64)
+    for J in range(nb):
+        mark[J] = J
+        slot[J] = fill[J]
+        bind[fill[J]] = J
+        fill[J] += 1
+        for bj in range(bs):
+            col = J * bs + bj
+            c = order[col]
+            diag = False
+            for k in range(indptr[c], indptr[c + 1]):
+                v = data[k]
+                if v == 0.0:
+                    continue
+                row = inv[indices[k]]
+                I = row // bs
+                if mark[I] != J:
+                    mark[I] = J
+                    slot[I] = fill[I]
+                    bind[fill[I]] = J
+                    fill[I] += 1
+                if row == col:
+                    v = v + shift
+                    diag = True
+                bdata[slot[I], row - I * bs, bj] = v
+                key[slot[I]] = min(key[slot[I]], (row - I * bs) * n + (n - 1 - c))
+            if not diag:
+                bdata[slot[J], bj, bj] = shift
+                key[slot[J]] = min(key[slot[J]], bj * n + (n - 1 - c))
+
+
+@numba.njit(cache=True)
+def _permuted_sorted(indptr, indices, inv):
+    """Whether every row of ``H[order][:, order]`` (``H`` CSC with sorted indices, ``inv`` the
+    inverse of ``order``) lists its columns in ascending order when taken in the order of ``H``'s
+    columns (what scipy's fancy indexing does)."""
+    n = inv.size
+    last = np.full(n, -1, dtype=np.int64)
+    for c in range(n):
+        for k in range(indptr[c], indptr[c + 1]):
+            r = indices[k]
+            if inv[c] <= last[r]:
+                return False
+            last[r] = inv[c]
+    return True
+
+
+@numba.njit(cache=True)
+def _reorder_blocks(bptr, bind, bdata, key):
+    """Within each block row, put the blocks in ascending ``key`` (in place)."""
+    for I in range(bptr.size - 1):
+        a, b = bptr[I], bptr[I + 1]
+        p = np.argsort(key[a:b], kind="mergesort")
+        bind[a:b] = bind[a:b][p]
+        bdata[a:b] = bdata[a:b][p]
+
+
+def blocked_copy(H, order, bs, shift, dtype=np.float64, sort=True):
+    """``P H P^T + shift I`` as a BSR matrix of ``bs x bs`` blocks (or CSR when ``bs == 1``), int32
+    indices, built in one pass over ``H``'s CSC form without intermediate copies (issue 26).
+
+    ``P`` is the permutation ``(P x)[i] = x[order[i]]`` (``order`` (n,) ints, n a multiple of
+    ``bs``), ``shift`` [N/m] is added to the diagonal, ``dtype`` float64 or float32 (the sum is
+    taken in float64, then rounded). Entries of ``H`` equal to 0.0 are dropped and no block is
+    made of them alone; every diagonal block is kept. ``sort``: block columns ascending in each
+    block row; else in the order the former path of ``amg_preconditioner`` left them where the
+    permutation unsorted the rows (scipy's sum of a non-canonical CSR matrix lists a row's entries
+    in descending column of ``H``, and
+    ``tobsr`` takes the blocks in order of first appearance), which pyamg's setup does not fully
+    undo: its hierarchy depends on it in the last bits. With ``sort=False`` and float64 the result
+    equals ``(H.tocsr()[order][:, order] + shift * I).tocsr().tobsr((bs, bs))`` array for array;
+    with ``sort=True`` and float32 the former ``.astype(np.float32)`` of it, which sorted
+    (tests/test_multilevel_options.py). It needs 8 (or 4) bytes per stored block entry and 12 per
+    block, against three transient CSR copies of ``H`` before.
+    """
+    H = sp.csc_matrix(H)
+    if not H.has_canonical_format:
+        H = H.copy()
+        H.sum_duplicates()
+    n = H.shape[0]
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    if H.shape != (n, n) or order.shape != (n,) or bs < 1 or n % bs:
+        raise ValueError(f"blocked_copy needs a square H, order of shape ({n},) and n a multiple of bs, "
+                         f"got H {H.shape}, order {order.shape}, bs {bs}")
+    inv = np.empty_like(order)
+    inv[order] = np.arange(n)
+    data = np.asarray(H.data, dtype=np.float64)
+    bptr = _blocked_pattern(H.indptr, H.indices, data, order, inv, bs)
+    nblk = int(bptr[-1])
+    itype = np.int32 if max(nblk, n) < 2 ** 31 - 1 else np.int64
+    bind = np.empty(nblk, dtype=np.int64)
+    bdata = np.zeros((nblk, bs, bs), dtype=np.float64 if np.dtype(dtype) == np.float64 else np.float32)
+    key = np.full(nblk, np.iinfo(np.int64).max, dtype=np.int64)
+    _blocked_fill(H.indptr, H.indices, data, order, inv, bs, float(shift), bptr, bind, bdata, key)
+    if not sort:
+        _reorder_blocks(bptr, bind, bdata, key)
+    del key
+    bptr, bind = bptr.astype(itype), bind.astype(itype)
+    if bs == 1:
+        return sp.csr_matrix((bdata.reshape(-1), bind, bptr), shape=(n, n))
+    return sp.bsr_matrix((bdata, bind, bptr), shape=(n, n))
+
+
+@numba.njit(cache=True)
+def _bsr_rmatvec(indptr, indices, data, x, y):
+    """``y += P^T x`` for a BSR ``P`` (blocks (nblk, r, c)), summed in the order of scipy's BSR
+    product with the transposed copy ``P.T`` (each output's blocks by ascending block row of
+    ``P``, each block's entries in turn)."""
+    r, c = data.shape[1], data.shape[2]
+    for I in range(indptr.size - 1):
+        for k in range(indptr[I], indptr[I + 1]):
+            J = indices[k]
+            for q in range(c):
+                dot = y[J * c + q]
+                for p in range(r):
+                    dot += data[k, p, q] * x[I * r + p]
+                y[J * c + q] = dot
+
+
+class _Restriction:
+    """``P^T`` of a multilevel level without its transposed copy (pyamg keeps ``R = P.T``, as
+    many bytes as ``P``: 6 per non-zero of ``H`` at the finest level of a sphere network; issue
+    26). ``R @ x`` for a vector gives the same numbers as the copy (``_bsr_rmatvec``)."""
+
+    def __init__(self, P):
+        self.P = P
+        self.shape = (P.shape[1], P.shape[0])
+        self.dtype = P.dtype
+
+    def __matmul__(self, x):
+        if x.ndim != 1:
+            return self.P.T @ x
+        y = np.zeros(self.shape[0], dtype=np.result_type(self.dtype, x.dtype))
+        _bsr_rmatvec(self.P.indptr, self.P.indices, self.P.data, x, y)
+        return y
+
+
+def _share_restrictions(ml):
+    """Replace each level's ``R`` by ``_Restriction(P)`` where ``R`` is exactly the transpose of
+    a BSR ``P`` (pyamg's symmetric setup; checked array for array); returns the bytes freed."""
+    freed = 0
+    for lvl in ml.levels[:-1]:
+        P, R = getattr(lvl, "P", None), getattr(lvl, "R", None)
+        if not (sp.issparse(P) and P.format == "bsr" and sp.issparse(R) and R.format == "bsr"):
+            continue
+        T = P.T
+        same = (T.blocksize == R.blocksize and T.shape == R.shape and T.dtype == R.dtype
+                and all(np.array_equal(a, b) for a, b in ((T.indptr, R.indptr), (T.indices, R.indices),
+                                                          (T.data, R.data))))
+        del T
+        if same:
+            freed += R.data.nbytes + R.indices.nbytes + R.indptr.nbytes
+            lvl.R = _Restriction(P)
+    return freed
+
+
 #: smooth= of amg_preconditioner: pyamg's prolongation smoother (Jacobi: local weighting, no random
 #: spectral-radius estimate; deterministic like the energy minimisation)
 SMOOTHERS = {"energy": ("energy", {}), "jacobi": ("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
@@ -209,10 +403,15 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     inv[order] = np.arange(n)
     counts = np.bincount(part)[np.unique(part)]
     bs = int(counts[0]) if counts.size and np.all(counts == counts[0]) else 1
-    H = asm.H.tocsr()[order][:, order]
-    H = (H + _SHIFT * float(H.diagonal().mean()) * sp.identity(n, format="csr")).tocsr()
-    if dtype != H.dtype:                                 # float32: the shift is below its precision; the
-        H = H.astype(dtype)                              # coarsest level's pseudo-inverse takes the translations
+    # particle-major, shifted copy of H in bs x bs blocks, built once (issue 26: formerly three
+    # transient CSR copies); float32: the shift is below its precision, the coarsest level's
+    # pseudo-inverse takes the translations
+    # (the block order of the former path: sorted where the permutation kept H's rows sorted, and
+    # in float32, whose astype sorted them; see blocked_copy)
+    Hc = sp.csc_matrix(asm.H)
+    sort = dtype == np.float32 or (Hc.has_sorted_indices and _permuted_sorted(Hc.indptr, Hc.indices, inv))
+    H = blocked_copy(Hc, order, bs, _SHIFT * float(Hc.diagonal()[order].mean()), dtype, sort=sort)
+    del Hc
     B = near_null_space(asm)
     if candidates == "rigid":
         B = B[:, :_n_rigid(asm.net.dim, B.shape[1])]
@@ -225,11 +424,12 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         extra["max_coarse"] = int(max_coarse)
     if not improve:
         extra["improve_candidates"] = None
-    ml = pyamg.smoothed_aggregation_solver(H.tobsr(blocksize=(bs, bs)) if bs > 1 else H,
+    ml = pyamg.smoothed_aggregation_solver(H,
                                            B=np.ascontiguousarray(B[order], dtype=dtype),
                                            presmoother=smoother, postsmoother=smoother,
                                            smooth=SMOOTHERS[smooth], **extra)
     del H
+    _share_restrictions(ml)
     vcycle = ml.aspreconditioner(cycle="V")
 
     def apply(r):

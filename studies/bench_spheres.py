@@ -2,6 +2,7 @@
 
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
+                                    [--stop-after ORDERS]
                                     [--setup-options [NAME ...]] [--setup-only]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
@@ -14,7 +15,9 @@ wall times and the peak resident memory. The machine is shared: the load average
 ``--phases`` prints a line per phase of the hierarchy (assembly, particle blocks, the dual bound's
 statics, the multilevel setup, each CG order, each dual bound): wall and CPU time and the peak
 resident memory of the phase (``VmHWM`` of /proc/self/status, reset before each phase through
-/proc/self/clear_refs where the kernel allows it), and ``plan_memory``'s prediction.
+/proc/self/clear_refs where the kernel allows it), and ``plan_memory``'s prediction;
+``--stop-after ORDERS`` stops it after that many CG orders (the setup's and the first orders' cost
+at a size whose whole run would not fit the time; issue 26).
 ``--setup-options`` (issue 26) runs the hierarchy (dual bound) once per multilevel option of
 ``SETUP_OPTIONS`` (all by default) on the same network and prints, per option, the setup's CPU
 time and peak per pyamg stage (``setup_stages``), the operator complexity and levels, the orders
@@ -76,12 +79,24 @@ def _reset_peak():
         pass
 
 
-def instrument_phases():
-    """Wrap the hierarchy's phases (module docstring, ``--phases``) to print one line each."""
+class StopAfter(Exception):
+    """Raised by the instrumented CG step after ``--stop-after`` orders (a measurement of the
+    setup and the first orders; the hierarchy returns no interval)."""
+
+
+def instrument_phases(stop_after=None):
+    """Wrap the hierarchy's phases (module docstring, ``--phases``) to print one line each;
+    ``stop_after`` (int >= 1 or None): raise :class:`StopAfter` after that many CG orders.
+    Returns a function that puts the originals back."""
     import microhom.hierarchy as hi
+    if stop_after is not None and (int(stop_after) != stop_after or stop_after < 1):
+        raise ValueError(f"stop_after must be an integer >= 1 (CG orders) or None, got {stop_after!r}")
+    done = [0]
+    saved = []
 
     def wrap(owner, name, label):
         f = getattr(owner, name)
+        saved.append((owner, name, f))
 
         @functools.wraps(f)
         def timed(*a, **k):
@@ -98,6 +113,21 @@ def instrument_phases():
                         ("dual_lower_bound", "dual bound")):
         wrap(hi, name, label)
     wrap(hi._BlockPCG, "step", "CG order")
+    if stop_after is not None:
+        step = hi._BlockPCG.step
+
+        @functools.wraps(step)
+        def counted(self):
+            step(self)
+            done[0] += 1
+            if done[0] >= stop_after:
+                raise StopAfter(f"stopped after {done[0]} CG order(s) (--stop-after)")
+        hi._BlockPCG.step = counted
+
+    def restore():
+        for owner, name, f in reversed(saved):
+            setattr(owner, name, f)
+    return restore
 
 
 #: --bound: the lower-bound route of the hierarchy (relaxation_hierarchy's spectral_bound, dual_bound)
@@ -256,10 +286,15 @@ def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto"
     print(f"  plan_memory: {plan.total / 2 ** 30:.2f} GiB (assembly {plan.assembly / 2 ** 30:.2f}, "
           f"preconditioner {plan.preconditioner / 2 ** 30:.2f}, basis {plan.basis / 2 ** 30:.2f})", flush=True)
     t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order, max_memory=hier_memory,
-                                 **BOUNDS[bound])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            h = relaxation_hierarchy(net, tol=tol, soft_modes=0, max_order=max_order, max_memory=hier_memory,
+                                     **BOUNDS[bound])
+    except StopAfter as stop:
+        print(f"  {stop}: {time.perf_counter() - t0:.1f} s wall, process CPU {time.process_time():.1f} s, "
+              f"peak RSS {_rss_gb():.2f} GiB", flush=True)
+        return dict(N=net.n_particles, Nc=net.n_contacts, stopped=True, cpu=time.process_time(), peak_gb=_rss_gb())
     t_h = time.perf_counter() - t0
     print(f"  hierarchy ({bound} bound: {h.spectral_bound_source}): {t_h:.1f} s total (assembly {h.assembly_time:.1f}, CG {h.solve_time:.1f}, "
           f"bound {h.bound_time:.1f}), ndof {h.n_dof}, order {h.order}; peak RSS {_rss_gb():.2f} GiB", flush=True)
@@ -291,6 +326,8 @@ def main(argv=None):
                     help="lower bound: auto (spectral certificate where it applies, else dual), dual, spectral")
     ap.add_argument("--hier-memory", type=float, default=None, help="bytes, the hierarchy's max_memory")
     ap.add_argument("--phases", action="store_true", help="a line per phase: time and peak memory")
+    ap.add_argument("--stop-after", type=int, default=None, metavar="ORDERS",
+                    help="with --phases: stop the hierarchy after this many CG orders (>= 1; no interval)")
     ap.add_argument("--setup-options", nargs="*", choices=tuple(SETUP_OPTIONS), default=None,
                     help="compare the multilevel setup's options (all if none named)")
     ap.add_argument("--setup-only", action="store_true", help="with --setup-options: the setup alone, no CG")
@@ -300,10 +337,14 @@ def main(argv=None):
         if a.setup_only:
             return [setups_only(n, a.keep, a.kt, names) for n in a.n]
         return [compare_setups(n, a.keep, a.kt, a.tol, a.exact, names, a.max_order) for n in a.n]
-    if a.phases:
-        instrument_phases()
-    rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
-            for n in a.n]
+    if a.stop_after is not None and (not a.phases or a.stop_after < 1):
+        ap.error(f"--stop-after needs --phases and an integer >= 1, got {a.stop_after}")
+    restore = instrument_phases(a.stop_after) if a.phases else (lambda: None)
+    try:
+        rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
+                for n in a.n]
+    finally:
+        restore()
     for r in rows:
         print(r)
     return rows

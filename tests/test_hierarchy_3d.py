@@ -110,13 +110,13 @@ def test_block_preconditioner_has_6x6_particle_blocks():
 
 def test_plan_memory_counts_six_unknowns_per_sphere():
     """2D figures unchanged; 3D: 6 unknowns per sphere, 36 (N + 2 Nc) non-zeros at the 3D
-    bytes per non-zero (48 assembly, 100 multilevel: measured, docs/results/spheres.md)."""
+    bytes per non-zero (48 assembly, 80 multilevel: measured, docs/results/spheres.md)."""
     a = plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=False)
     b = plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=False, dim=2)
     assert a == b
     c = plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=True, dim=3)
     assert c.dense == 24 * 6000 ** 2 and c.assembly == 48 * 36 * (1000 + 2 * 2000)
-    assert c.preconditioner == 700 * 6000 * 2 + 100 * 36 * (1000 + 2 * 2000)
+    assert c.preconditioner == 700 * 6000 * 2 + 80 * 36 * (1000 + 2 * 2000)
     with pytest.raises(ValueError, match="dim must be 2 or 3"):
         plan_memory(10, 10, dim=4)
 
