@@ -546,7 +546,7 @@ class _BlockPCG:
         self.X = np.zeros_like(B)
         self.R = B.copy()
         self.Rt = self.R
-        self.Habs, self.m_row, self.E = None, 0, None
+        self.m_row, self.E = 0, None
         z0 = Minv @ self.R
         zz = np.einsum("ij,ij->j", z0, self.R)
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))

@@ -160,11 +160,12 @@ def _blocked_pattern(indptr, indices, data, order, inv, bs):
 
 
 @numba.njit(cache=True)
-def _blocked_fill(indptr, indices, data, order, inv, bs, shift, bptr, bind, bdata, key):
-    """Fill ``bind`` (block columns, ascending per block row) and ``bdata`` (blocks, bs x bs) of
-    ``P H P^T + shift I`` (see ``_blocked_pattern``); an entry that becomes 0.0 is left 0.0 in its
-    block (as ``tobsr`` of a CSR matrix without it). ``key`` (blocks,) gets each block's first
+def _blocked_fill(indptr, indices, data, order, inv, bs, shift, bptr, out):
+    """Fill ``out = (bind, bdata, key)`` (a tuple: the kernel argument rule): ``bind`` (block
+    columns, ascending per block row) and ``bdata`` (blocks, bs x bs) of ``P H P^T + shift I``
+    (see ``_blocked_pattern``); an entry that becomes 0.0 is left 0.0 in its block (as ``tobsr`` of a CSR matrix without it). ``key`` (blocks,) gets each block's first
     position in a scan of its block row's rows (top down) each in descending column of ``H``."""
+    bind, bdata, key = out
     nb = order.size // bs
     n = order.size
     fill = bptr[:-1].copy()
@@ -262,7 +263,7 @@ def blocked_copy(H, order, bs, shift, dtype=np.float64, sort=True):
     bind = np.empty(nblk, dtype=np.int64)
     bdata = np.zeros((nblk, bs, bs), dtype=np.float64 if np.dtype(dtype) == np.float64 else np.float32)
     key = np.full(nblk, np.iinfo(np.int64).max, dtype=np.int64)
-    _blocked_fill(H.indptr, H.indices, data, order, inv, bs, float(shift), bptr, bind, bdata, key)
+    _blocked_fill(H.indptr, H.indices, data, order, inv, bs, float(shift), bptr, (bind, bdata, key))
     if not sort:
         _reorder_blocks(bptr, bind, bdata, key)
     del key
