@@ -163,8 +163,9 @@ def _blocked_pattern(indptr, indices, data, order, inv, bs):
 def _blocked_fill(indptr, indices, data, order, inv, bs, shift, bptr, out):
     """Fill ``out = (bind, bdata, key)`` (a tuple: the kernel argument rule): ``bind`` (block
     columns, ascending per block row) and ``bdata`` (blocks, bs x bs) of ``P H P^T + shift I``
-    (see ``_blocked_pattern``); an entry that becomes 0.0 is left 0.0 in its block (as ``tobsr`` of a CSR matrix without it). ``key`` (blocks,) gets each block's first
-    position in a scan of its block row's rows (top down) each in descending column of ``H``."""
+    (see ``_blocked_pattern``); an entry that becomes 0.0 is left 0.0 in its block (as ``tobsr``
+    of a CSR matrix without it). ``key`` (blocks,) gets each block's first position in a scan of
+    its block row's rows (top down) each in descending column of ``H``."""
     bind, bdata, key = out
     nb = order.size // bs
     n = order.size
