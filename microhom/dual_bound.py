@@ -814,13 +814,31 @@ def _iso(C):
     return isotropic_moduli(C)
 
 
+def _coarse_step(asm, X, coarse):
+    """``X + coarse(r)``, ``r = -F - H X`` the residual of ``H X = -F`` (checked shape, finite)."""
+    if not callable(coarse):
+        raise ValueError(f"coarse must be None or a callable r -> y, got {coarse!r}")
+    r = -asm.F - np.asarray(asm.H @ X)
+    y = np.asarray(coarse(r), dtype=float)
+    if y.shape != X.shape or not np.all(np.isfinite(y)):
+        raise ValueError(f"coarse(r) must return a finite array of shape {X.shape}, got shape {y.shape}"
+                         + ("" if y.shape != X.shape else " with non-finite entries"))
+    return X + y
+
+
 def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: Equilibrator | None = None,
-                     passes: int = 2) -> DualBound:
+                     passes: int = 2, coarse=None) -> DualBound:
     """Lower bound of the Mandel tensor from the trial relaxation ``X`` (ndof, m) (any ``X``: the
     closer to ``H X = -F``, the tighter; e.g. the hierarchy's CG iterate) of an assembly without
     pre-stress (``assemble(..., prestress=False)``; ``pin`` either way). ``volume``: cell area
     [m^2] in 2D, volume [m^3] in 3D. ``passes`` corrections of the equilibrium (the second removes
-    the round-off of the first). Raises ``ValueError`` for a pre-stressed assembly."""
+    the round-off of the first). ``coarse``: None (default) or a callable ``r -> y`` ((ndof, m)
+    in and out) approximating ``H^-1 r``; the field is then built from ``X + coarse(-F - H X)``
+    before the statics (docs/theory.md section 12, "A correction before the statics"): e.g. a
+    V-cycle of ``microhom.multilevel.amg_preconditioner`` or its ``coarse_correction``. Any
+    ``y`` keeps the bound rigorous (only its gap depends on it); ``DualBound.gap`` is then that
+    of the corrected iterate. Raises ``ValueError`` for a pre-stressed assembly, and when
+    ``coarse`` returns an array of another shape or a non-finite one."""
     if asm.Kgs is not None:
         raise ValueError("dual_lower_bound: the assembly is pre-stressed (prestress=True): the "
                          "complementary-energy bound needs H = B^T K B with K positive semi-definite per "
@@ -834,6 +852,8 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     if X.ndim != 2 or X.shape[0] != asm.ndof or X.shape[1] != asm.Df.shape[1]:
         raise ValueError(f"X must have shape (ndof, m) = ({asm.ndof}, {asm.Df.shape[1]}), got {X.shape}")
     t0 = time.perf_counter()
+    if coarse is not None:
+        X = _coarse_step(asm, X, coarse)
     eq = equilibrator if equilibrator is not None else build_equilibrator(asm)
     m = asm.Df.shape[1]
     d = asm.net.dim

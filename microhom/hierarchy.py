@@ -874,6 +874,7 @@ class _Run:
     dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
     dual_last: tuple = None          # the last evaluated dual bound: (C_lower, gap (K, G), CG residual norm)
     n_dual: int = 0                  # dual bounds evaluated
+    dual_coarse: object = None       # r -> y before the dual bound's statics (_dual_correction), or None
 
 
 def _max_order_ok(v):
@@ -1392,6 +1393,8 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
+    if run.dual is not None and preconditioner == "amg":
+        run.dual_coarse = _dual_correction(asm.H, P)
     rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
     cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
     if rigorous and run.factor is None:
@@ -1631,10 +1634,11 @@ def _best_lower(run, C, cg):
     cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     if run.dual is not None and _dual_due(run, C, cg):   # its own round-off margin is subtracted already
         tb = time.perf_counter()
-        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual)
+        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse)
         run.n_dual += 1
-        if b.valid:
-            run.dual_last = (b.C_lower, np.abs(np.array(_iso(b.gap))), float(np.linalg.norm(cg.Rt)))
+        if b.valid:     # the gap to this order's upper bound (with a correction: not b.gap, that of X + y)
+            gap = np.array(_iso(b.gap)) if run.dual_coarse is None else np.array(_iso(C)) - np.array(_iso(b.C_lower))
+            run.dual_last = (b.C_lower, np.abs(gap), float(np.linalg.norm(cg.Rt)))
         run.t_bound += time.perf_counter() - tb
     if run.dual is not None and run.dual_last is not None:   # any order's field bounds the exact C
         cands.append(run.dual_last[0])
@@ -1644,6 +1648,28 @@ def _best_lower(run, C, cg):
     kg = np.array(_iso(L))
     run.best_low = kg if run.best_low is None else np.maximum(run.best_low, kg)
     return L
+
+
+#: Richardson steps of the multilevel V-cycle applied to the CG residual before the dual bound's
+#: statics (_dual_correction; docs/theory.md section 12, "A correction before the statics")
+DUAL_VCYCLES = 2
+
+
+def _dual_correction(H, P, steps=None):
+    """``r -> y``: ``steps`` (default ``DUAL_VCYCLES``) Richardson steps ``y += P (r - H y)`` of
+    the V-cycle ``P`` from ``y = 0`` on ``H y = r`` (``microhom.dual_bound.dual_lower_bound``'s
+    ``coarse``). None for 0 steps."""
+    steps = DUAL_VCYCLES if steps is None else int(steps)
+    if steps <= 0:
+        return None
+
+    def apply(r):
+        y = np.asarray(P @ r)
+        for _ in range(steps - 1):
+            y = y + np.asarray(P @ (r - H @ y))
+        return y
+
+    return apply
 
 
 #: the dual bound is evaluated at an order only when its gap, predicted from the last evaluated
