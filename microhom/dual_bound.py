@@ -814,6 +814,34 @@ def _iso(C):
     return isotropic_moduli(C)
 
 
+def _best_in_span(asm, G0, W, eq, Kp, passes):
+    """The Loewner-best equilibrated field ``G0 + Phi beta``, ``Phi = Pi K B W`` (each column of
+    ``K B W`` balanced by the statics, ``passes`` times): with ``S = Phi^T K^+ Phi`` and
+    ``b = Phi^T (D - K^+ G0)`` the bound is ``L0 + b^T beta + beta^T b - beta^T S beta``
+    ``= L0 + b^T S^+ b - (beta - S^+ b)^T S (beta - S^+ b)`` (docs/theory.md section 12), so
+    ``beta = S^+ b``. Any ``beta`` is a bound: the pseudo-inverse's accuracy decides only how
+    tight."""
+    W = np.asarray(W, dtype=float)
+    if W.ndim != 2 or W.shape[0] != asm.ndof or not np.all(np.isfinite(W)):
+        raise ValueError(f"trial must be a finite array of shape (ndof, p) = ({asm.ndof}, p), got "
+                         f"shape {W.shape}" + ("" if W.ndim != 2 or W.shape[0] != asm.ndof else " with non-finite entries"))
+    if not W.shape[1]:
+        return G0
+    d, p = asm.net.dim, W.shape[1]
+    Phi = np.asarray(asm.Ks @ (asm.Bs @ W))
+    for _ in range(passes):
+        Phi = Phi + eq.correct(-np.asarray(asm.Bs.T @ Phi)).reshape(-1, p)
+    KpPhi = np.einsum("cxy,cyp->cxp", Kp, Phi.reshape(-1, d, p)).reshape(-1, p)
+    S = Phi.T @ KpPhi
+    b = Phi.T @ asm.Df - KpPhi.T @ G0
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    keep = w > 1e-12 * w.max(initial=0.0)
+    if not keep.any():
+        return G0
+    beta = (V[:, keep] / w[keep]) @ (V[:, keep].T @ b)
+    return G0 + Phi @ beta
+
+
 def _coarse_step(asm, X, coarse):
     """``X + coarse(r)``, ``r = -F - H X`` the residual of ``H X = -F`` (checked shape, finite)."""
     if not callable(coarse):
@@ -827,7 +855,7 @@ def _coarse_step(asm, X, coarse):
 
 
 def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: Equilibrator | None = None,
-                     passes: int = 2, coarse=None) -> DualBound:
+                     passes: int = 2, coarse=None, trial=None) -> DualBound:
     """Lower bound of the Mandel tensor from the trial relaxation ``X`` (ndof, m) (any ``X``: the
     closer to ``H X = -F``, the tighter; e.g. the hierarchy's CG iterate) of an assembly without
     pre-stress (``assemble(..., prestress=False)``; ``pin`` either way). ``volume``: cell area
@@ -837,8 +865,13 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     before the statics (docs/theory.md section 12, "A correction before the statics"): e.g. a
     V-cycle of ``microhom.multilevel.amg_preconditioner`` or its ``coarse_correction``. Any
     ``y`` keeps the bound rigorous (only its gap depends on it); ``DualBound.gap`` is then that
-    of the corrected iterate. Raises ``ValueError`` for a pre-stressed assembly, and when
-    ``coarse`` returns an array of another shape or a non-finite one."""
+    of the corrected iterate. ``trial``: None (default) or trial relaxations ``W`` (ndof, p); the
+    field is then the best, in the Loewner order, of ``G0 + Pi K B W beta`` over ``beta`` (p, m)
+    (``Pi`` the statics' projector on equilibrated fields; docs/theory.md section 12, "The best
+    field in a small subspace"), e.g. the hierarchy's next preconditioned residual and its last
+    search block. Raises ``ValueError`` for a pre-stressed assembly, when ``coarse`` returns an
+    array of another shape or a non-finite one, and for a ``trial`` of the wrong shape or with
+    non-finite entries."""
     if asm.Kgs is not None:
         raise ValueError("dual_lower_bound: the assembly is pre-stressed (prestress=True): the "
                          "complementary-energy bound needs H = B^T K B with K positive semi-definite per "
@@ -862,6 +895,8 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     for _ in range(passes):
         rho = np.asarray(asm.Bs.T @ G)
         G = G + eq.correct(-rho).reshape(-1, m)
+    if trial is not None:
+        G = _best_in_span(asm, G, trial, eq, Kp, passes)
     rho = np.asarray(asm.Bs.T @ G)
     c3 = eq.correct(-rho).reshape(-1, m)                                  # distance to exact equilibrium
     KpG = np.einsum("cxy,cym->cxm", Kp, G.reshape(-1, d, m)).reshape(-1, m)
