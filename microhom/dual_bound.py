@@ -774,7 +774,8 @@ class DualBound(Result):
         per-contact load before it cancelled (round-off: about 1e-15 .. 1e-12).
     gap : (m, m) ndarray
         ``Corr^T K^+ Corr / V``: the distance to the energy of the iterate the field was built from
-        [unit of C].
+        [unit of C] (with ``coarse``: the corrected iterate; with ``trial``: of the statics' field
+        before the span's improvement, which only raises ``C_lower``).
     time : float
         Wall time of this evaluation [s].
     valid : bool
@@ -895,6 +896,9 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     for _ in range(passes):
         rho = np.asarray(asm.Bs.T @ G)
         G = G + eq.correct(-rho).reshape(-1, m)
+    corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))              # the statics' correction
+    gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
+    del corr
     if trial is not None:
         G = _best_in_span(asm, G, trial, eq, Kp, passes)
     rho = np.asarray(asm.Bs.T @ G)
@@ -916,8 +920,6 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
               + (d + 1) * _U * _gersh(aG.T @ np.einsum("cxy,cym->cxm", aK, aG.reshape(-1, d, m)).reshape(-1, m)))
     margin /= volume
     C_lower = L / volume - margin * np.eye(m)
-    corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))
-    gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
     scale = asm.F_scale if asm.F_scale > 0 else 1.0
     K_l, G_l = _iso(C_lower)
     res = float(np.abs(rho).max(initial=0.0) / scale)

@@ -1639,10 +1639,8 @@ def _best_lower(run, C, cg):
         W = np.hstack([cg.Z, cg.X - prev]) if DUAL_TRIAL else None
         b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse, trial=W)
         run.n_dual += 1
-        if b.valid:     # the gap to this order's upper bound (with a correction: not b.gap, that of X + y)
-            gap = (np.array(_iso(b.gap)) if run.dual_coarse is None and W is None
-                   else np.array(_iso(C)) - np.array(_iso(b.C_lower)))
-            run.dual_last = (b.C_lower, np.abs(gap), float(np.linalg.norm(cg.Rt)))
+        if b.valid:     # the statics' own gap schedules (_dual_due), with or without the trial span
+            run.dual_last = (b.C_lower, np.abs(np.array(_iso(b.gap))), float(np.linalg.norm(cg.Rt)))
         run.t_bound += time.perf_counter() - tb
     if run.dual is not None and run.dual_last is not None:   # any order's field bounds the exact C
         cands.append(run.dual_last[0])
