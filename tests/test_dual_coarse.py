@@ -1,6 +1,7 @@
 """A correction of the CG iterate before the dual bound's statics (microhom.dual_bound ``coarse=``,
 microhom.multilevel.coarse_correction, microhom.hierarchy._dual_correction; docs/theory.md
-section 12, "A correction before the statics").
+section 12, "A correction before the statics") and the best field in a span of trial relaxations
+(``trial=``, "The best field in a small subspace"; on in the hierarchy).
 
 Rigour is checked against the exact sparse solver (dem.analysis.stiffness), whatever the
 correction (also a random one and a wrong coarse operator); the gain against the plain bound on
