@@ -774,7 +774,8 @@ class DualBound(Result):
         per-contact load before it cancelled (round-off: about 1e-15 .. 1e-12).
     gap : (m, m) ndarray
         ``Corr^T K^+ Corr / V``: the distance to the energy of the iterate the field was built from
-        [unit of C].
+        [unit of C] (with ``coarse``: the corrected iterate; with ``trial``: of the statics' field
+        before the span's improvement, which only raises ``C_lower``).
     time : float
         Wall time of this evaluation [s].
     valid : bool
@@ -814,13 +815,64 @@ def _iso(C):
     return isotropic_moduli(C)
 
 
+def _best_in_span(asm, G0, W, eq, Kp, passes):
+    """The Loewner-best equilibrated field ``G0 + Phi beta``, ``Phi = Pi K B W`` (each column of
+    ``K B W`` balanced by the statics, ``passes`` times): with ``S = Phi^T K^+ Phi`` and
+    ``b = Phi^T (D - K^+ G0)`` the bound is ``L0 + b^T beta + beta^T b - beta^T S beta``
+    ``= L0 + b^T S^+ b - (beta - S^+ b)^T S (beta - S^+ b)`` (docs/theory.md section 12), so
+    ``beta = S^+ b``. Any ``beta`` is a bound: the pseudo-inverse's accuracy decides only how
+    tight."""
+    W = np.asarray(W, dtype=float)
+    if W.ndim != 2 or W.shape[0] != asm.ndof or not np.all(np.isfinite(W)):
+        raise ValueError(f"trial must be a finite array of shape (ndof, p) = ({asm.ndof}, p), got "
+                         f"shape {W.shape}" + ("" if W.ndim != 2 or W.shape[0] != asm.ndof else " with non-finite entries"))
+    if not W.shape[1]:
+        return G0
+    d, p = asm.net.dim, W.shape[1]
+    Phi = np.asarray(asm.Ks @ (asm.Bs @ W))
+    for _ in range(passes):
+        Phi = Phi + eq.correct(-np.asarray(asm.Bs.T @ Phi)).reshape(-1, p)
+    KpPhi = np.einsum("cxy,cyp->cxp", Kp, Phi.reshape(-1, d, p)).reshape(-1, p)
+    S = Phi.T @ KpPhi
+    b = Phi.T @ asm.Df - KpPhi.T @ G0
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    keep = w > 1e-12 * w.max(initial=0.0)
+    if not keep.any():
+        return G0
+    beta = (V[:, keep] / w[keep]) @ (V[:, keep].T @ b)
+    return G0 + Phi @ beta
+
+
+def _coarse_step(asm, X, coarse):
+    """``X + coarse(r)``, ``r = -F - H X`` the residual of ``H X = -F`` (checked shape, finite)."""
+    if not callable(coarse):
+        raise ValueError(f"coarse must be None or a callable r -> y, got {coarse!r}")
+    r = -asm.F - np.asarray(asm.H @ X)
+    y = np.asarray(coarse(r), dtype=float)
+    if y.shape != X.shape or not np.all(np.isfinite(y)):
+        raise ValueError(f"coarse(r) must return a finite array of shape {X.shape}, got shape {y.shape}"
+                         + ("" if y.shape != X.shape else " with non-finite entries"))
+    return X + y
+
+
 def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: Equilibrator | None = None,
-                     passes: int = 2) -> DualBound:
+                     passes: int = 2, coarse=None, trial=None) -> DualBound:
     """Lower bound of the Mandel tensor from the trial relaxation ``X`` (ndof, m) (any ``X``: the
     closer to ``H X = -F``, the tighter; e.g. the hierarchy's CG iterate) of an assembly without
     pre-stress (``assemble(..., prestress=False)``; ``pin`` either way). ``volume``: cell area
     [m^2] in 2D, volume [m^3] in 3D. ``passes`` corrections of the equilibrium (the second removes
-    the round-off of the first). Raises ``ValueError`` for a pre-stressed assembly."""
+    the round-off of the first). ``coarse``: None (default) or a callable ``r -> y`` ((ndof, m)
+    in and out) approximating ``H^-1 r``; the field is then built from ``X + coarse(-F - H X)``
+    before the statics (docs/theory.md section 12, "A correction before the statics"): e.g. a
+    V-cycle of ``microhom.multilevel.amg_preconditioner`` or its ``coarse_correction``. Any
+    ``y`` keeps the bound rigorous (only its gap depends on it); ``DualBound.gap`` is then that
+    of the corrected iterate. ``trial``: None (default) or trial relaxations ``W`` (ndof, p); the
+    field is then the best, in the Loewner order, of ``G0 + Pi K B W beta`` over ``beta`` (p, m)
+    (``Pi`` the statics' projector on equilibrated fields; docs/theory.md section 12, "The best
+    field in a small subspace"), e.g. the hierarchy's next preconditioned residual and its last
+    search block. Raises ``ValueError`` for a pre-stressed assembly, when ``coarse`` returns an
+    array of another shape or a non-finite one, and for a ``trial`` of the wrong shape or with
+    non-finite entries."""
     if asm.Kgs is not None:
         raise ValueError("dual_lower_bound: the assembly is pre-stressed (prestress=True): the "
                          "complementary-energy bound needs H = B^T K B with K positive semi-definite per "
@@ -834,6 +886,8 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     if X.ndim != 2 or X.shape[0] != asm.ndof or X.shape[1] != asm.Df.shape[1]:
         raise ValueError(f"X must have shape (ndof, m) = ({asm.ndof}, {asm.Df.shape[1]}), got {X.shape}")
     t0 = time.perf_counter()
+    if coarse is not None:
+        X = _coarse_step(asm, X, coarse)
     eq = equilibrator if equilibrator is not None else build_equilibrator(asm)
     m = asm.Df.shape[1]
     d = asm.net.dim
@@ -842,6 +896,11 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     for _ in range(passes):
         rho = np.asarray(asm.Bs.T @ G)
         G = G + eq.correct(-rho).reshape(-1, m)
+    corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))              # the statics' correction
+    gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
+    del corr
+    if trial is not None:
+        G = _best_in_span(asm, G, trial, eq, Kp, passes)
     rho = np.asarray(asm.Bs.T @ G)
     c3 = eq.correct(-rho).reshape(-1, m)                                  # distance to exact equilibrium
     KpG = np.einsum("cxy,cym->cxm", Kp, G.reshape(-1, d, m)).reshape(-1, m)
@@ -861,8 +920,6 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
               + (d + 1) * _U * _gersh(aG.T @ np.einsum("cxy,cym->cxm", aK, aG.reshape(-1, d, m)).reshape(-1, m)))
     margin /= volume
     C_lower = L / volume - margin * np.eye(m)
-    corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))
-    gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
     scale = asm.F_scale if asm.F_scale > 0 else 1.0
     K_l, G_l = _iso(C_lower)
     res = float(np.abs(rho).max(initial=0.0) / scale)

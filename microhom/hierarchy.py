@@ -876,6 +876,8 @@ class _Run:
     dual: object = None              # microhom.dual_bound.Equilibrator (the dual lower bound), or None
     dual_last: tuple = None          # the last evaluated dual bound: (C_lower, gap (K, G), CG residual norm)
     n_dual: int = 0                  # dual bounds evaluated
+    dual_coarse: object = None       # r -> y before the dual bound's statics (_dual_correction), or None
+    dual_prev_X: np.ndarray = None   # the iterate of the previous order (the dual bound's trial step)
 
 
 def _max_order_ok(v):
@@ -1394,6 +1396,8 @@ def _cg_step(run, max_order, full, preconditioner):
     far = run.lam_n is not None or run.far_ratio
     cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
+    if run.dual is not None and preconditioner == "amg":
+        run.dual_coarse = _dual_correction(asm.H, P)
     rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
     cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
     if rigorous and run.factor is None:
@@ -1650,13 +1654,19 @@ def _best_lower(run, C, cg):
     cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     if run.dual is not None and _dual_due(run, C, cg):   # its own round-off margin is subtracted already
         tb = time.perf_counter()
-        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual)
+        prev = run.dual_prev_X if run.dual_prev_X is not None else 0.0
+        W = np.hstack([cg.Z, cg.X - prev]) if DUAL_TRIAL else None
+        b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse, trial=W)
         run.n_dual += 1
-        if b.valid:
-            run.dual_last = (b.C_lower, np.abs(np.array(_iso(b.gap))), float(np.linalg.norm(cg.Rt)))
+        if b.valid:     # the statics' own gap schedules (_dual_due), or the interval's width (DUAL_SCHEDULE)
+            gap = (np.array(_iso(C)) - np.array(_iso(b.C_lower)) if DUAL_SCHEDULE == "width"
+                   else np.array(_iso(b.gap)))
+            run.dual_last = (b.C_lower, np.abs(gap), float(np.linalg.norm(cg.Rt)))
         run.t_bound += time.perf_counter() - tb
     if run.dual is not None and run.dual_last is not None:   # any order's field bounds the exact C
         cands.append(run.dual_last[0])
+    if run.dual is not None and DUAL_TRIAL:
+        run.dual_prev_X = cg.X.copy()
     if not cands:
         return None
     L = max(cands, key=lambda L: sum(_iso(L)))
@@ -1665,9 +1675,42 @@ def _best_lower(run, C, cg):
     return L
 
 
+#: Richardson steps of the multilevel V-cycle applied to the CG residual before the dual bound's
+#: statics (_dual_correction; docs/theory.md section 12, "A correction before the statics"): 0,
+#: off (measured: a smaller gap per evaluation but each V-cycle costs about a CG order, and the
+#: best field in the span of the next CG direction, DUAL_TRIAL, gains more for less)
+DUAL_VCYCLES = 0
+#: the dual bound's field is the best one in the span of the next preconditioned residual ``Z`` and
+#: the last step ``X_k - X_{k-1}`` (``dual_lower_bound``'s ``trial``; docs/theory.md section 12,
+#: "The best field in a small subspace")
+DUAL_TRIAL = True
+
+
+def _dual_correction(H, P, steps=None):
+    """``r -> y``: ``steps`` (default ``DUAL_VCYCLES``) Richardson steps ``y += P (r - H y)`` of
+    the V-cycle ``P`` from ``y = 0`` on ``H y = r`` (``microhom.dual_bound.dual_lower_bound``'s
+    ``coarse``). None for 0 steps."""
+    steps = DUAL_VCYCLES if steps is None else int(steps)
+    if steps <= 0:
+        return None
+
+    def apply(r):
+        y = np.asarray(P @ r)
+        for _ in range(steps - 1):
+            y = y + np.asarray(P @ (r - H @ y))
+        return y
+
+    return apply
+
+
 #: the dual bound is evaluated at an order only when its gap, predicted from the last evaluated
 #: one, is below this many times the width the tolerance allows (_dual_due)
 _DUAL_DUE = 10.0
+#: what _dual_due predicts from: "statics", the statics' own gap (the bound without the trial
+#: span; the same orders evaluated as before it), or "width", the interval's width with it
+#: (predicted against 10 times more: _DUAL_DUE_WIDTH); measured in docs/results/spheres.md
+DUAL_SCHEDULE = "statics"
+_DUAL_DUE_WIDTH = 100.0
 
 
 def _dual_due(run, C, cg):
@@ -1686,7 +1729,8 @@ def _dual_due(run, C, cg):
     _, gap, rho = run.dual_last
     r = float(np.linalg.norm(cg.Rt))
     pred = gap * (r / rho) ** 2 if rho > 0 else np.zeros(2)
-    return bool(np.all(pred <= _DUAL_DUE * run.tol * np.abs(np.array(_iso(C)))))
+    due = _DUAL_DUE_WIDTH if DUAL_SCHEDULE == "width" else _DUAL_DUE
+    return bool(np.all(pred <= due * run.tol * np.abs(np.array(_iso(C)))))
 
 
 def _met(C, L, tol, Cs, calibrated=True, prestress=True, floor=(0.0, 0.0)):
