@@ -52,13 +52,13 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .kinematics import SPIN_ARMS, Assembly, affine_tensor, assemble, rotational_dofs, stress0
+from .kinematics import SPIN_ARMS, Assembly, affine_tensor, assemble, contact_matrices, rotational_dofs, stress0
 from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
@@ -850,6 +850,7 @@ class _Run:
     P_amg: object = None
     t_bound: float = 0.0
     t_prec: float = 0.0
+    t_early: float = 0.0             # the multilevel setup's wall time when built in _setup [s]
     Cs: list = field(default_factory=list)
     lowers: list = field(default_factory=list)
     converged: bool = False
@@ -1072,15 +1073,15 @@ def relaxation_hierarchy(network: ContactNetwork, options: HierarchyOptions | No
     o = merged(HierarchyOptions, options, overrides, "relaxation_hierarchy")
     _check_network(network, o.prestress)
     run, full = _start(network, o)
-    _setup(run, o.min_contacts)
-    t_asm = (t1 := time.perf_counter()) - t0
+    _setup(run, o.min_contacts, o)
+    t_asm = (t1 := time.perf_counter()) - t0 - run.t_early
     _spectral_step(run, o.user_bound, o.spectral_bound, o.dense_max, o.dual_bound)
     max_order, preconditioner = _resolve_auto(run, o.max_order == "auto", o.preconditioner == "auto",
                                               run.max_order, o.preconditioner)
     soft = _soft_mode_step(run, o.soft_modes)
     _calibration(run, preconditioner, soft)
     _cg_step(run, max_order, full, preconditioner)
-    t_solve = time.perf_counter() - t1 - run.t_bound
+    t_solve = time.perf_counter() - t1 - run.t_bound + run.t_early
     return _finish(run, preconditioner, t_asm, t_solve)
 
 
@@ -1163,11 +1164,18 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
     return full
 
 
-def _setup(run, min_contacts):
-    """Assembly, affine and first-order tensors, particle blocks."""
+def _setup(run, min_contacts, o=None):
+    """Assembly (without its dense per-contact ``B`` and ``K``: :func:`_slim`), the multilevel
+    preconditioner where the CG is certain to use it (:func:`_amg_certain`, options ``o``), affine
+    and first-order tensors, particle blocks."""
     net, prestress = run.network, run.prestress
-    asm = assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm)
+    asm = _slim(assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm))
     run.asm, run.area = asm, net.volume          # area of a 2D cell [m^2], volume of a 3D one [m^3]
+    if o is not None and _amg_certain(run, o):
+        # built first (issue 26): its setup's transient, the run's peak on large networks, does not
+        # stack on the particle blocks and the dual bound's statics (the same V-cycle: it reads asm only)
+        run.P_amg, info = amg_preconditioner(asm)
+        run.t_prec = run.t_early = info.setup_time
     nm = _n_mandel(net.dim)
     run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((nm, nm))
     run.C_aff = _affine_kept(asm, run.area)
@@ -1194,6 +1202,45 @@ def _setup(run, min_contacts):
     if kept.n_contacts:
         run.kt_over_kn = float(np.median(kept.effective_kt / np.maximum(np.asarray(kept.kn, float)
                                                                           * np.ones(kept.n_contacts), 1e-300)))
+
+
+def _slim(asm):
+    """``asm`` without the dense per-contact ``B`` and ``K`` of ``asm.matrices`` (issue 26: 360
+    bytes per sphere contact, copies of the sparse ``Bs`` and ``Ks``); the hierarchy reads them
+    only in the dual bound's statics, which recomputes them (:func:`_full_matrices`). ``D`` stays:
+    ``Df`` is a view of it."""
+    m = asm.matrices
+    return replace(asm, matrices=replace(m, B=None, K=None))
+
+
+def _full_matrices(run):
+    """``run.asm`` with its per-contact matrices recomputed (:func:`_slim`): the same function on
+    the same contacts as the assembly's, so the same numbers."""
+    m = contact_matrices(run.asm.net, run.prestress, run.spin_arm)
+    return replace(run.asm, matrices=m)
+
+
+def _amg_certain(run, o):
+    """Whether the CG will use the multilevel preconditioner whatever the spectral step finds:
+    ``preconditioner="amg"``, or "auto" where the sparse certificate cannot keep a factorisation
+    (``max_order`` given, a user's or no spectral bound, ``factor_steps=0``, no certificate, or
+    unknowns outside (``dense_max``, ``CERTIFIED_MAX_DOF``]); not on an empty or trivial system
+    (no CG)."""
+    asm = run.asm
+    if o.preconditioner not in ("amg", "auto") or asm.net.n_contacts == 0 or _trivial(asm):
+        return False
+    if o.preconditioner == "amg":
+        return True
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    return (o.max_order != "auto" or o.user_bound is not None or o.spectral_bound != "auto"
+            or o.factor_steps == 0 or run.no_certificate
+            or not o.dense_max < asm.ndof <= CERTIFIED_MAX_DOF)
+
+
+def _trivial(asm):
+    """Nothing to relax: no load on the unknowns (``_cg_step``'s test; e.g. an affine lattice)."""
+    scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
+    return asm.ndof == 0 or float(np.abs(asm.F).max(initial=0.0)) <= 1e-13 * scale_F
 
 
 def _spectral_step(run, user_lam, spectral_bound, dense_max, dual_bound="auto"):
@@ -1257,7 +1304,7 @@ def _dual_step(run, dual_bound, large):
                            "is not of the form B^T K B with K >= 0); only the spectral certificate applies")
         return
     tb = time.perf_counter()
-    run.dual = build_equilibrator(run.asm)
+    run.dual = build_equilibrator(_full_matrices(run))
     if not run.dual.block_solved:
         run.reasons.append(f"dual lower bound not used: {run.dual.n_stalled} particles could not be attached "
                            "by statics and their block is above block_max (microhom.dual_bound)")
@@ -1343,7 +1390,8 @@ def _soft_mode_step(run, soft_modes):
     if not (soft_modes and asm.ndof and not run.unstable):
         return int(soft_modes)
     ts = time.perf_counter()
-    run.P_amg, info = amg_preconditioner(asm)
+    if run.P_amg is None:
+        run.P_amg, info = amg_preconditioner(asm)
     rq, lam_est, V = lowest_modes(asm, run.M, run.P_amg, Minv=run.Minv, k=int(soft_modes), return_vectors=True)
     run.V_soft = V[:, rq > _NULL_CURV]                  # floppy (zero) modes carry no load
     if lam_est < -_NEG_CURV:
@@ -1374,8 +1422,7 @@ def _cg_step(run, max_order, full, preconditioner):
     asm = run.asm
     B = -asm.F if asm.ndof else np.zeros((0, _n_mandel(asm.net.dim)))
     run.Cs, run.lowers, run.margins = [run.C0], [None], [0.0]
-    scale_F = asm.F_scale if asm.F_scale > 0 else 1.0
-    run.trivial = asm.ndof == 0 or float(np.abs(B).max(initial=0.0)) <= 1e-13 * scale_F
+    run.trivial = _trivial(asm)
     if run.trivial:
         # nothing to relax (affine network, e.g. a perfect triangular lattice): exact at order 0
         run.lowers[0] = run.C0.copy()
