@@ -797,7 +797,7 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     if factor:
         from microhom.factor import AUTO_PARDISO_DOF_PENCIL, have_pardiso, predicted_factor_bytes
         fac = int(predicted_factor_bytes(ndof, "pardiso" if have_pardiso() and ndof >= AUTO_PARDISO_DOF_PENCIL
-                                         else "splu"))
+                                         else "splu", dim))
     return MemoryPlan(assembly=asm, preconditioner=prec, basis=basis, soft_modes=soft, dense=dns,
                       total=asm + prec + basis + soft + dns + fac, available=available, factor=fac)
 

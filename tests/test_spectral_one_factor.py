@@ -153,6 +153,19 @@ def test_plan_memory_counts_the_kept_factor():
     assert p1.total == p0.total + p1.factor
 
 
+def test_plan_memory_gives_superlu_its_3d_fill_for_spheres():
+    """Below PARDISO's threshold (SuperLU takes the certificate) the 3D plan counts SuperLU's
+    measured 3D fill (``5 n^1.6`` non-zeros: 4.6e7 at 23 944 unknowns, docs/spheres.md), not
+    the 2D ``n log n`` law, which is 8-55 times lower on spheres."""
+    from microhom.factor import AUTO_PARDISO_DOF_PENCIL
+    N = (AUTO_PARDISO_DOF_PENCIL - 1) // 6                # 6 unknowns per sphere: SuperLU's range
+    p2 = plan_memory(N, 3 * N, dim=2, factor=True)
+    p3 = plan_memory(N, 3 * N, dim=3, factor=True)
+    n3 = 6 * N
+    assert p3.factor >= 5.0 * n3 ** 1.6 * 22            # the law at the measured 22-24 bytes per non-zero
+    assert p3.factor > 3 * p2.factor                     # not the 2D figure
+
+
 def test_lean_default_is_not_taken_when_the_factor_does_not_fit():
     """A memory limit that holds the hierarchy but not the certificate's factor: no sparse
     certificate (stated), the multilevel CG as before."""
