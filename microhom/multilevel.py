@@ -350,6 +350,19 @@ def _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype):
         raise ValueError(f"dtype must be float64 or float32, got {dtype!r}")
 
 
+def _per_column(f, r, order, inv, dtype):
+    """``f`` (a linear map in the particle-major order, ``dtype`` in) applied to each column of
+    ``r`` ((ndof,) or (ndof, s), float64, the assembly's order): ``f(r[order].astype(dtype))``
+    back in float64 and in the assembly's order (``[inv]``)."""
+    r = np.asarray(r, dtype=float)
+    if r.ndim == 1:
+        return np.asarray(f(r[order].astype(dtype, copy=False)), dtype=float)[inv]
+    out = np.empty_like(r)
+    for j in range(r.shape[1]):
+        out[:, j] = np.asarray(f(r[order, j].astype(dtype, copy=False)), dtype=float)[inv]
+    return out
+
+
 def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all", smooth: str = "energy",
                        theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64):
     """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
@@ -435,13 +448,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     vcycle = ml.aspreconditioner(cycle="V")
 
     def apply(r):
-        r = np.asarray(r, dtype=float)
-        if r.ndim == 1:
-            return np.asarray(vcycle @ r[order].astype(dtype, copy=False), dtype=float)[inv]
-        out = np.empty_like(r)
-        for j in range(r.shape[1]):
-            out[:, j] = np.asarray(vcycle @ r[order, j].astype(dtype, copy=False), dtype=float)[inv]
-        return out
+        return _per_column(lambda x: vcycle @ x, r, order, inv, dtype)
 
     op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)
     op.amg = (ml, order, inv)                          # for coarse_correction (already held by the V-cycle)
@@ -488,13 +495,7 @@ def coarse_correction(op, *, rtol: float = 1e-6, maxiter: int = 30):
         return np.asarray(z, dtype=float)
 
     def apply(r):
-        r = np.asarray(r, dtype=float)
-        one = r.ndim == 1
-        R = r[:, None] if one else r
-        out = np.empty_like(R)
-        for j in range(R.shape[1]):
-            rc = np.asarray(P.T @ R[order, j].astype(P.dtype, copy=False), dtype=float)
-            out[:, j] = np.asarray(P @ solve(rc).astype(P.dtype, copy=False), dtype=float)[inv]
-        return out[:, 0] if one else out
+        return _per_column(lambda x: P @ solve(np.asarray(P.T @ x, dtype=float)).astype(P.dtype, copy=False),
+                           r, order, inv, P.dtype)
 
     return apply
