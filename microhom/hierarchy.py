@@ -137,13 +137,22 @@ class HierarchyResult(Result):
         Bulk and shear moduli with their intervals (isotropic projections, see
         ``microhom.tensors.isotropic_moduli``) [N/m].
     K_orders, G_orders : ndarray, shape (k+1,)
-        Upper bounds of orders 0..k (order 0 = affine, non-increasing) [N/m].
+        Upper bounds of orders 0..k (order 0 = affine, non-increasing) [N/m], each up to its
+        order's floating-point margin (``margin_orders``): the energy of the computed iterate is
+        evaluated in floating point, and ``K.upper``, ``G.upper`` and ``C_upper`` add the last
+        order's margin.
     K_lower_orders, G_lower_orders : ndarray, shape (k+1,)
         Rigorous lower bounds per order (NaN where unavailable; with the dual bound, an order
         where it was not evaluated keeps the last evaluated one, ``docs/theory.md`` section 12)
         [N/m].
     C_orders : ndarray, shape (k+1, 3, 3)
-        Mandel tensors of orders 0..k [N/m].
+        Mandel tensors of orders 0..k [N/m]; ``C_orders[j] + margin_orders[j] I`` bounds the exact
+        tensor from above in the Loewner order.
+    margin_orders : ndarray, shape (k+1,)
+        A-priori round-off margin of each order's energy [N/m] (0 at the affine order): it grows
+        with the iterate's size, e.g. when a CG that has stagnated at its preconditioner's
+        precision keeps stepping along nearly floppy directions (docs/results/spheres.md, "The
+        multilevel setup").
     C_upper, C_lower : ndarray, shape (3, 3)
         Tensors at the last order [N/m]; ``C_lower`` None without a spectral bound.
         ``C_upper - C_exact`` and ``C_exact - C_lower`` are positive semi-definite.
@@ -260,6 +269,7 @@ class HierarchyResult(Result):
     jammed: bool = True
     floppy: bool = False
     negative: bool = False
+    margin_orders: np.ndarray = field(default=None, repr=False)
 
     @property
     def valid(self) -> bool:
@@ -1617,7 +1627,8 @@ def _finish(run, preconditioner, t_asm, t_solve):
         preconditioner=preconditioner if not run.trivial else "none", preconditioner_time=run.t_prec,
         n_soft_modes=int(run.n_soft), n_factor_steps=int(run.n_factor_steps),
         certificate_factorisations=int(run.n_cert_fact), certified=bool(certified), calibrated=bool(run.calibrated),
-        kt_over_kn=float(run.kt_over_kn), jammed=bool(jammed), floppy=bool(floppy), negative=bool(negative))
+        kt_over_kn=float(run.kt_over_kn), jammed=bool(jammed), floppy=bool(floppy), negative=bool(negative),
+        margin_orders=np.array(run.margins, dtype=float))
 
 
 def _lower(C, cg, Minv, lam, lam_hi, area):

@@ -396,8 +396,10 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         come in and corrections go out in float64. float32 (issue 26, docs/results/spheres.md,
         "The multilevel setup"): at 1.08e5 spheres and tol = 0.01 the setup's peak 1.0 GiB lower,
         17 CG orders instead of 19, the hierarchy's CPU 188 s instead of 247 s; but at tol = 1e-3
-        on 256 frictional spheres the CG stagnates near 1e-8 (not certified after 23 orders, the
-        upper bounds up to 6e-9 of the modulus below the exact one): not the default.
+        on 256 frictional spheres the CG stagnates near 1e-8 (not certified after 23 orders: the
+        iterate grows along nearly floppy directions and so does its energy's round-off margin,
+        which covers the computed energies' drift below the exact one; every reported bound
+        stays rigorous, ``HierarchyResult.margin_orders``): not the default.
 
     Returns
     -------
