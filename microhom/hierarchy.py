@@ -442,7 +442,8 @@ def _spectral_lower_bound(asm, Minv_sqrt, dense_max, keep, guess=None, blocks=No
         try:
             b, fac = spectral.certified_bound(asm.H, M, psd=psd, Minv_sqrt=None if psd else S,
                                               lam_max=2.0 if psd else None, keep_factor=True, guess=guess,
-                                              null_basis=Z, check_m=False, **(_LEAN_CERTIFICATE if lean else {}))
+                                              null_basis=Z, check_m=False, dim=asm.net.dim,
+                                              **(_LEAN_CERTIFICATE if lean else {}))
         except (FactorisationError, MemoryGuardError, ValueError):
             return none
         if fac is not None and not keep:

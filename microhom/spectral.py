@@ -99,11 +99,12 @@ class SpectralBound(Result):
         return self.lower is not None
 
 
-def count_below(H, M, s, *, backend="auto", max_memory=None):
+def count_below(H, M, s, *, backend="auto", max_memory=None, dim=2):
     """Number of eigenvalues of the pencil ``(H, M)`` below ``s``: negative pivots of one
     ``LDL^T`` of ``H - s M`` (Sylvester). Raises :class:`microhom.factor.FactorisationError` when
-    the back end cannot count."""
-    f = factor((H - s * M).tocsr(), backend=backend, max_memory=max_memory)
+    the back end cannot count. ``dim``: the network's dimension (2 or 3), for the memory guard's
+    predicted fill (:func:`microhom.factor.predicted_factor_nnz`)."""
+    f = factor((H - s * M).tocsr(), backend=backend, max_memory=max_memory, dim=dim)
     try:
         return _neg(f)
     finally:
@@ -129,10 +130,10 @@ def gershgorin_upper(H, Minv_sqrt):
     return r * (1.0 + 1e3 * _U * max(A.shape[0], 1))
 
 
-def _check_m(M, backend, max_memory):
+def _check_m(M, backend, max_memory, dim=2):
     """``M`` positive definite, by the inertia of its factorisation (else ValueError)."""
     n = M.shape[0]
-    fm = factor(M, backend=backend, max_memory=max_memory)
+    fm = factor(M, backend=backend, max_memory=max_memory, dim=dim)
     try:
         m_neg = _neg(fm)
         m_pos = fm.inertia().n_pos
@@ -175,6 +176,10 @@ class CertificateOptions(Options):
     check_m : bool
         Factorise ``M`` to check that it is positive definite (False: the caller has, e.g. from
         its particle blocks).
+    dim : int
+        The network's dimension, 2 or 3: the memory guard's predicted fill of a SuperLU factor
+        (:func:`microhom.factor.predicted_factor_nnz`; 3D fill grows as ``n^1.6``, not
+        ``n log n``). PARDISO's guard reads its own analysis and does not need it.
     """
 
     eps: float = ZERO_EPS
@@ -186,6 +191,7 @@ class CertificateOptions(Options):
     max_tries: int = 4
     max_memory: float | None = None
     check_m: bool = True
+    dim: int = 2
 
     RULES = {
         "eps": ("in (0, 1e-3]", lambda v: real(v) and 0 < v <= 1e-3),
@@ -198,6 +204,7 @@ class CertificateOptions(Options):
         "max_tries": ("an integer >= 1", lambda v: integer(v) and v >= 1),
         "max_memory": ("None or a positive number of bytes", lambda v: v is None or (finite_real(v) and v > 0)),
         "check_m": ("True or False", flag),
+        "dim": ("2 or 3", lambda v: integer(v) and v in (2, 3)),
     }
 
 
@@ -253,7 +260,7 @@ def certified_bound(H, M, options: CertificateOptions | None = None, *, Minv_sqr
     o = merged(CertificateOptions, options, overrides, "certified_bound")
     H, M = _check_pencil(H, M, guess)
     if o.check_m:
-        _check_m(M, o.backend, o.max_memory)
+        _check_m(M, o.backend, o.max_memory, o.dim)
     c = _Certificate(H, M, o, Minv_sqrt, lam_max, t0)
     kept = None
     try:
@@ -301,7 +308,7 @@ class _Certificate:
         if self.pencil is None:
             if self.fac is not None:
                 self.fac.release()
-            self.fac = factor((self.H - sh * self.M).tocsr(), backend=self.be, max_memory=mm)
+            self.fac = factor((self.H - sh * self.M).tocsr(), backend=self.be, max_memory=mm, dim=self.o.dim)
         elif self.fac is None:    # matching only where H may be strongly indefinite (pre-stress)
             self.fac = _Pardiso(self.pencil.matrix(sh), upper=True, max_memory=mm, matching=not self.o.psd,
                                 ordering="mmd")

@@ -132,3 +132,28 @@ def test_certificate_is_the_same_on_every_run():
     np.random.seed(2)
     b = certified_bound(asm.H, M, psd=True, Minv_sqrt=S)
     assert (a.lower, a.upper, a.n_zero, a.n_negative) == (b.lower, b.upper, b.n_zero, b.n_negative)
+
+
+def test_certificate_guards_superlu_with_the_networks_dimension(monkeypatch):
+    """The certificate's SuperLU factorisations take the 3D fill (``dim=3``: refused where the 2D
+    n log n figure would pass), ``count_below`` too, and the hierarchy passes a sphere network's
+    dimension on; a bad dim is named."""
+    from microhom.factor import MemoryGuardError, predicted_factor_bytes
+    n = 3000
+    H = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n)).tocsr()
+    M = sp.identity(n, format="csr")
+    limit = 0.5 * (predicted_factor_bytes(n, "splu", 2) + predicted_factor_bytes(n, "splu", 3))
+    assert spec.count_below(H, M, 1e-3, backend="splu", max_memory=limit) >= 0
+    with pytest.raises(MemoryGuardError, match=r"\(3D\)"):
+        spec.count_below(H, M, 1e-3, backend="splu", max_memory=limit, dim=3)
+    with pytest.raises(MemoryGuardError, match=r"\(3D\)"):
+        spec.certified_bound(H, M, backend="splu", max_memory=limit, dim=3, check_m=False)
+    with pytest.raises(ValueError, match="dim"):
+        spec.CertificateOptions(dim=4)
+    seen = []
+    real = spec.certified_bound
+    monkeypatch.setattr(spec, "certified_bound", lambda *a, **k: seen.append(k.get("dim")) or real(*a, **k))
+    from microhom.hierarchy import relaxation_hierarchy
+    relaxation_hierarchy(lattices.simple_cubic(3, kn=1.0, kt=0.5), dense_max=10, preconditioner="block",
+                         max_order=2)
+    assert seen and set(seen) == {3}, seen
