@@ -308,7 +308,7 @@ def _write_outputs(res, paths, log):
     try:
         import meshio  # noqa: F401
     except ImportError:
-        log(f"VTK            skipped: meshio is not installed (pip install meshio)")
+        log("VTK            skipped: meshio is not installed (pip install meshio)")
     else:
         dio.write(paths["vtu"], cfg, network=net)
         log(f"VTK            {paths['vtu']} (ParaView)")

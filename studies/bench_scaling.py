@@ -53,7 +53,7 @@ def main(argv=None):
         sim.run(20)  # compile, first list build and spatial sort
         steps = max(20, int(2e7 / n))
         t0 = time.perf_counter()
-        rep = sim.run(steps)
+        sim.run(steps)
         wall = time.perf_counter() - t0
         per_step = wall / steps
         rows.append((n, steps, per_step, n * steps / wall, owned_bytes(st, sim) / n))

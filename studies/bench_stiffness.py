@@ -109,7 +109,7 @@ def jaxmd_moduli(pos, rad, L, cg_tol=1e-7, tether=1e-10):
     import jax
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
-    from jax_md import elasticity, energy, partition, space
+    from jax_md import elasticity, energy, space
 
     n = rad.size
     species = (rad > 0.6).astype(np.int32)

@@ -1054,8 +1054,8 @@ def _structural_lines(res: AnalysisResult) -> list:
                 f"  phi = {_g(s.phi, '.5f')}, mean D = {_g(s.diameter, '.5g')}, sliding fraction = "
                 f"{_g(s.sliding_fraction, '.4f')}, rattlers {s.n_rattlers} (fewer than 2 contacts "
                 "with friction, 4 without)",
-                f"  mean field: affine (Voigt) moduli of the fabric, K = sum kn l^2/(9V), "
-                f"G = sum (2kn + 3kt) l^2/(30V)"]
+                "  mean field: affine (Voigt) moduli of the fabric, K = sum kn l^2/(9V), "
+                "G = sum (2kn + 3kt) l^2/(30V)"]
     L = ["", "structural sums (mean A4 over non-rattlers, isotropic fit) vs (37)"]
     if not _ok(s):
         L.append(f"  n/a: {s.message}")

@@ -53,9 +53,8 @@ from microhom.kinematics import (affine_tensor, assemble, rotational_dofs, skew_
                                  stress0)
 from microhom.network import ContactNetwork
 from microhom.results import Result
-from microhom.tensors import (isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt,
-                              prestress_correction, strain_to_mandel, tensor_to_mandel, tensor_to_voigt,
-                              voigt_to_mandel, voigt_to_tensor)
+from microhom.tensors import (isotropic_moduli, mandel_to_tensor, mandel_to_voigt, prestress_correction,
+                              strain_to_mandel)
 
 from microhom import factor as _factor
 from microhom.factor import (AUTO_PARDISO_DOF, COUNTS, MemoryGuardError, NotPositiveDefinite, have_pardiso,

@@ -52,7 +52,6 @@ def write_vtk(path, config, network=None, *, binary=True):
     lines = [np.empty((0, 2), dtype=np.int64)]
     contact = [np.empty(0, dtype=np.int64)]
     kind = [np.empty(0)]
-    n_img = 0
     if network is not None:
         if network.n_particles != n:
             raise ValueError("network and configuration have different particle counts")
@@ -62,7 +61,7 @@ def write_vtk(path, config, network=None, *, binary=True):
                                    c, rtol=1e-9, atol=1e-12 * np.abs(c).max(initial=1.0)), axis=1)
         k_dir = np.flatnonzero(direct)
         k_img = np.flatnonzero(~direct)
-        m = n_img = k_img.size
+        m = k_img.size
         pts += [config.positions[pairs[k_img, 0]] + 0.5 * c[k_img],
                 config.positions[pairs[k_img, 1]] - 0.5 * c[k_img]]
         role += [np.zeros(2 * m, dtype=np.int64)]

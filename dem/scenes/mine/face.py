@@ -422,6 +422,7 @@ def advance_face(p: MineParams, n_steps: int = 4, slice_width: float | None = No
     m.alpha = relax_alpha
     uv = m.u0.copy()
     stages, prev, keep = [], None, None
+    uv_prev = None                                      # the previous stage's virgin displacements
     for k in range(n_steps + 1):
         ts = time.perf_counter()
         if k:

@@ -36,7 +36,6 @@ def plot_state(scene, path, title="", vectors=True, vec_scale=None):
     interfaces (red tension, blue shear, green dislocation) and displacement vectors of the centres."""
     plt, PolyCollection, LineCollection = _mpl()
     m = scene.model
-    p = scene.params
     nif, nbr, detached, free = cell_flags(m)
     col = np.where(m.is_coal, "#404040", "#c8c8c8").astype(object)
     col[(nbr > 0) & m.is_coal] = "#8a6d3b"
