@@ -48,6 +48,7 @@ import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, rotational_dofs
 from .results import Result
+from .vcycle import VCycle
 
 __all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout", "blocked_copy", "coarse_correction"]
 
@@ -445,9 +446,11 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
                                            smooth=SMOOTHERS[smooth], **extra)
     del H
     _share_restrictions(ml)
-    vcycle = ml.aspreconditioner(cycle="V")
+    vcycle, fast = ml.aspreconditioner(cycle="V"), VCycle.of(ml)
 
     def apply(r):
+        if fast is not None:                             # the same numbers, the columns in parallel
+            return fast.apply(r, order)
         return _per_column(lambda x: vcycle @ x, r, order, inv, dtype)
 
     op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)
