@@ -43,98 +43,120 @@ import scipy.sparse as sp
 __all__ = ["VCycle"]
 
 
+def _groups(s):
+    """(G, 2) column ranges: ``s`` columns in G = min(s, numba's threads) contiguous groups, one
+    per thread (a thread applies the cycle to its group's columns together)."""
+    G = max(1, min(s, numba.get_num_threads()))
+    g = np.arange(G + 1) * s // G
+    return np.ascontiguousarray(np.stack([g[:-1], g[1:]], axis=1), dtype=np.int64)
+
+
 @numba.njit(cache=True)
-def _gs_sweep(A, Dinv, x, b, rows):
+def _gs_sweep(A, Dinv, X, B, cols, rows):
     """One block Gauss-Seidel sweep on ``A x = b`` (``A`` = (indptr, indices, data) BSR, square
     blocks ``bs x bs``; ``Dinv`` (nb, bs, bs) the inverted diagonal blocks) over the block rows
-    ``range(*rows)``, ``x`` (n,) updated in place: pyamg's ``block_gauss_seidel`` sum for sum."""
+    ``range(*rows)``, for the rows ``x`` of ``X`` and ``b`` of ``B`` in ``range(*cols)`` together
+    (each block of ``A`` read once for them), ``X`` updated in place: per column, pyamg's
+    ``block_gauss_seidel`` sum for sum (``v = A_ij x_j`` from 0, ``rsum += v``, ``x_i = Dinv_i
+    (b_i - rsum)`` from 0)."""
     indptr, indices, data = A
     bs = data.shape[1]
-    rsum = np.empty(bs, dtype=x.dtype)
-    v = np.empty(bs, dtype=x.dtype)
+    c0, g = cols[0], cols[1] - cols[0]
+    zero = np.zeros(1, dtype=X.dtype)[0]
+    rsum = np.empty((g, bs), dtype=X.dtype)
     for i in range(rows[0], rows[1], rows[2]):
-        rsum[:] = 0
+        rsum[:] = zero
         for jj in range(indptr[i], indptr[i + 1]):
             j = indices[jj]
             if j == i:
                 continue
+            for c in range(g):
+                for k in range(bs):
+                    acc = zero
+                    for m in range(bs):
+                        acc += data[jj, k, m] * X[c0 + c, j * bs + m]
+                    rsum[c, k] += acc
+        for c in range(g):
             for k in range(bs):
-                v[k] = 0
+                rsum[c, k] = B[c0 + c, i * bs + k] - rsum[c, k]
+            for k in range(bs):
+                acc = zero
                 for m in range(bs):
-                    v[k] += data[jj, k, m] * x[j * bs + m]
-            for k in range(bs):
-                rsum[k] += v[k]
-        for k in range(bs):
-            rsum[k] = b[i * bs + k] - rsum[k]
-        for k in range(bs):
-            x[i * bs + k] = 0
-            for m in range(bs):
-                x[i * bs + k] += Dinv[i, k, m] * rsum[m]
+                    acc += Dinv[i, k, m] * rsum[c, m]
+                X[c0 + c, i * bs + k] = acc
 
 
 @numba.njit(cache=True, parallel=True)
-def _smooth(A, Dinv, X, B, sweeps):
+def _smooth(A, Dinv, X, B, sweeps, groups):
     """``sweeps`` symmetric block Gauss-Seidel sweeps (forward, backward) on ``A x = b`` for each
-    row ``x`` of ``X`` (s, n) and ``b`` of ``B`` (s, n), in place; the rows in parallel."""
+    row ``x`` of ``X`` (s, n) and ``b`` of ``B`` (s, n), in place; the groups of rows
+    (``_groups``) in parallel."""
     nb = A[0].size - 1
-    for c in numba.prange(X.shape[0]):
+    for t in numba.prange(groups.shape[0]):
+        cols = (groups[t, 0], groups[t, 1])
         for _ in range(sweeps):
-            _gs_sweep(A, Dinv, X[c], B[c], (0, nb, 1))
-            _gs_sweep(A, Dinv, X[c], B[c], (nb - 1, -1, -1))
+            _gs_sweep(A, Dinv, X, B, cols, (0, nb, 1))
+            _gs_sweep(A, Dinv, X, B, cols, (nb - 1, -1, -1))
 
 
 @numba.njit(cache=True, parallel=True)
-def _restrict_residual(A, P, X, B, Bc):
+def _restrict_residual(A, P, X, B, Bc, groups):
     """``Bc[c] += P^T (B[c] - A X[c])`` for each row ``c`` (``A``, ``P`` (indptr, indices, data)
     BSR; ``Bc`` zero on entry): the residual of a block row (scipy's BSR product order: each
-    output accumulated block by block), then its share of ``P^T`` (``_bsr_rmatvec``'s order)."""
+    output accumulated block by block), then its share of ``P^T`` (``_bsr_rmatvec``'s order);
+    groups of rows in parallel, each block read once per group."""
     ia, ja, da = A
     ip, jp, dp = P
     bs = da.shape[1]
     r, cc = dp.shape[1], dp.shape[2]
-    for c in numba.prange(X.shape[0]):
-        x, b, bc = X[c], B[c], Bc[c]
-        y = np.empty(bs, dtype=x.dtype)
+    for t in numba.prange(groups.shape[0]):
+        c0, g = groups[t, 0], groups[t, 1] - groups[t, 0]
+        y = np.empty((g, bs), dtype=X.dtype)
         for i in range(ia.size - 1):
             y[:] = 0
             for jj in range(ia[i], ia[i + 1]):
                 j = ja[jj]
+                for c in range(g):
+                    for k in range(bs):
+                        dot = y[c, k]
+                        for m in range(bs):
+                            dot += da[jj, k, m] * X[c0 + c, j * bs + m]
+                        y[c, k] = dot
+            for c in range(g):
                 for k in range(bs):
-                    dot = y[k]
-                    for m in range(bs):
-                        dot += da[jj, k, m] * x[j * bs + m]
-                    y[k] = dot
-            for k in range(bs):
-                y[k] = b[i * bs + k] - y[k]
+                    y[c, k] = B[c0 + c, i * bs + k] - y[c, k]
             for kk in range(ip[i], ip[i + 1]):
                 J = jp[kk]
-                for q in range(cc):
-                    dot = bc[J * cc + q]
-                    for p in range(r):
-                        dot += dp[kk, p, q] * y[p]
-                    bc[J * cc + q] = dot
+                for c in range(g):
+                    for q in range(cc):
+                        dot = Bc[c0 + c, J * cc + q]
+                        for p in range(r):
+                            dot += dp[kk, p, q] * y[c, p]
+                        Bc[c0 + c, J * cc + q] = dot
 
 
 @numba.njit(cache=True, parallel=True)
-def _prolong(P, Xc, X):
+def _prolong(P, Xc, X, groups):
     """``X[c] += P Xc[c]`` for each row ``c`` (``P`` (indptr, indices, data) BSR): scipy's BSR
-    product into a block row, then the sum, as ``x += P @ xc``."""
+    product into a block row, then the sum, as ``x += P @ xc``; groups of rows in parallel."""
     ip, jp, dp = P
     r, cc = dp.shape[1], dp.shape[2]
-    for c in numba.prange(X.shape[0]):
-        x, xc = X[c], Xc[c]
-        y = np.empty(r, dtype=x.dtype)
+    for t in numba.prange(groups.shape[0]):
+        c0, g = groups[t, 0], groups[t, 1] - groups[t, 0]
+        y = np.empty((g, r), dtype=X.dtype)
         for i in range(ip.size - 1):
             y[:] = 0
             for kk in range(ip[i], ip[i + 1]):
                 J = jp[kk]
+                for c in range(g):
+                    for p in range(r):
+                        dot = y[c, p]
+                        for q in range(cc):
+                            dot += dp[kk, p, q] * Xc[c0 + c, J * cc + q]
+                        y[c, p] = dot
+            for c in range(g):
                 for p in range(r):
-                    dot = y[p]
-                    for q in range(cc):
-                        dot += dp[kk, p, q] * xc[J * cc + q]
-                    y[p] = dot
-            for p in range(r):
-                x[i * r + p] = x[i * r + p] + y[p]
+                    X[c0 + c, i * r + p] = X[c0 + c, i * r + p] + y[c, p]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -212,12 +234,13 @@ class VCycle:
 
     def _cycle(self, B):
         s = B.shape[0]
+        groups = _groups(s)
         xs, bs = [], [B]
         for A, P, pre, _, nc in self.levels:
             x = np.zeros((s, bs[-1].shape[1]), dtype=self.dtype)
-            _smooth(A, pre[1], x, bs[-1], pre[0])
+            _smooth(A, pre[1], x, bs[-1], pre[0], groups)
             bc = np.zeros((s, nc), dtype=self.dtype)
-            _restrict_residual(A, P, x, bs[-1], bc)
+            _restrict_residual(A, P, x, bs[-1], bc, groups)
             xs.append(x)
             bs.append(bc)
         solve = self.ml.coarse_solver
@@ -225,8 +248,8 @@ class VCycle:
         for c in range(s):
             xc[c] = solve(self.coarse, bs[-1][c].copy())
         for (A, P, _, post, _), x, b in zip(self.levels[::-1], xs[::-1], bs[-2::-1]):
-            _prolong(P, xc, x)
-            _smooth(A, post[1], x, b, post[0])
+            _prolong(P, xc, x, groups)
+            _smooth(A, post[1], x, b, post[0], groups)
             xc = x
         return xc
 
