@@ -256,13 +256,13 @@ class VCycle:
     def apply(self, r, order):
         """The V-cycle of each column of ``r`` ((n,) or (n, s), float64, unknowns in the order
         ``order`` maps from: ``ml``'s unknown ``i`` is ``r[order[i]]``), cast to ``ml``'s dtype;
-        the result in ``r``'s order and float64, shaped as ``r``."""
+        the result in ``r``'s order and float64, shaped and laid out (C or Fortran) as ``r``."""
         r = np.asarray(r, dtype=float)
         r2 = r.reshape(r.shape[0], -1)
         B = np.empty((r2.shape[1], self.n), dtype=self.dtype)
         _gather(r2, order, B)
         X = self._cycle(B)
-        out = np.empty((r.shape[0], r2.shape[1]))
+        out = np.empty_like(r2)                            # r's memory layout, as pyamg's path kept it
         _scatter(X, order, out)
         return out.reshape(r.shape)
 

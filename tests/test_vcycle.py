@@ -59,6 +59,8 @@ def test_vcycle_equals_pyamg_bit_for_bit(name, dtype):
     assert np.array_equal(P @ r, expect)
     assert np.array_equal(P @ r[:, 4], expect[:, 4])
     assert (P @ r[:, :2]).shape == (asm.ndof, 2)
+    rf = np.asfortranarray(r)                      # the block CG's layout: kept, as pyamg's path did
+    assert np.array_equal(P @ rf, expect) and (P @ rf).flags.f_contiguous
 
 
 def test_not_taken_where_pyamg_smooths_pointwise():
