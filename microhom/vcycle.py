@@ -223,6 +223,9 @@ class VCycle:
             shape = (A.shape[0] // A.blocksize[0],) + A.blocksize
             if any(f is None or f[1].shape != shape or f[1].dtype != A.dtype for f in (pre, post)):
                 return None
+            if any(getattr(f, "keywords", {}).get("blocksize") not in (None, A.blocksize[0])
+                   for f in (lvl.presmoother, lvl.postsmoother)):
+                return None                              # pyamg would re-block A: not this cycle
             levels.append((_bsr(A), _bsr(P), pre, post, P.shape[1]))
         return cls(ml, levels, ml.levels[-1].A)
 
