@@ -23,6 +23,14 @@ spheres"): pyamg gets the permuted, shifted ``H`` built once in blocks (``blocke
 indices, no transient CSR copies) and keeps no transposed copy of each prolongator (``R @ x`` is
 computed from ``P``); both give the former V-cycle bit for bit.
 
+The V-cycle is applied by ``microhom.vcycle.VCycle`` (issue 26): pyamg's cycle, sum for sum, as
+numba kernels that spread the columns of a block (the CG's 6 load columns in 3D, 3 in 2D) over
+the threads (``NUMBA_NUM_THREADS``); pyamg's C++ cycle holds the GIL and takes the columns one at a
+time on one core. The result is pyamg's to the bit, in 2D and 3D, float64 and float32, whatever
+the number of threads (tests/test_vcycle.py; measured in docs/results/spheres.md, "Both cores for
+the V-cycle"). Hierarchies outside what it does (pointwise Gauss-Seidel where the particle blocks
+differ in size, a single level) keep pyamg's cycle.
+
 Spheres (3D) use the same code with the dimension from the network: nine vectors per particle
 (three translations, three rigid rotations with their spins, three spins alone).
 
@@ -48,6 +56,7 @@ import scipy.sparse.linalg as sla
 
 from .kinematics import Assembly, rotational_dofs
 from .results import Result
+from .vcycle import VCycle
 
 __all__ = ["near_null_space", "amg_preconditioner", "AMGInfo", "dof_layout", "blocked_copy", "coarse_correction"]
 
@@ -447,9 +456,11 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
                                            smooth=SMOOTHERS[smooth], **extra)
     del H
     _share_restrictions(ml)
-    vcycle = ml.aspreconditioner(cycle="V")
+    vcycle, fast = ml.aspreconditioner(cycle="V"), VCycle.of(ml)
 
     def apply(r):
+        if fast is not None:                             # the same numbers, the columns in parallel
+            return fast.apply(r, order)
         return _per_column(lambda x: vcycle @ x, r, order, inv, dtype)
 
     op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)

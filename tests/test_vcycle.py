@@ -1,0 +1,142 @@
+"""The parallel V-cycle (``microhom.vcycle``, issue 26): pyamg's V-cycle bit for bit, column by
+column, in 2D and 3D, float64 and float32, for one and several columns and any thread count; the
+hierarchy gives the same orders and interval with it as with pyamg's."""
+import os
+import subprocess
+import sys
+import pathlib
+
+import numpy as np
+import pytest
+
+from microhom import lattices, multilevel
+from microhom.kinematics import assemble
+from microhom.multilevel import amg_preconditioner
+from microhom.network import from_overlaps
+from microhom.vcycle import VCycle
+from tests.test_hierarchy_3d import packing
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def _disks(kt=0.5, seed=3, m=12):
+    lat = lattices.triangular(m, m)
+    rng = np.random.default_rng(seed)
+    return from_overlaps(lat.positions * 0.97 + rng.normal(scale=0.01, size=lat.positions.shape),
+                         np.full(lat.n_particles, 0.5), lat.cell * 0.97, kn=1.0, kt=kt, tolerance=0.0)
+
+
+NETWORKS = {"2d": lambda: _disks(), "2d frictionless": lambda: _disks(kt=0.0),
+            "3d": lambda: packing(5, n=3, kt=0.5, keep=0.7), "3d frictionless": lambda: packing(6, n=3, keep=0.9)}
+
+
+def _pyamg_columns(ml, B):
+    """pyamg's own V-cycle, one column (row of B) at a time."""
+    vc = ml.aspreconditioner(cycle="V")
+    return np.stack([vc @ np.ascontiguousarray(b) for b in B])
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("name", list(NETWORKS))
+def test_vcycle_equals_pyamg_bit_for_bit(name, dtype):
+    """Each column of the parallel V-cycle is pyamg's V-cycle of that column, array_equal, for 1
+    and 6 columns; through the preconditioner (assembly order, float64 in and out) as well."""
+    asm = assemble(NETWORKS[name](), pin=False)
+    P, info = amg_preconditioner(asm, dtype=dtype)
+    ml, order, inv = P.amg
+    assert info.levels >= 2
+    vc = VCycle.of(ml)
+    assert vc is not None
+    rng = np.random.default_rng(7)
+    r = rng.standard_normal((asm.ndof, 6))
+    B = np.ascontiguousarray(r[order].T, dtype=dtype)
+    ref = _pyamg_columns(ml, B)
+    assert np.abs(ref).max() > 0
+    assert np.array_equal(vc(B), ref)
+    assert np.array_equal(vc(B[2:3]), ref[2:3])
+    # the preconditioner's apply: float64 in the assembly's order, one column and several
+    expect = ref.T.astype(float)[inv]
+    assert np.array_equal(P @ r, expect)
+    assert np.array_equal(P @ r[:, 4], expect[:, 4])
+    assert (P @ r[:, :2]).shape == (asm.ndof, 2)
+    rf = np.asfortranarray(r)                      # the block CG's layout: kept, as pyamg's path did
+    assert np.array_equal(P @ rf, expect) and (P @ rf).flags.f_contiguous
+
+
+def test_not_taken_where_pyamg_smooths_pointwise():
+    """Disks with and without spins in one network (block size 1: pyamg's pointwise Gauss-Seidel)
+    and a one-level hierarchy keep pyamg's cycle (``VCycle.of`` is None); the operator still works."""
+    import pyamg
+    net = _disks()
+    asm = assemble(net, pin=False)
+    P, info = amg_preconditioner(asm)
+    ml = P.amg[0]
+    sm = ("gauss_seidel", {"sweep": "symmetric", "iterations": 2})
+    A = ml.levels[0].A.tocsr()
+    ml_pt = pyamg.smoothed_aggregation_solver(A, B=np.ones((A.shape[0], 1)), presmoother=sm, postsmoother=sm)
+    assert VCycle.of(ml_pt) is None
+    ml_one = pyamg.smoothed_aggregation_solver(ml.levels[0].A, max_coarse=10 ** 6)
+    assert len(ml_one.levels) == 1 and VCycle.of(ml_one) is None
+
+
+def test_bad_shape_is_refused_by_name():
+    asm = assemble(NETWORKS["3d"](), pin=False)
+    vc = VCycle.of(amg_preconditioner(asm)[0].amg[0])
+    with pytest.raises(ValueError, match="VCycle: B must have shape"):
+        vc(np.zeros((2, asm.ndof + 1)))
+
+
+_THREADS_SCRIPT = """
+import hashlib, numpy as np, numba
+from microhom.kinematics import assemble
+from microhom.multilevel import amg_preconditioner
+from tests.test_hierarchy_3d import packing
+asm = assemble(packing(5, n=3, kt=0.5, keep=0.7), pin=False)
+P, _ = amg_preconditioner(asm)
+r = np.random.default_rng(7).standard_normal((asm.ndof, 6))
+print(numba.get_num_threads(), hashlib.sha256((P @ r).tobytes()).hexdigest())
+"""
+
+
+def test_thread_count_does_not_change_the_numbers():
+    """NUMBA_NUM_THREADS = 1, 2 and 3 (subprocesses): the same bytes (each column's cycle is
+    sequential; the threads share out the columns)."""
+    out = set()
+    for t in ("1", "2", "3"):
+        env = dict(os.environ, NUMBA_NUM_THREADS=t)
+        res = subprocess.run([sys.executable, "-c", _THREADS_SCRIPT], cwd=ROOT, env=env, capture_output=True,
+                             text=True, check=True)
+        threads, digest = res.stdout.split()
+        assert threads == t
+        out.add(digest)
+    assert len(out) == 1
+
+
+def test_hierarchy_same_orders_and_interval_as_with_pyamg(monkeypatch):
+    """A 3D hierarchy (108 frictional spheres, dual bound, tol 1e-6): the same orders, upper bounds
+    per order and interval, bit for bit, with the parallel V-cycle as with pyamg's."""
+    from microhom.hierarchy import relaxation_hierarchy
+    net = packing(11, n=3, kt=0.5, keep=0.6)
+    calls = {"fast": 0, "pyamg": 0}
+
+    def counted(key, f):
+        def wrapped(*a, **k):
+            calls[key] += 1
+            return f(*a, **k)
+        return wrapped
+
+    def run():
+        return relaxation_hierarchy(net, tol=1e-6, preconditioner="amg", max_order=60, soft_modes=0,
+                                    spectral_bound="none", dual_bound=True)
+    monkeypatch.setattr(multilevel.VCycle, "apply", counted("fast", multilevel.VCycle.apply))
+    monkeypatch.setattr(multilevel, "_per_column", counted("pyamg", multilevel._per_column))
+    h_fast = run()
+    assert calls["fast"] > 0 and calls["pyamg"] == 0
+    monkeypatch.setattr(multilevel.VCycle, "of", classmethod(lambda cls, ml: None))
+    h_pyamg = run()
+    assert calls["pyamg"] > 0
+    assert h_fast.certified and h_fast.order >= 3
+    assert h_fast.order == h_pyamg.order
+    assert np.array_equal(h_fast.K_orders, h_pyamg.K_orders) and np.array_equal(h_fast.G_orders, h_pyamg.G_orders)
+    for a, b in ((h_fast.K, h_pyamg.K), (h_fast.G, h_pyamg.G)):
+        assert (a.lower, a.upper) == (b.lower, b.upper)
