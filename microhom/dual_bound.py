@@ -267,11 +267,13 @@ def _drain(o, regular, neq, g):
 
 
 @numba.njit(cache=True)
-def _bootstrap(seed, regular, neq, g, kmax):
+def _bootstrap(seed, regular, neq, g, kmax, lazy=False):
     """Construction order from the seed: a regular particle joins once its usable contacts to the
     particles already in carry any load (full row rank), or, failing that, together with unbuilt
     neighbours as one unit of up to ``kmax`` particles (in 3D two contacts leave a sphere a twist
-    about the line of its contact points, which a contact to a neighbour resists). Returns ``idx``
+    about the line of its contact points, which a contact to a neighbour resists). ``lazy``: a
+    particle whose unit failed is tried again only once its contacts to the built particles
+    changed (the two-level statics' many cluster boundaries). Returns ``idx``
     (N,): 0 for the seed, 1.. the unit's position, ``BIG`` for particles that never joined; and
     the units' members in order (``members``, ``uptr``)."""
     N = neq.shape[0]
@@ -286,17 +288,20 @@ def _bootstrap(seed, regular, neq, g, kmax):
         tail += 1
     o.st[1] = tail
     o.st[4] = 1                 # st = (head, tail, nm, nu, pos)
+    tried = np.full(N, -1, np.int64)
     while True:
         _drain(o, regular, neq, g)
         progressed = False      # stalled: units of several particles on the frontier, pass by pass
         for q in range(N):
-            if o.idx[q] < BIG or not regular[q] or o.cnt[q] == 0:
+            if o.idx[q] < BIG or not regular[q] or o.cnt[q] == 0 or (lazy and tried[q] == o.cnt[q]):
                 continue
             mem = _grow(q, kmax, o, regular, g)
             if mem.shape[0]:
                 _attach(mem, o)
                 progressed = True
                 _drain(o, regular, neq, g)
+            else:
+                tried[q] = o.cnt[q]
         if not progressed:
             break
     nm, nu = o.st[2], o.st[3]
@@ -1152,9 +1157,9 @@ def _coarse_solver(asm, R):
     return solve, Hc.shape[0], Hc.nnz
 
 
-ROUNDS = 3
+ROUNDS = 2
 COARSE_BACKEND = "auto"
-KMAX_EARLY = 16
+UNIT_MAX = 8
 
 
 def _two_level(asm, g0, neq, size):
@@ -1182,7 +1187,7 @@ def _two_level(asm, g0, neq, size):
         bounds = np.searchsorted(lab[order], np.arange(lab.max() + 2))
         seeds = [_cluster_seed(order[bounds[k]:bounds[k + 1]], deg, 12 if d == 2 else 30, g, regular)
                  for k in range(len(bounds) - 1) if bounds[k + 1] > bounds[k]]
-        idx, members, uptr = _bootstrap(np.concatenate(seeds), regular, neq, g, 16 if rnd == ROUNDS - 1 else KMAX_EARLY)
+        idx, members, uptr = _bootstrap(np.concatenate(seeds), regular, neq, g, UNIT_MAX, True)
         alone = np.flatnonzero(live & (idx == BIG))
         if rnd == ROUNDS - 1 or not len(alone):
             break
