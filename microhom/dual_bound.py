@@ -1183,10 +1183,11 @@ def _two_level(asm, g0, neq, size):
         g = g0._replace(usable=inner)
         regular = _regular(neq, g)
         deg = np.bincount(pairs[inner].ravel(), minlength=N)
-        order = np.argsort(lab, kind="stable")
-        bounds = np.searchsorted(lab[order], np.arange(lab.max() + 2))
-        seeds = [_cluster_seed(order[bounds[k]:bounds[k + 1]], deg, 12 if d == 2 else 30, g, regular)
-                 for k in range(len(bounds) - 1) if bounds[k + 1] > bounds[k]]
+        if rnd == 0:              # the seeds stay (attached first, they never move)
+            order = np.argsort(lab, kind="stable")
+            bounds = np.searchsorted(lab[order], np.arange(lab.max() + 2))
+            seeds = [_cluster_seed(order[bounds[k]:bounds[k + 1]], deg, 12 if d == 2 else 30, g, regular)
+                     for k in range(len(bounds) - 1) if bounds[k + 1] > bounds[k]]
         idx, members, uptr = _bootstrap(np.concatenate(seeds), regular, neq, g, UNIT_MAX, True)
         alone = np.flatnonzero(live & (idx == BIG))
         if rnd == ROUNDS - 1 or not len(alone):
