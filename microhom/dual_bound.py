@@ -28,6 +28,12 @@ moment that only a cycle around the periodic cell can carry: a few reserved peri
 carry it. Particles that cannot be attached in such an order (counted in ``DualBound``) are
 solved by least squares and their leftover shows in the measured equilibrium residual.
 
+``build_equilibrator(asm, clusters=m)`` makes the two-level statics instead (docs/theory.md section
+12, "Two-level statics"): boxes of the cell of about ``m`` particles, each carried to its own seed
+on its own contacts, after a coarse equilibrium step on the clusters' rigid motions that leaves no
+net force or moment on any cluster; the paths to a seed stay inside a cluster, so the statics'
+amplification no longer grows with the network.
+
 Pre-stressed networks are outside this bound (the geometric term is not of the form
 ``B^T K B`` with ``K`` positive semi-definite): :func:`dual_lower_bound` refuses them.
 """
