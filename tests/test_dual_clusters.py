@@ -113,3 +113,24 @@ def test_two_level_amplification_smaller():
     two = _amplification(asm, build_equilibrator(asm, clusters=400), r, z)
     assert one.min() > 1e3
     assert two.sum() * 5 <= one.sum(), (one, two)
+
+
+def test_hierarchy_default_two_level_interval_holds_exact(monkeypatch):
+    """The hierarchy's default in 3D (``DUAL_CLUSTERS``) on 500 spheres (8 clusters): certified
+    to ``tol``, and the interval holds the exact solver's K and G."""
+    import microhom.hierarchy as hi
+    seen = []
+
+    def record(asm, **kw):
+        eq = build_equilibrator(asm, **kw)
+        seen.append(eq.n_clusters)
+        return eq
+    monkeypatch.setattr(hi, "build_equilibrator", record)
+    net = fcc_network(500)
+    ex = stiffness(net)
+    h = hi.relaxation_hierarchy(net, tol=1e-3, soft_modes=0, spectral_bound="none", dual_bound=True)
+    assert hi.DUAL_CLUSTERS is not None and seen and seen[0] >= 8, seen
+    assert h.valid, h.reasons
+    assert h.K.lower <= ex.K * (1 + 1e-12) and ex.K <= h.K.upper * (1 + 1e-12)
+    assert h.G.lower <= ex.G * (1 + 1e-12) and ex.G <= h.G.upper * (1 + 1e-12)
+    assert h.K.upper - h.K.lower <= 1e-3 * h.K.upper and h.G.upper - h.G.lower <= 1e-3 * h.G.upper
