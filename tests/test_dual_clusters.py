@@ -134,3 +134,18 @@ def test_hierarchy_default_two_level_interval_holds_exact(monkeypatch):
     assert h.K.lower <= ex.K * (1 + 1e-12) and ex.K <= h.K.upper * (1 + 1e-12)
     assert h.G.lower <= ex.G * (1 + 1e-12) and ex.G <= h.G.upper * (1 + 1e-12)
     assert h.K.upper - h.K.lower <= 1e-3 * h.K.upper and h.G.upper - h.G.lower <= 1e-3 * h.G.upper
+
+
+def test_bench_statics_rows():
+    """The amplification study on 500 spheres: finite amplifications, balanced corrections, and
+    the two-level construction order shallower than the one-seed one; bench_spheres refuses a
+    cluster size below 8."""
+    from studies import bench_spheres, bench_statics
+    (rows,) = bench_statics.main(["--n", "500", "--clusters", "60"])
+    one, two = rows
+    assert one["clusters"] is None and two["clusters"] == 60 and two["n_clusters"] >= 8
+    for r in rows:
+        assert np.all(np.isfinite(r["amp"])) and np.all(r["amp"] > 0.99) and r["residual"] <= 1e-8
+    assert two["depth_max"] < one["depth_max"]
+    with pytest.raises(SystemExit):
+        bench_spheres.main(["--n", "100", "--exact", "no", "--dual-clusters", "3"])
