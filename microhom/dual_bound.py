@@ -997,7 +997,7 @@ def _box_labels(net, size):
 
 
 def _reassign(lab, pairs, usable, nk, need, passes=3):
-    """Each particle with fewer than ``need`` force components on contacts inside its box moves to
+    """Each particle with fewer than ``need`` (N,) force components on contacts inside its box moves to
     the neighbouring box it has the most components to (``passes`` times)."""
     N = lab.shape[0]
     i, j = pairs[usable, 0], pairs[usable, 1]
@@ -1180,7 +1180,10 @@ def _two_level(asm, g0, neq, size):
     if lab is None:
         return None
     pairs, nk = g0.pairs, g0.nk
-    lab = _reassign(lab, pairs, g0.usable, nk, d * (d + rotational_dofs(d)) // 2)
+    # force components a particle needs inside its cluster: its unknowns, 9 for a sphere with
+    # rotations (three contacts: two leave a twist)
+    need = np.where((d == 3) & (neq == 6), 9, neq)
+    lab = _reassign(lab, pairs, g0.usable, nk, need)
     BIG = 1 << 60
     live = neq > 0
     for rnd in range(ROUNDS):

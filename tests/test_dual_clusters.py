@@ -20,6 +20,8 @@ from studies.bench_stiffness import diluted_triangular
 #: (network, particles per cluster): several clusters in each (at least 2 boxes per axis)
 CASES = {"2D": (diluted_triangular(400, z=4.6, kt=0.5, seed=1), 40),
          "3D": (fcc_network(256, keep=0.65, kt=0.5, seed=2), 30)}
+_f = CASES["3D"][0]
+CASES["3D sliding"] = (_f.with_stiffness(sliding=np.random.default_rng(3).random(_f.n_contacts) < 0.15), 30)
 
 
 def _loads(asm, k=4, seed=0):
