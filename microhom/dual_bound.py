@@ -28,6 +28,12 @@ moment that only a cycle around the periodic cell can carry: a few reserved peri
 carry it. Particles that cannot be attached in such an order (counted in ``DualBound``) are
 solved by least squares and their leftover shows in the measured equilibrium residual.
 
+``build_equilibrator(asm, clusters=m)`` makes the two-level statics instead (docs/theory.md section
+12, "Two-level statics"): boxes of the cell of about ``m`` particles, each carried to its own seed
+on its own contacts, after a coarse equilibrium step on the clusters' rigid motions that leaves no
+net force or moment on any cluster; the paths to a seed stay inside a cluster, so the statics'
+amplification no longer grows with the network.
+
 Pre-stressed networks are outside this bound (the geometric term is not of the form
 ``B^T K B`` with ``K`` positive semi-definite): :func:`dual_lower_bound` refuses them.
 """
@@ -267,11 +273,13 @@ def _drain(o, regular, neq, g):
 
 
 @numba.njit(cache=True)
-def _bootstrap(seed, regular, neq, g, kmax):
+def _bootstrap(seed, regular, neq, g, kmax, lazy=False):
     """Construction order from the seed: a regular particle joins once its usable contacts to the
     particles already in carry any load (full row rank), or, failing that, together with unbuilt
     neighbours as one unit of up to ``kmax`` particles (in 3D two contacts leave a sphere a twist
-    about the line of its contact points, which a contact to a neighbour resists). Returns ``idx``
+    about the line of its contact points, which a contact to a neighbour resists). ``lazy``: a
+    particle whose unit failed is tried again only once its contacts to the built particles
+    changed (the two-level statics' many cluster boundaries). Returns ``idx``
     (N,): 0 for the seed, 1.. the unit's position, ``BIG`` for particles that never joined; and
     the units' members in order (``members``, ``uptr``)."""
     N = neq.shape[0]
@@ -286,17 +294,20 @@ def _bootstrap(seed, regular, neq, g, kmax):
         tail += 1
     o.st[1] = tail
     o.st[4] = 1                 # st = (head, tail, nm, nu, pos)
+    tried = np.full(N, -1, np.int64)
     while True:
         _drain(o, regular, neq, g)
         progressed = False      # stalled: units of several particles on the frontier, pass by pass
         for q in range(N):
-            if o.idx[q] < BIG or not regular[q] or o.cnt[q] == 0:
+            if o.idx[q] < BIG or not regular[q] or o.cnt[q] == 0 or (lazy and tried[q] == o.cnt[q]):
                 continue
             mem = _grow(q, kmax, o, regular, g)
             if mem.shape[0]:
                 _attach(mem, o)
                 progressed = True
                 _drain(o, regular, neq, g)
+            else:
+                tried[q] = o.cnt[q]
         if not progressed:
             break
     nm, nu = o.st[2], o.st[3]
@@ -415,6 +426,10 @@ class Equilibrator:
         up to ``block_max`` unknowns); False: they were not, and the field is not in equilibrium.
     setup_time : float
         Wall time of the construction [s].
+    n_clusters : int
+        Clusters of the two-level statics (``build_equilibrator(clusters=...)``), 0 for the
+        one-seed statics; there ``n_seed`` counts the seeds' particles, ``n_attached`` the
+        particles attached in their cluster, ``n_stalled`` those that are a cluster of their own.
     _data : dict
         The construction's arrays (order, local operators, seed, block, reserved cycles): internal.
     """
@@ -427,6 +442,7 @@ class Equilibrator:
     block_solved: bool
     setup_time: float
     _data: dict = field(repr=False)
+    n_clusters: int = 0
 
     def correct(self, r: np.ndarray, chunk: int = 6) -> np.ndarray:
         """Forces ``c`` (C, d, s) with ``B^T c = r`` for loads ``r`` (ndof, s) in the range of
@@ -440,6 +456,8 @@ class Equilibrator:
 
     def _correct(self, r):
         D = self._data
+        if D.get("two") is not None:
+            return self._two_level(r)
         c, left = self._tree(r)
         if D["Lres"] is not None:       # the seed's leftover (net moment): the reserved cycles
             # c = T(r) + sum_u alpha_u (u - T(B^T u)), B^T (u - T(B^T u)) = Lres[:, u] on the seed
@@ -449,6 +467,16 @@ class Equilibrator:
             for t, e in enumerate(D["res_e"]):
                 c[e] += D["Ures"][t] @ alpha[D["res_cols"][t]]
         return c
+
+    def _two_level(self, r):
+        """The coarse step ``c1 = K B R y``, ``R^T H R y = R^T r``, then each cluster's statics
+        on ``r - B^T c1`` (no net force or moment on any cluster; docs/theory.md section 12)."""
+        T = self._data["two"]
+        y = T["solve"](np.asarray(T["R"].T @ r))
+        f1 = np.asarray(T["Ks"] @ (T["Bs"] @ np.asarray(T["R"] @ y)))
+        r2 = r - np.asarray(T["Bs"].T @ f1)
+        c, _ = Equilibrator(0, 0, 0, 0, 0, True, 0.0, T["local"])._tree(r2)
+        return c + f1.reshape(c.shape)
 
     def _tree(self, r):
         D = self._data
@@ -537,20 +565,23 @@ def _seed_matrix(seed, g):
     """Equilibrium matrix of the seed on its internal contacts (rows: the seed's unknowns)."""
     usable, pdof, pairs, B, Q, nk, Kq, nl = g.usable, g.pdof, g.pairs, g.B, g.Q, g.nk, g.Kq, g.nl
     d = B.shape[1]
-    ins = np.zeros(pdof.shape[0], bool)
-    ins[seed] = True
-    se = np.flatnonzero(usable & ins[pairs[:, 0]] & ins[pairs[:, 1]])
+    seed = np.asarray(seed, dtype=np.int64)
+    inc = np.concatenate([g.adj_e[g.ptr[p]:g.ptr[p + 1]] for p in seed]) if len(seed) else np.zeros(0, np.int64)
+    inc = np.unique(inc)          # the seed's contacts (through the adjacency: O(its degree))
+    inc = inc[usable[inc]]
+    se = inc[np.isin(pairs[inc, 0], seed) & np.isin(pairs[inc, 1], seed)]
     sd = pdof[seed].ravel()
     sd = sd[sd >= 0]
-    pos = np.full(pdof.max(initial=0) + 1, -1, np.int64)
-    pos[sd] = np.arange(len(sd))
+    srt = np.argsort(sd)
     A = np.zeros((len(sd), d * len(se)))
-    for a, e in enumerate(se):
-        for side in range(2):
-            for k in range(nl):
-                g = pdof[pairs[e, side], k]
-                if g >= 0:
-                    A[pos[g], d * a:d * a + nk[e]] += B[e, :, side * nl + k] @ Q[e, :, :nk[e]]
+    cols = d * np.arange(len(se))[:, None] + np.arange(d)[None, :]
+    for side in range(2):
+        for k in range(nl):
+            gk = pdof[pairs[se, side], k]
+            ok = gk >= 0
+            rows = srt[np.searchsorted(sd, gk[ok], sorter=srt)]
+            v = np.einsum("cx,cxb->cb", B[se[ok], :, side * nl + k], Q[se[ok]])   # Q's columns past nk are 0
+            np.add.at(A, (rows[:, None], cols[ok]), v)
     Kl = np.zeros((d * len(se), d * len(se)))
     for a, e in enumerate(se):
         Kl[d * a:d * a + d, d * a:d * a + d] = Kq[e]
@@ -598,9 +629,18 @@ def _reserve(asm, usable, stick, per_axis=4, n_random=8, seed=0):
     return np.array(sorted(set(res)), dtype=np.int64)
 
 
-def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000) -> Equilibrator:
+def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000,
+                       clusters: int | None = None) -> Equilibrator:
     """The statics of ``asm`` (module docstring): construction order, local operators, seed and
-    reserved contacts. O(C) time and memory."""
+    reserved contacts. O(C) time and memory. ``clusters``: None (default: one seed for the whole
+    network) or the number of particles per cluster of the two-level statics (an integer >= 8;
+    docs/theory.md section 12, "Two-level statics"): clusters of about that size, each carried
+    to its own seed, after a coarse equilibrium step on the clusters' rigid motions; a cell too
+    small for ``2^d`` clusters of that size gets the one-seed statics. Raises ``ValueError`` for
+    another ``clusters``."""
+    if clusters is not None and (isinstance(clusters, bool) or not isinstance(clusters, (int, np.integer))
+                                 or clusters < 8):
+        raise ValueError(f"clusters must be None or an integer >= 8 (particles per cluster), got {clusters!r}")
     t0 = time.perf_counter()
     net = asm.net
     N, d, C = net.n_particles, net.dim, net.n_contacts
@@ -615,6 +655,14 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000) 
     usable = pairs[:, 0] != pairs[:, 1]                 # a particle touching its own image: unused
     g = _Graph(ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
     regular = _regular(neq, g)
+    if clusters is not None:
+        two = _two_level(asm, g, neq, int(clusters))
+        if two is not None:
+            st = two["stats"]
+            return Equilibrator(n_seed=st["n_seed"], n_attached=st["n_attached"], n_stalled=st["n_alone"],
+                                n_deficient=int((~regular & (neq > 0)).sum()), n_reserved=0, block_solved=True,
+                                setup_time=time.perf_counter() - t0, _data=dict(C=C, d=d, two=two),
+                                n_clusters=st["n_clusters"])
     reserved = _reserve(asm, usable, stick & regular[pairs[:, 0]] & regular[pairs[:, 1]])
     usable[reserved] = False
     regular2 = _regular(neq, g)
@@ -926,3 +974,254 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     return DualBound(C_lower=C_lower, K_lower=float(K_l), G_lower=float(G_l), margin=float(margin),
                      residual=res, gap=0.5 * (gap + gap.T), time=time.perf_counter() - t0,
                      valid=bool(eq.block_solved and res <= _VALID_RESIDUAL))
+
+
+# ---- the two-level statics (clusters of bounded size and a coarse equilibrium step) ------------
+def _box_labels(net, size):
+    """Geometric boxes of the periodic cell holding about ``size`` particles each (at least two
+    boxes along every axis; fewer than ``2^d`` boxes in all: None)."""
+    N, d = net.n_particles, net.dim
+    h = np.asarray(net.cell, float)
+    w = np.linalg.norm(h, axis=0)
+    per = (N / max(size, 1)) ** (1.0 / d) * w / np.prod(w) ** (1.0 / d)
+    nb = np.maximum(np.round(per), 2).astype(np.int64)
+    if np.prod(nb) > N or min(per) < 1.0:
+        return None
+    s = np.linalg.solve(h, np.asarray(net.positions, float).T).T
+    s = s - np.floor(s)
+    b = np.minimum((s * nb).astype(np.int64), nb - 1)
+    lab = np.zeros(N, np.int64)
+    for a in range(d):
+        lab = lab * nb[a] + b[:, a]
+    return lab
+
+
+def _reassign(lab, pairs, usable, nk, need, passes=3):
+    """Each particle with fewer than ``need`` (N,) force components on contacts inside its box moves to
+    the neighbouring box it has the most components to (``passes`` times)."""
+    N = lab.shape[0]
+    i, j = pairs[usable, 0], pairs[usable, 1]
+    w = nk[usable].astype(float)
+    for _ in range(passes):
+        own = np.bincount(i, w * (lab[i] == lab[j]), N) + np.bincount(j, w * (lab[i] == lab[j]), N)
+        bad = own < need
+        if not bad.any():
+            break
+        M = sps.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([lab[j], lab[i]]))),
+                           shape=(N, lab.max() + 1)).tocsr()
+        best = np.asarray(M.argmax(axis=1)).ravel()
+        moved = bad & (np.asarray(M.max(axis=1).toarray()).ravel() > own)
+        if not moved.any():
+            break
+        lab = np.where(moved, best, lab)
+    return lab
+
+
+def _unwrap(net, inner, N):
+    """Positions continued along the contacts ``inner`` from one root per connected component
+    (breadth first): ``x_j = x_i + c_ij`` on the tree edges; returns them and the contacts of
+    ``inner`` the continuation is consistent with (a component wrapping the cell is cut there)."""
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+    pairs = net.pairs
+    c = net.branch
+    e = np.flatnonzero(inner)
+    G = sps.coo_matrix((e + 1.0, (pairs[e, 0], pairs[e, 1])), shape=(N, N)).tocsr()
+    ncomp, comp = connected_components(G, directed=False)
+    roots = np.unique(comp, return_index=True)[1]
+    # a virtual node N joined to every component's root: one breadth-first pass over all of them
+    Gv = sps.bmat([[G + G.T, sps.coo_matrix((np.ones(len(roots)), (roots, np.zeros(len(roots), int))), shape=(N, 1))],
+                   [None, sps.csr_matrix((1, 1))]]).tocsr()
+    Gv = (Gv + Gv.T).tocsr()
+    order, pred = breadth_first_order(Gv, N, directed=False)
+    x = np.array(net.positions, dtype=float)
+    src = np.concatenate([pairs[e, 0], pairs[e, 1]])          # directed edges, the first contact per pair
+    dst = np.concatenate([pairs[e, 1], pairs[e, 0]])
+    sid = np.concatenate([e + 1, -(e + 1)])
+    key, first = np.unique(src.astype(np.int64) * N + dst, return_index=True)
+    ch = order[1:]
+    pr = pred[ch]
+    tree = pr != N
+    ch, pr = ch[tree], pr[tree]
+    sg = sid[first[np.searchsorted(key, pr.astype(np.int64) * N + ch)]]
+    step = np.sign(sg)[:, None] * c[np.abs(sg) - 1]
+    pos_in = np.empty(N + 1, np.int64)
+    pos_in[order] = np.arange(len(order))
+    for k in np.argsort(pos_in[ch], kind="stable"):     # parents before children
+        x[ch[k]] = x[pr[k]] + step[k]
+    ok = inner.copy()
+    ok[e] = np.abs(x[pairs[e, 1]] - x[pairs[e, 0]] - c[e]).max(axis=1) <= 1e-9 * (1 + np.abs(c[e]).max(axis=1))
+    return x, ok
+
+
+def _cluster_seed(members, deg, target, g, regular):
+    """A rigid ball of the cluster ``members`` (their contacts of ``g`` only) around its
+    best-connected regular particles, trimmed as :func:`_seed`; one particle if none is rigid."""
+    mem = members[regular[members]]
+    if not len(mem):
+        return members[:1]
+    inside = set(int(p) for p in mem)
+    ptr, adj_e, adj_q, usable = g.ptr, g.adj_e, g.adj_q, g.usable
+    d = g.B.shape[1]
+    rigid = d + rotational_dofs(d)
+    for start in mem[np.argsort(-deg[mem], kind="stable")[:4]]:
+        seen, ball, front = {int(start)}, [int(start)], [int(start)]
+        while front and len(ball) < target:
+            nxt = []
+            for p in front:
+                for t in range(ptr[p], ptr[p + 1]):
+                    q = int(adj_q[t])
+                    if usable[adj_e[t]] and q in inside and q not in seen:
+                        seen.add(q)
+                        nxt.append(q)
+            ball.extend(nxt)
+            front = nxt
+        ball = ball[:target]
+        while len(ball) >= 2:
+            A, Kl, se, sd = _seed_matrix(np.array(ball), g)
+            if len(se):
+                w = np.linalg.eigvalsh(A @ Kl @ A.T)
+                if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
+                    return np.array(ball, dtype=np.int64)
+            ins = np.zeros(g.pdof.shape[0], bool)
+            ins[ball] = True
+            sel = g.usable & ins[g.pairs[:, 0]] & ins[g.pairs[:, 1]]
+            inner = np.bincount(g.pairs[sel].ravel(), minlength=g.pdof.shape[0])[ball]
+            ball.pop(int(np.argmin(inner)))
+    return mem[:1]
+
+
+def _seeds_solve(seeds, g):
+    """Block-diagonal dense least-``K^+``-norm operators of the seeds (one per cluster) on their
+    own contacts: the arrays :meth:`Equilibrator._tree` reads (``seed_Y`` and ``seed_A`` sparse)."""
+    Ys, As, es, ds = [], [], [], []
+    for s in seeds:
+        A, Kl, se, sd = _seed_matrix(s, g)
+        if not len(se) or not len(sd):
+            continue
+        KA = Kl @ A.T
+        M = A @ KA
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
+        keep = w > _RANK_TOL * w.max()
+        Ys.append(KA @ (V[:, keep] / w[keep]) @ V[:, keep].T)
+        As.append(A)
+        es.append(se)
+        ds.append(sd)
+    if not Ys:
+        return dict(seed_Y=None, seed_e=np.zeros(0, np.int64))
+    se = np.concatenate(es)
+    return dict(seed_Y=sps.block_diag(Ys, format="csr"), seed_A=sps.block_diag(As, format="csr"),
+                seed_e=se, seed_dofs=np.concatenate(ds), seed_Q=g.Q[se])
+
+
+def _rigid_columns(lab, x, pdof, d, ncl):
+    """``R`` (ndof, ncl (d + r)): the rigid motions of each cluster (translations; rotations
+    ``u_i = w x (x_i - x_k)``, ``x_k`` the cluster's centroid, and the rotation unknowns ``w``)."""
+    rot = rotational_dofs(d)
+    nr = d + rot
+    cnt = np.bincount(lab, minlength=ncl).astype(float)
+    cen = np.stack([np.bincount(lab, x[:, a], ncl) for a in range(d)], axis=1) / np.maximum(cnt, 1)[:, None]
+    arm = x - cen[lab]
+    rows, cols, vals = [], [], []
+
+    def put(r, cidx, v):
+        ok = r >= 0
+        rows.append(r[ok])
+        cols.append(cidx[ok])
+        vals.append(np.broadcast_to(v, r.shape)[ok])
+    for a in range(d):
+        put(pdof[:, a], nr * lab + a, 1.0)
+    for b in range(rot):
+        put(pdof[:, d + b], nr * lab + d + b, 1.0)
+        if d == 2:     # spin w: u = w (-y, x)
+            put(pdof[:, 0], nr * lab + 2, -arm[:, 1])
+            put(pdof[:, 1], nr * lab + 2, arm[:, 0])
+        else:          # u = e_b x arm
+            e = np.eye(3)[b]
+            u = np.cross(e[None, :], arm)
+            for a in range(3):
+                if a != b:
+                    put(pdof[:, a], nr * lab + d + b, u[:, a])
+    ndof = pdof.max(initial=-1) + 1
+    return sps.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(ndof, nr * ncl))
+
+
+def _coarse_solver(asm, R):
+    """``z -> y`` solving ``R^T H R y = z`` (singular by the global translations and the floppy
+    modes, on which ``K B R y`` vanishes: a shifted sparse LU and three refinement steps)."""
+    from .factor import factor
+    Hc = (R.T @ (asm.H @ R)).tocsr()
+    dg = Hc.diagonal()
+    shift = 1e-10 * float(dg[dg > 0].mean()) if (dg > 0).any() else 1.0
+    lu = factor((Hc + shift * sps.eye(Hc.shape[0])).tocsr(), spd=True, dim=asm.net.dim, backend=COARSE_BACKEND)
+
+    def solve(z):
+        y = np.asarray(lu.solve(np.ascontiguousarray(z))).reshape(z.shape)
+        for _ in range(3):
+            y += np.asarray(lu.solve(np.ascontiguousarray(z - Hc @ y))).reshape(z.shape)
+        return y
+    return solve, Hc.shape[0], Hc.nnz
+
+
+ROUNDS = 2
+COARSE_BACKEND = "auto"
+UNIT_MAX = 8
+
+
+def _two_level(asm, g0, neq, size):
+    """The two-level statics (docs/theory.md section 12, "Two-level statics"): clusters of about
+    ``size`` particles (boxes of the cell; particles without enough contacts inside their box
+    moved to the neighbouring one), each grown by statics from its own seed on its own contacts;
+    particles that do not attach become clusters of their own; the coarse step on the clusters'
+    rigid motions. None when the cell holds fewer than ``2^d`` boxes of that size."""
+    net = asm.net
+    N, d = net.n_particles, net.dim
+    lab = _box_labels(net, size)
+    if lab is None:
+        return None
+    pairs, nk = g0.pairs, g0.nk
+    # force components a particle needs inside its cluster: its unknowns, 9 for a sphere with
+    # rotations (three contacts: two leave a twist)
+    need = np.where((d == 3) & (neq == 6), 9, neq)
+    lab = _reassign(lab, pairs, g0.usable, nk, need)
+    BIG = 1 << 60
+    live = neq > 0
+    for rnd in range(ROUNDS):
+        inner = g0.usable & (lab[pairs[:, 0]] == lab[pairs[:, 1]])
+        x, inner = _unwrap(net, inner, N)
+        g = g0._replace(usable=inner)
+        regular = _regular(neq, g)
+        deg = np.bincount(pairs[inner].ravel(), minlength=N)
+        if rnd == 0:              # the seeds stay (attached first, they never move)
+            order = np.argsort(lab, kind="stable")
+            bounds = np.searchsorted(lab[order], np.arange(lab.max() + 2))
+            seeds = [_cluster_seed(order[bounds[k]:bounds[k + 1]], deg, 12 if d == 2 else 30, g, regular)
+                     for k in range(len(bounds) - 1) if bounds[k + 1] > bounds[k]]
+        idx, members, uptr = _bootstrap(np.concatenate(seeds), regular, neq, g, UNIT_MAX, True)
+        alone = np.flatnonzero(live & (idx == BIG))
+        if rnd == ROUNDS - 1 or not len(alone):
+            break
+        # an unattached particle moves to the cluster it has the most contact components to among the
+        # attached particles
+        att = idx < BIG
+        i, j = pairs[g0.usable, 0], pairs[g0.usable, 1]
+        w = g0.nk[g0.usable].astype(float)
+        M = sps.coo_matrix((np.concatenate([w * att[j], w * att[i]]), (np.concatenate([i, j]), np.concatenate([lab[j], lab[i]]))),
+                           shape=(N, lab.max() + 1)).tocsr()[alone]
+        best = np.asarray(M.argmax(axis=1)).ravel()
+        lab = lab.copy()
+        lab[alone] = best
+    n_tree = len(uptr) - 1
+    idx[idx == BIG] = n_tree + 1
+    lab = lab.copy()
+    lab[alone] = lab.max() + 1 + np.arange(len(alone))        # a cluster of its own each
+    _, lab = np.unique(lab, return_inverse=True)
+    ncl = int(lab.max()) + 1
+    tree, _ = _operators(members, uptr, idx, g)
+    local = dict(C=pairs.shape[0], d=d, graph=g, tree=tree, n_tree=n_tree, block=None, Lres=None)
+    local.update(_seeds_solve(seeds, g))
+    R = _rigid_columns(lab, x, g.pdof, d, ncl)
+    solve, nc, nnz = _coarse_solver(asm, R)
+    stats = dict(n_clusters=ncl - len(alone), n_alone=len(alone), n_seed=int(sum(len(s) for s in seeds)),
+                 n_attached=int(uptr[n_tree]), coarse_dofs=nc, coarse_nnz=nnz)
+    return dict(R=R, solve=solve, local=local, Bs=asm.Bs, Ks=asm.Ks, stats=stats)

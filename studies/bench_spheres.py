@@ -3,7 +3,7 @@
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
                                     [--stop-after ORDERS]
-                                    [--setup-options [NAME ...]] [--setup-only]
+                                    [--setup-options [NAME ...]] [--setup-only] [--dual-clusters SIZE]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -331,7 +331,15 @@ def main(argv=None):
     ap.add_argument("--setup-options", nargs="*", choices=tuple(SETUP_OPTIONS), default=None,
                     help="compare the multilevel setup's options (all if none named)")
     ap.add_argument("--setup-only", action="store_true", help="with --setup-options: the setup alone, no CG")
+    ap.add_argument("--dual-clusters", type=int, default=None, metavar="SIZE",
+                    help="the dual bound's two-level statics with clusters of about SIZE spheres "
+                         "(microhom.hierarchy.DUAL_CLUSTERS; default: the code's)")
     a = ap.parse_args(argv)
+    if a.dual_clusters is not None:
+        if a.dual_clusters < 8:
+            ap.error(f"--dual-clusters must be an integer >= 8, got {a.dual_clusters}")
+        import microhom.hierarchy as hi
+        hi.DUAL_CLUSTERS = a.dual_clusters
     if a.setup_options is not None:
         names = a.setup_options or list(SETUP_OPTIONS)
         if a.setup_only:
