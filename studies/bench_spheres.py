@@ -102,7 +102,18 @@ def instrument_phases(stop_after=None):
         def timed(*a, **k):
             _reset_peak()
             t, c = time.perf_counter(), time.process_time()
-            r = f(*a, **k)
+            if len(a) == 1 and set(k) == {"release"} and k["release"] is not None:
+                # amg_preconditioner(asm, release=...): the caller drops H in release(); this frame
+                # must not keep the assembly alive through pyamg's setup (issue 26)
+                box, rel = list(a), k["release"]
+                del a, k
+
+                def release():
+                    box.clear()
+                    rel()
+                r = f(box.pop(), release=release)
+            else:
+                r = f(*a, **k)
             peak, rss = _status_gb()
             print(f"    phase {label:20s} wall {time.perf_counter() - t:8.2f} s  cpu {time.process_time() - c:8.2f} s  "
                   f"peak {peak:6.2f} GiB  rss {rss:6.2f} GiB  load {os.getloadavg()[0]:.1f}", flush=True)
