@@ -151,6 +151,7 @@ SETUP_OPTIONS = {
     "default": {},
     "rigid": dict(candidates="rigid"),             # 6 near-null vectors per sphere instead of 9
     "jacobi": dict(smooth="jacobi"),               # one Jacobi step instead of energy minimisation
+    "jacobi+rigid": dict(smooth="jacobi", candidates="rigid"),   # both (issue 26: the setup's transient)
     "plain": dict(smooth="none"),                  # plain aggregation
     "theta0.1": dict(theta=0.1),                   # strength threshold 0.1 instead of 0
     "theta0.25": dict(theta=0.25),
