@@ -1235,13 +1235,12 @@ def _early_multilevel(run, o):
     if share:
         run.M_own = _own_blocks(run.asm.H, dof_layout(run.asm)[0])
 
-        def release():
-            run.asm = replace(run.asm, H=None)
+        def release(A, order, shift):         # a float64 copy only (not a float32 hierarchy)
+            if sp.issparse(A) and A.format in ("bsr", "csr") and A.dtype == np.float64:
+                run.H_shared = ShiftedCopy(A, order, shift)
+                run.asm = replace(run.asm, H=None)
     run.P_amg, info = amg_preconditioner(run.asm, release=release)
     run.t_prec = run.t_early = info.setup_time
-    if share:
-        ml, order, _ = run.P_amg.amg
-        run.H_shared = ShiftedCopy(ml.levels[0].A, order, run.P_amg.shift)
 
 
 def _lean(run, o):

@@ -400,9 +400,11 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         on 256 frictional spheres the CG stagnates near 1e-8 (not certified after 23 orders, the
         upper bounds up to 6e-9 of the modulus below the exact one): not the default.
     release : callable or None
-        Called without arguments once the blocked copy of ``H`` is made and ``asm`` is no longer
-        referenced here, before pyamg's setup: the caller may drop its ``H`` there (issue 26; the
-        relaxation hierarchy then reads ``H`` from the copy, ``microhom.shared_h``).
+        Called as ``release(A, order, shift)`` once the blocked copy ``A = P H P^T + shift I``
+        (``(P x)[i] = x[order[i]]``, ``shift`` [N/m]; pyamg's level-0 matrix) is made and ``asm``
+        is no longer referenced here, before pyamg's setup: the caller may drop its ``H`` there
+        and read it from ``A`` (issue 26, ``microhom.shared_h``; the relaxation hierarchy does
+        where ``A`` is float64).
 
     Returns
     -------
@@ -440,7 +442,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     del Hc
     if release is not None:
         asm = None                                       # nothing below reads it: the caller may drop H
-        release()
+        release(H, order, shift)
     smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
                 {"sweep": "symmetric", "iterations": int(sweeps)})
     extra = {}                                           # only what differs from pyamg's defaults

@@ -108,9 +108,9 @@ def instrument_phases(stop_after=None):
                 box, rel = list(a), k["release"]
                 del a, k
 
-                def release():
+                def release(*args):
                     box.clear()
-                    rel()
+                    rel(*args)
                 r = f(box.pop(), release=release)
             else:
                 r = f(*a, **k)
