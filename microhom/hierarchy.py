@@ -739,7 +739,7 @@ class MemoryPlan(Result):
         (``9 N + 18 N_c``; spheres: 48 bytes per non-zero, ``36 N + 72 N_c``) [bytes].
     preconditioner : int
         Particle blocks ``M``, ``M^-1``, ``M^-1/2`` (700 bytes per unknown) plus, with "amg", the
-        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 80) [bytes].
+        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 80, 70 with ``shared_h``) [bytes].
     basis : int
         Re-orthogonalisation basis ``P``, ``HP`` (2 x 8 bytes x ndof x (3 max_order + soft modes),
         in chunks of 48 columns), or the recurrence's 12 blocks of 3 columns [bytes].
@@ -773,7 +773,8 @@ class MemoryPlan(Result):
 
 def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full: bool = True,
                 preconditioner: str = "amg", soft_modes: int = 3, dense: bool = True,
-                available: int | None = None, dim: int = 2, factor: bool = False) -> MemoryPlan:
+                available: int | None = None, dim: int = 2, factor: bool = False,
+                shared_h: bool = False) -> MemoryPlan:
     """Predicted peak memory of :func:`relaxation_hierarchy` before anything is assembled (see
     :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
     disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
@@ -784,7 +785,11 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     (issue 26), 79-90 before; rounded up; docs/results/spheres.md, "Cost" and "Memory at 1e6
     spheres"); ``m = 6`` load columns. ``factor``: the sparse
     certificate's factorisation of ``H - s M`` is made and kept for the factorised steps
-    (``microhom.factor.predicted_factor_bytes`` of the back end it takes)."""
+    (``microhom.factor.predicted_factor_bytes`` of the back end it takes). ``shared_h`` (3D, "amg"):
+    the hierarchy drops the assembly's ``H`` once the setup has its copy and reads ``H`` from it
+    (``microhom.shared_h``, issue 26): 70 bytes per non-zero for the multilevel setup's transient
+    and hierarchy instead of 80 (measured 58.8 at 1.08e5 spheres, 68 before; docs/results/spheres.md,
+    "Memory at 1e6 spheres")."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     N, Nc = int(n_particles), int(n_contacts)
@@ -792,7 +797,7 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     m = 3 if dim == 2 else 6
     ndof = b * N
     nnz = b * b * N + 2 * b * b * Nc
-    per_asm, per_amg = (128, 600) if dim == 2 else (48, 80)
+    per_asm, per_amg = (128, 600) if dim == 2 else (48, 70 if shared_h else 80)
     asm = per_asm * nnz
     prec = 700 * ndof * (b // 3) + (per_amg * nnz if preconditioner == "amg" else 0)
     cols = m * int(max_order) + int(soft_modes) * 2
@@ -1115,7 +1120,7 @@ def _start(network, o):
                max_order=int(max_order), certify_max_order=int(o.certify_max_order),
                factor_steps=int(o.factor_steps), spectral_guess=o.spectral_guess, spin_arm=o.spin_arm)
     full = _memory_guard(run, max_order, o.reorthogonalize, prec0, o.soft_modes, o.max_memory,
-                         o.spectral_bound == "auto" and o.factor_steps > 0, o.dense_max)
+                         o.spectral_bound == "auto" and o.factor_steps > 0, o.dense_max, _shared_planned(network, o))
     return run, full
 
 
@@ -1132,8 +1137,19 @@ def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
     return max_order, preconditioner
 
 
+def _shared_planned(network, o):
+    """Whether the run will read ``H`` from the multilevel copy (:func:`_early_multilevel`), as far
+    as the options and the sizes tell before the assembly (for :func:`plan_memory`'s ``shared_h``)."""
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    ndof = (network.dim + rotational_dofs(network.dim)) * network.n_particles
+    soft = o.soft_modes == 0 or (o.soft_modes == "auto" and ndof > SOFT_MODES_AUTO_MAX)
+    return bool(SHARE_H and network.dim == 3 and o.preconditioner in ("amg", "auto") and soft
+                and not DUAL_VCYCLES and (o.spectral_bound == "none" or (o.spectral_bound == "auto"
+                                                                        and ndof > CERTIFIED_MAX_DOF)))
+
+
 def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory, certify=False,
-                  dense_max=1000):
+                  dense_max=1000, shared_h=False):
     """Refuse before allocating when the predicted peak (:func:`plan_memory`, from N and N_c
     alone) exceeds the limit; returns whether the basis is fully re-orthogonalised (with "auto",
     the recurrence is tried before refusing). The dense bound is checked after the assembly."""
@@ -1149,7 +1165,8 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
 
     def plan(f, c=cert):
         return plan_memory(N, Nc, max_order=max_order, full=f, preconditioner=preconditioner,
-                           soft_modes=soft, dense=False, available=limit, dim=net.dim, factor=c)
+                           soft_modes=soft, dense=False, available=limit, dim=net.dim, factor=c,
+                           shared_h=shared_h)
     p = plan(full)
     if limit is not None and cert and p.total > limit and plan(full, False).total <= limit:
         run.reasons.append(f"the sparse certificate's factor of {_gb(p.factor)} does not fit (available "
