@@ -3,7 +3,7 @@
     python -m studies.bench_spheres [--n 10000 100000] [--keep 0.6] [--kt 0.5] [--tol 0.01] [--bound auto|dual|spectral]
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
                                     [--stop-after ORDERS]
-                                    [--setup-options [NAME ...]] [--setup-only]
+                                    [--setup-options [NAME ...]] [--setup-only] [--amg NAME]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -287,6 +287,30 @@ def compare_setups(n, keep, kt, tol, exact, names, max_order=60):
     return rows
 
 
+def _hierarchy_amg(opts):
+    """``--amg``: the hierarchy's ``amg_preconditioner`` with the options ``opts``; its wrapper
+    keeps no reference to the assembly through the setup (the hierarchy may drop ``H`` in
+    ``release``, issue 26). Returns a function that puts the original back."""
+    import inspect
+
+    import microhom.hierarchy as hi
+    real = hi.amg_preconditioner
+    d = {k: v.default for k, v in inspect.signature(real).parameters.items() if v.default is not inspect.Parameter.empty}
+    d.update(opts)
+
+    def amg(*a, release=None):
+        box = list(a)
+        del a
+        # every keyword spelled out: a call with **kwargs would hold the assembly in its argument tuple
+        return real(box.pop(), sweeps=d["sweeps"], candidates=d["candidates"], smooth=d["smooth"], theta=d["theta"],
+                    max_coarse=d["max_coarse"], improve=d["improve"], dtype=d["dtype"], release=release)
+    hi.amg_preconditioner = amg
+
+    def undo():
+        hi.amg_preconditioner = real
+    return undo
+
+
 def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto", hier_memory=None):
     t0 = time.perf_counter()
     net = fcc_network(n, keep=keep, kt=kt)
@@ -343,6 +367,8 @@ def main(argv=None):
     ap.add_argument("--setup-options", nargs="*", choices=tuple(SETUP_OPTIONS), default=None,
                     help="compare the multilevel setup's options (all if none named)")
     ap.add_argument("--setup-only", action="store_true", help="with --setup-options: the setup alone, no CG")
+    ap.add_argument("--amg", choices=tuple(SETUP_OPTIONS), default=None,
+                    help="the hierarchy's own multilevel options (a --setup-options name) for a plain or --phases run")
     a = ap.parse_args(argv)
     if a.setup_options is not None:
         names = a.setup_options or list(SETUP_OPTIONS)
@@ -351,12 +377,14 @@ def main(argv=None):
         return [compare_setups(n, a.keep, a.kt, a.tol, a.exact, names, a.max_order) for n in a.n]
     if a.stop_after is not None and (not a.phases or a.stop_after < 1):
         ap.error(f"--stop-after needs --phases and an integer >= 1, got {a.stop_after}")
+    undo = _hierarchy_amg(SETUP_OPTIONS[a.amg]) if a.amg else (lambda: None)
     restore = instrument_phases(a.stop_after) if a.phases else (lambda: None)
     try:
         rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
                 for n in a.n]
     finally:
         restore()
+        undo()
     for r in rows:
         print(r)
     return rows

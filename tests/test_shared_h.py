@@ -109,7 +109,15 @@ def _hier(net, monkeypatch, share, probe=None):
     return h
 
 
-def test_hierarchy_on_the_shared_copy(net, monkeypatch):
+def _sliding(net, frac=0.4, seed=3):
+    return net.with_stiffness(sliding=np.random.default_rng(seed).random(net.n_contacts) < frac)
+
+
+@pytest.mark.parametrize("sliding", [False, True])
+def test_hierarchy_on_the_shared_copy(net, monkeypatch, sliding):
+    """The shared path against the former one; with sliding contacts too (particles without
+    rotational unknowns where all their contacts slide: the copy may be in 1 x 1 blocks)."""
+    net = _sliding(net) if sliding else net
     seen = {}
 
     def probe(run):
@@ -117,14 +125,16 @@ def test_hierarchy_on_the_shared_copy(net, monkeypatch):
                     lean=run.lean)
     a = _hier(net, monkeypatch, True, probe)
     assert seen["H"] is None and isinstance(seen["shared"], ShiftedCopy) and seen["lean"]
+    assert seen["shared"].A.blocksize == ((1, 1) if sliding else (6, 6))
     assert seen["Minv"] is None and seen["Msq"] is None and seen["blocks"][1:3] == (None, None)
     b = _hier(net, monkeypatch, False)
     assert a.certified and b.certified and a.order == b.order
-    # upper bounds to 1e-12; the lower bounds (the dual bound's cancellation) to 1e-9
-    for f, rtol in (("K_orders", 1e-12), ("G_orders", 1e-12), ("K_lower_orders", 1e-9), ("G_lower_orders", 1e-9)):
+    # the CG's trajectory differs by round-off (measured: 1e-14 per order without sliding contacts,
+    # up to 1.4e-10 at the middle orders with them); the lower bounds carry the dual bound's cancellation
+    for f, rtol in (("K_orders", 1e-9), ("G_orders", 1e-9), ("K_lower_orders", 1e-8), ("G_lower_orders", 1e-8)):
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=rtol, err_msg=f)
     for e, f in ((a.K, b.K), (a.G, b.G)):
-        assert e.lower == pytest.approx(f.lower, rel=1e-9) and e.upper == pytest.approx(f.upper, rel=1e-12)
+        assert e.lower == pytest.approx(f.lower, rel=1e-8) and e.upper == pytest.approx(f.upper, rel=1e-10)
     # the intervals are both rigorous: each holds the other's midpoint region
     assert a.K.lower <= b.K.upper and b.K.lower <= a.K.upper
     np.testing.assert_array_equal(a.C_first_order, b.C_first_order)       # M^-1 used before it is dropped
