@@ -183,3 +183,36 @@ def test_not_lean_where_h_is_read_later(net, monkeypatch):
             hi.relaxation_hierarchy(net, **{**DUAL, "preconditioner": "amg", **kw})
         monkeypatch.undo()
         assert not seen["lean"] and seen["H"] is not None and seen["Minv"] is not None, kw
+
+
+def test_bench_wrappers_hold_no_h(net, monkeypatch):
+    """``studies.bench_spheres``' phase wrapper (``--phases``) and ``--amg`` wrapper keep no
+    reference to the assembly through pyamg's setup, so the phases measure the dropped ``H``;
+    ``--amg`` passes its options (the smoother reaches pyamg)."""
+    import pyamg
+    from studies import bench_spheres
+    real = pyamg.smoothed_aggregation_solver
+    refs, alive = [], []
+    real_assemble = hi.assemble
+
+    def assemble_(*a, **k):
+        asm = real_assemble(*a, **k)
+        refs.append(weakref.ref(asm.H.data))
+        return asm
+
+    def sa(*a, **k):
+        gc.collect()
+        alive.append((refs[-1]() is not None, k["smooth"][0] if k.get("smooth") else None))
+        return real(*a, **k)
+    monkeypatch.setattr(hi, "assemble", assemble_)
+    monkeypatch.setattr(pyamg, "smoothed_aggregation_solver", sa)
+    undo = bench_spheres._hierarchy_amg(bench_spheres.SETUP_OPTIONS["jacobi+rigid"])
+    restore = bench_spheres.instrument_phases()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            h = hi.relaxation_hierarchy(net, **DUAL)
+    finally:
+        restore()
+        undo()
+    assert alive == [(False, "jacobi")] and h.certified
