@@ -879,7 +879,11 @@ def _best_in_span(asm, G0, W, eq, Kp, passes):
     d, p = asm.net.dim, W.shape[1]
     Phi = np.asarray(asm.Ks @ (asm.Bs @ W))
     for _ in range(passes):
-        Phi = Phi + eq.correct(-np.asarray(asm.Bs.T @ Phi)).reshape(-1, p)
+        # in place, six columns at a time (the statics' own chunks: the same numbers), without a
+        # second Phi and the whole correction beside it (issue 26: 3 p columns of dC floats were live)
+        for a in range(0, p, 6):
+            k = min(6, p - a)
+            Phi[:, a:a + k] += eq.correct(-np.asarray(asm.Bs.T @ Phi[:, a:a + k])).reshape(-1, k)
     KpPhi = np.einsum("cxy,cyp->cxp", Kp, Phi.reshape(-1, d, p)).reshape(-1, p)
     S = Phi.T @ KpPhi
     b = Phi.T @ asm.Df - KpPhi.T @ G0
@@ -942,8 +946,7 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     Kp = _compliance(asm)
     G = np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))                      # (dC, m)
     for _ in range(passes):
-        rho = np.asarray(asm.Bs.T @ G)
-        G = G + eq.correct(-rho).reshape(-1, m)
+        G += eq.correct(-np.asarray(asm.Bs.T @ G)).reshape(-1, m)       # in place (issue 26)
     corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))              # the statics' correction
     gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
     del corr
@@ -957,15 +960,21 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     L = 0.5 * (L + L.T)
     # margins: the exactly equilibrated field G + c3* (c3 its computed estimate, taken twice) and the
     # evaluation of L (dot products over the d C contact components)
+    # (each term's arrays freed before the next: issue 26; the same numbers)
     aK = np.abs(Kp)
     ac3 = np.abs(c3)
+    del c3
+    t1 = _gersh(ac3.T @ np.abs(asm.Df - KpG))
     Kc3 = np.einsum("cxy,cym->cxm", aK, ac3.reshape(-1, d, m)).reshape(-1, m)
+    t2 = _gersh(ac3.T @ Kc3)
+    del Kc3, ac3
     n = G.shape[0]
     g_n = np.sqrt(n) * _U
     aG = np.abs(G)
-    margin = (2 * 2 * _gersh(ac3.T @ np.abs(asm.Df - KpG)) + 4 * _gersh(ac3.T @ Kc3)
-              + g_n * _gersh(2 * aG.T @ np.abs(asm.Df) + aG.T @ np.abs(KpG))
-              + (d + 1) * _U * _gersh(aG.T @ np.einsum("cxy,cym->cxm", aK, aG.reshape(-1, d, m)).reshape(-1, m)))
+    t3 = _gersh(2 * aG.T @ np.abs(asm.Df) + aG.T @ np.abs(KpG))
+    del KpG
+    t4 = _gersh(aG.T @ np.einsum("cxy,cym->cxm", aK, aG.reshape(-1, d, m)).reshape(-1, m))
+    margin = 2 * 2 * t1 + 4 * t2 + g_n * t3 + (d + 1) * _U * t4
     margin /= volume
     C_lower = L / volume - margin * np.eye(m)
     scale = asm.F_scale if asm.F_scale > 0 else 1.0

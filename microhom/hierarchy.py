@@ -62,6 +62,7 @@ from .kinematics import SPIN_ARMS, Assembly, affine_tensor, assemble, contact_ma
 from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
+from .shared_h import ShiftedCopy
 from .network import ContactNetwork
 from .options import Options, finite_real, flag, integer, merged
 from .results import Result
@@ -307,13 +308,17 @@ def isotropic_weights():
     return eK, np.array([1.0]), eG, np.array([0.5, 0.25])
 
 
-def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
+def block_preconditioner(asm: Assembly, floppy_shift: bool = False, *, M=None, sqrt: bool = True):
     """Block diagonal ``M`` of ``H`` (each particle's own unknowns, up to 3 x 3 for disks and
     6 x 6 for spheres) and its inverse.
 
     Returns (M, Minv, Minv_sqrt, n_bad): CSR matrices (ndof, ndof) ``M``, ``M^-1``, ``M^-1/2``
     and the number of singular or indefinite blocks (their inverse is taken on the positive part
     only; 0 for a well-posed network).
+
+    ``M``: the particle blocks of ``H`` when the caller has them (``_own_blocks(asm.H, owner)``,
+    the same matrix; ``asm.H`` is then not read and may be None: issue 26). ``sqrt=False``:
+    ``Minv_sqrt`` is not computed (None; the relaxation hierarchy's dual-bound path never reads it).
 
     ``floppy_shift=True`` (for the inertia certificate): a positive semi-definite singular block
     (a frictional sphere with two contacts turns about their chord without deforming them) gets
@@ -323,7 +328,7 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
     non-zero eigenvalues and the iterates are those of the pseudo-inverse ``M^-1`` returned.
     """
     owner = dof_layout(asm)[0]
-    M = _own_blocks(asm.H, owner)
+    M = _own_blocks(asm.H, owner) if M is None else M
     # group unknowns by particle, pad to b x b with identity, invert in one batch
     nbk = asm.net.dim + rotational_dofs(asm.net.dim)           # 3 (disk) or 6 (sphere)
     order = np.argsort(owner, kind="stable")
@@ -350,7 +355,7 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
         has_shift = shift.any(axis=1)
     winv = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
     inv = np.einsum("nij,nj,nkj->nik", V, winv, V)
-    isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V)
+    isq = np.einsum("nij,nj,nkj->nik", V, np.sqrt(winv), V) if sqrt else None
     members = np.full((nb, nbk), -1, dtype=np.int64)           # unknown at (block, slot)
     members[bi[order], slot[order]] = order
     r = np.broadcast_to(members[:, :, None], (nb, nbk, nbk)).ravel()
@@ -360,7 +365,7 @@ def block_preconditioner(asm: Assembly, floppy_shift: bool = False):
         sel = ok & np.broadcast_to(has_shift[:, None, None], (nb, nbk, nbk)).ravel()
         M = (M + sp.csr_matrix((dM.ravel()[sel], (r[sel], c[sel])), shape=M.shape)).tocsr()
     Minv = sp.csr_matrix((inv.ravel()[ok], (r[ok], c[ok])), shape=M.shape)
-    Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=M.shape)
+    Minv_sqrt = sp.csr_matrix((isq.ravel()[ok], (r[ok], c[ok])), shape=M.shape) if sqrt else None
     return M, Minv, Minv_sqrt, n_bad
 
 
@@ -548,8 +553,9 @@ class _BlockPCG:
     """
 
     def __init__(self, H, M, Minv, B, full=True, deflate=None, passes=1, true_residual=False):
-        # H is symmetric: its transpose is the CSR form of the same matrix, without a copy
-        self.H = H.T if sp.isspmatrix_csc(H) else H.tocsr()
+        # H is symmetric: its transpose is the CSR form of the same matrix, without a copy (or H
+        # read from the multilevel copy, microhom.shared_h: issue 26)
+        self.H = H if isinstance(H, ShiftedCopy) else H.T if sp.isspmatrix_csc(H) else H.tocsr()
         self.M, self.Minv, self.full = M, Minv, full
         self.passes, self.true_residual = int(passes), bool(true_residual)
         B = np.asfortranarray(B)
@@ -744,7 +750,7 @@ class MemoryPlan(Result):
         (``9 N + 18 N_c``; spheres: 48 bytes per non-zero, ``36 N + 72 N_c``) [bytes].
     preconditioner : int
         Particle blocks ``M``, ``M^-1``, ``M^-1/2`` (700 bytes per unknown) plus, with "amg", the
-        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 80) [bytes].
+        multilevel hierarchy (600 bytes per non-zero of ``H``; spheres: 80, 70 with ``shared_h``) [bytes].
     basis : int
         Re-orthogonalisation basis ``P``, ``HP`` (2 x 8 bytes x ndof x (3 max_order + soft modes),
         in chunks of 48 columns), or the recurrence's 12 blocks of 3 columns [bytes].
@@ -778,7 +784,8 @@ class MemoryPlan(Result):
 
 def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full: bool = True,
                 preconditioner: str = "amg", soft_modes: int = 3, dense: bool = True,
-                available: int | None = None, dim: int = 2, factor: bool = False) -> MemoryPlan:
+                available: int | None = None, dim: int = 2, factor: bool = False,
+                shared_h: bool = False) -> MemoryPlan:
     """Predicted peak memory of :func:`relaxation_hierarchy` before anything is assembled (see
     :class:`MemoryPlan` for the figures); ``ndof <= b n_particles`` with ``b = 3`` unknowns per
     disk (``dim = 2``) and 6 per sphere (``dim = 3``). In 3D the per-non-zero and per-unknown
@@ -789,7 +796,11 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     (issue 26), 79-90 before; rounded up; docs/results/spheres.md, "Cost" and "Memory at 1e6
     spheres"); ``m = 6`` load columns. ``factor``: the sparse
     certificate's factorisation of ``H - s M`` is made and kept for the factorised steps
-    (``microhom.factor.predicted_factor_bytes`` of the back end it takes)."""
+    (``microhom.factor.predicted_factor_bytes`` of the back end it takes). ``shared_h`` (3D, "amg"):
+    the hierarchy drops the assembly's ``H`` once the setup has its copy and reads ``H`` from it
+    (``microhom.shared_h``, issue 26): 70 bytes per non-zero for the multilevel setup's transient
+    and hierarchy instead of 80 (measured 58.8 at 1.08e5 spheres, 68 before; docs/results/spheres.md,
+    "Memory at 1e6 spheres")."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     N, Nc = int(n_particles), int(n_contacts)
@@ -797,7 +808,7 @@ def plan_memory(n_particles: int, n_contacts: int, *, max_order: int = 16, full:
     m = 3 if dim == 2 else 6
     ndof = b * N
     nnz = b * b * N + 2 * b * b * Nc
-    per_asm, per_amg = (128, 600) if dim == 2 else (48, 80)
+    per_asm, per_amg = (128, 600) if dim == 2 else (48, 70 if shared_h else 80)
     asm = per_asm * nnz
     prec = 700 * ndof * (b // 3) + (per_amg * nnz if preconditioner == "amg" else 0)
     cols = m * int(max_order) + int(soft_modes) * 2
@@ -882,6 +893,9 @@ class _Run:
     spin_arm: str = "contact"
     margins: list = field(default_factory=list)   # round-off margin of each order's energy [unit of C]
     blocks: tuple = None             # block_preconditioner(asm): (M, M^-1, M^-1/2, n_bad)
+    lean: bool = False               # nothing after the setup reads asm.H, M^-1, M^-1/2 (_lean)
+    M_own: object = None             # the particle blocks of H taken before H was dropped (_early_multilevel)
+    H_shared: object = None          # H read from the multilevel copy (microhom.shared_h), or None
     spectral_guess: float | None = None
     n_cert_fact: int = 0             # numeric factorisations of the sparse certificate
     no_certificate: bool = False     # its factor does not fit in memory (_memory_guard)
@@ -1117,7 +1131,7 @@ def _start(network, o):
                max_order=int(max_order), certify_max_order=int(o.certify_max_order),
                factor_steps=int(o.factor_steps), spectral_guess=o.spectral_guess, spin_arm=o.spin_arm)
     full = _memory_guard(run, max_order, o.reorthogonalize, prec0, o.soft_modes, o.max_memory,
-                         o.spectral_bound == "auto" and o.factor_steps > 0, o.dense_max)
+                         o.spectral_bound == "auto" and o.factor_steps > 0, o.dense_max, _shared_planned(network, o))
     return run, full
 
 
@@ -1134,8 +1148,19 @@ def _resolve_auto(run, auto_order, auto_prec, max_order, preconditioner):
     return max_order, preconditioner
 
 
+def _shared_planned(network, o):
+    """Whether the run will read ``H`` from the multilevel copy (:func:`_early_multilevel`), as far
+    as the options and the sizes tell before the assembly (for :func:`plan_memory`'s ``shared_h``)."""
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    ndof = (network.dim + rotational_dofs(network.dim)) * network.n_particles
+    soft = o.soft_modes == 0 or (o.soft_modes == "auto" and ndof > SOFT_MODES_AUTO_MAX)
+    return bool(SHARE_H and network.dim == 3 and o.preconditioner in ("amg", "auto") and soft
+                and not DUAL_VCYCLES and (o.spectral_bound == "none" or (o.spectral_bound == "auto"
+                                                                        and ndof > CERTIFIED_MAX_DOF)))
+
+
 def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, max_memory, certify=False,
-                  dense_max=1000):
+                  dense_max=1000, shared_h=False):
     """Refuse before allocating when the predicted peak (:func:`plan_memory`, from N and N_c
     alone) exceeds the limit; returns whether the basis is fully re-orthogonalised (with "auto",
     the recurrence is tried before refusing). The dense bound is checked after the assembly."""
@@ -1151,7 +1176,8 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
 
     def plan(f, c=cert):
         return plan_memory(N, Nc, max_order=max_order, full=f, preconditioner=preconditioner,
-                           soft_modes=soft, dense=False, available=limit, dim=net.dim, factor=c)
+                           soft_modes=soft, dense=False, available=limit, dim=net.dim, factor=c,
+                           shared_h=shared_h)
     p = plan(full)
     if limit is not None and cert and p.total > limit and plan(full, False).total <= limit:
         run.reasons.append(f"the sparse certificate's factor of {_gb(p.factor)} does not fit (available "
@@ -1180,13 +1206,12 @@ def _setup(run, min_contacts, o=None):
     preconditioner where the CG is certain to use it (:func:`_amg_certain`, options ``o``), affine
     and first-order tensors, particle blocks."""
     net, prestress = run.network, run.prestress
-    asm = _slim(assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm))
-    run.asm, run.area = asm, net.volume          # area of a 2D cell [m^2], volume of a 3D one [m^3]
+    # no local reference to the assembly before the multilevel setup: it may drop H (_early_multilevel)
+    run.asm = _slim(assemble(net, prestress=prestress, min_contacts=min_contacts, pin=False, spin_arm=run.spin_arm))
+    run.area = net.volume                        # area of a 2D cell [m^2], volume of a 3D one [m^3]
     if o is not None and _amg_certain(run, o):
-        # built first (issue 26): its setup's transient, the run's peak on large networks, does not
-        # stack on the particle blocks and the dual bound's statics (the same V-cycle: it reads asm only)
-        run.P_amg, info = amg_preconditioner(asm)
-        run.t_prec = run.t_early = info.setup_time
+        _early_multilevel(run, o)
+    asm = run.asm
     nm = _n_mandel(net.dim)
     run.corr = prestress_correction(stress0(net)) if prestress else np.zeros((nm, nm))
     run.C_aff = _affine_kept(asm, run.area)
@@ -1199,12 +1224,15 @@ def _setup(run, min_contacts, o=None):
     elif run.empty:
         run.reasons.append("not jammed: no load-bearing backbone, every particle is a rattler")
     if asm.ndof:
-        run.blocks = block_preconditioner(asm)
+        run.blocks = block_preconditioner(asm, M=run.M_own, sqrt=not run.lean)
+        run.M_own = None
         run.M, run.Minv, run.Msq, n_bad = run.blocks
         if n_bad:
             run.reasons.append(f"{n_bad} particle block(s) of H singular or indefinite (floppy particle "
                                "or pre-stress larger than the contact stiffness)")
         Rfo = run.asm.F.T @ (run.Minv @ run.asm.F)
+        if run.lean:            # nothing after the first-order tensor reads M^-1 (_lean): not held
+            run.Minv, run.blocks = None, (run.M, None, None, n_bad)
     else:
         Rfo = np.zeros((nm, nm))
     run.C_fo = _tensor(run.C_aff, 0.5 * (Rfo + Rfo.T), run.area, run.corr)
@@ -1213,6 +1241,49 @@ def _setup(run, min_contacts, o=None):
     if kept.n_contacts:
         run.kt_over_kn = float(np.median(kept.effective_kt / np.maximum(np.asarray(kept.kn, float)
                                                                           * np.ones(kept.n_contacts), 1e-300)))
+
+
+#: in 3D, where nothing else reads it (_lean), the CG reads H from the multilevel hierarchy's copy and
+#: the assembly's H is dropped before pyamg's setup (issue 26, microhom.shared_h; the products differ
+#: from the CSC ones in the last bits, the round-off margin covers it; 2D keeps its H: bit for bit)
+SHARE_H = True
+
+
+def _early_multilevel(run, o):
+    """The multilevel preconditioner built right after the assembly (issue 26: its setup's
+    transient, the run's peak on large networks, does not stack on the particle blocks and the
+    dual bound's statics; the same V-cycle: it reads the assembly only). Where nothing later reads
+    the assembly's ``H`` (:func:`_lean`) in 3D, ``H`` is dropped once the setup has its blocked
+    copy, before pyamg's transient, and the CG reads ``H`` from that copy
+    (``run.H_shared``, :class:`microhom.shared_h.ShiftedCopy`); the particle blocks ``M`` are
+    taken from ``H`` before (``run.M_own``: the same matrix)."""
+    run.lean = _lean(run, o)
+    share = SHARE_H and run.lean and run.asm.net.dim == 3
+    release = None
+    if share:
+        run.M_own = _own_blocks(run.asm.H, dof_layout(run.asm)[0])
+
+        def release(A, order, shift):         # a float64 copy only (not a float32 hierarchy)
+            if sp.issparse(A) and A.format in ("bsr", "csr") and A.dtype == np.float64:
+                run.H_shared = ShiftedCopy(A, order, shift)
+                run.asm = replace(run.asm, H=None)
+    run.P_amg, info = amg_preconditioner(run.asm, release=release)
+    run.t_prec = run.t_early = info.setup_time
+
+
+def _lean(run, o):
+    """Whether, past the multilevel setup and the first-order tensor, nothing reads the assembly's
+    ``H`` (other than the CG's products and round-off margins), ``M^-1`` or ``M^-1/2`` (issue 26):
+    no soft-mode search, no spectral bound of the pencil (``spectral_bound="none"``, or "auto"
+    above ``CERTIFIED_MAX_DOF`` unknowns or where its factor does not fit), no V-cycle before the
+    dual bound's statics (``DUAL_VCYCLES`` 0); called where the CG is certain to use the
+    multilevel preconditioner (:func:`_amg_certain`)."""
+    from microhom.spectral import CERTIFIED_MAX_DOF
+    ndof = run.asm.ndof
+    soft = o.soft_modes == 0 or (o.soft_modes == "auto" and ndof > SOFT_MODES_AUTO_MAX)
+    spectral = o.spectral_bound == "none" or (o.spectral_bound == "auto" and (
+        ndof > CERTIFIED_MAX_DOF or (ndof > o.dense_max and run.no_certificate)))
+    return bool(soft and spectral and not DUAL_VCYCLES and ndof)
 
 
 def _slim(asm):
@@ -1452,10 +1523,11 @@ def _cg_step(run, max_order, full, preconditioner):
     # far from kt = kn: two conjugation passes and the true residual every step (round-off of the
     # kt/kn-scaled products otherwise drifts the residual and stalls the lower bound; docs/theory.md section 9)
     far = run.lam_n is not None or run.far_ratio
-    cg = _BlockPCG(asm.H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
+    H = run.H_shared if run.H_shared is not None and preconditioner == "amg" else asm.H
+    cg = _BlockPCG(H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far)
     if run.dual is not None and preconditioner == "amg":
-        run.dual_coarse = _dual_correction(asm.H, P)
+        run.dual_coarse = _dual_correction(H, P)
     rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
     cap = int(max_order) + (run.factor_steps if run.factor is not None else 0)
     if rigorous and run.factor is None:
@@ -1471,7 +1543,7 @@ def _cg_step(run, max_order, full, preconditioner):
             break
         C = _tensor(run.C_aff, cg.Rk, run.area, run.corr)
         run.Cs.append(C)
-        run.margins.append(_roundoff(cg) / run.area)
+        run.margins.append(_roundoff(cg, keep=run.lam is not None or run.lam_n is not None) / run.area)
         run.lowers.append(_best_lower(run, C, cg))
         mI = run.margins[-1] * np.eye(C.shape[0])
         if _met(C + mI, run.best_low, run.tol, run.Cs, run.calibrated and not rigorous, run.prestress,
@@ -1681,7 +1753,7 @@ def _abs_times(H, X, chunk=1 << 22):
     return out
 
 
-def _roundoff(cg):
+def _roundoff(cg, keep=True):
     """A-priori floating-point margin ``s`` of the energy ``2 B^T X - X^T H X`` evaluated as
     ``B^T X + X^T fl(B - H X)`` [unit of R]: the computed 3 x 3 tensor is within ``s I`` of the exact
     energy of the computed ``X`` in the Loewner order (Gershgorin on the entrywise bounds). Each
@@ -1689,14 +1761,25 @@ def _roundoff(cg):
     ``g_m = (m + 1) u`` for the residual (``m`` non-zeros per row of ``H``) and ``g_n = sqrt(n) u``
     for the dot products over the ``n`` unknowns (the usual estimate, as for the certificate's
     margin, docs/stiffness.md). Also stores ``cg.E`` (ndof, s), the entrywise bound of the
-    residual's error ``g_m (|B| + |H| |X|)``, for the lower bound."""
+    residual's error ``g_m (|B| + |H| |X|)``, for the lower bound (``keep``; else None: issue 26,
+    only the spectral lower bounds read it).
+
+    With ``H`` read from the multilevel copy ``A = P H P^T + s I`` (``cg.H`` a
+    :class:`microhom.shared_h.ShiftedCopy`: each product ``fl(fl(A x) - fl(s x))``) the product's
+    error is at most ``(m + 3) u (|A| + 2 s I) |x|`` (``m`` the stored entries of a row of ``A``;
+    ``microhom.shared_h``), so ``m + 3`` replaces ``m`` and ``(|A| + 2 s I) |X|`` replaces
+    ``|H| |X|``: ``E`` again bounds the computed residual's distance to ``B - H X`` of the exact
+    ``H``, and the margin keeps the upper bounds rigorous (they hold for any iterate ``X``; only
+    the evaluation of its energy must be bounded, and it is)."""
     u = np.finfo(float).eps
+    shared = isinstance(cg.H, ShiftedCopy)
     if not cg.m_row:
-        cg.m_row = int(np.diff(cg.H.indptr).max(initial=0))
+        cg.m_row = cg.H.m_row + 3 if shared else int(np.diff(cg.H.indptr).max(initial=0))
     n = cg.H.shape[0]
     aX, aB = np.abs(cg.X), np.abs(cg.B)
-    cg.E = (cg.m_row + 1) * u * (aB + _abs_times(cg.H, aX))
-    D = np.sqrt(n) * u * (aB.T @ aX + aX.T @ np.abs(cg.Rt)) + aX.T @ cg.E
+    E = (cg.m_row + 1) * u * (aB + (cg.H.abs_bound(aX) if shared else _abs_times(cg.H, aX)))
+    D = np.sqrt(n) * u * (aB.T @ aX + aX.T @ np.abs(cg.Rt)) + aX.T @ E
+    cg.E = E if keep else None
     D = np.maximum(D, D.T)
     return float(D.sum(axis=1).max(initial=0.0))
 

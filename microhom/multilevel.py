@@ -373,7 +373,8 @@ def _per_column(f, r, order, inv, dtype):
 
 
 def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all", smooth: str = "energy",
-                       theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64):
+                       theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64,
+                       release=None):
     """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
 
     The bounds of ``microhom.hierarchy`` hold for any preconditioner (each CG block is
@@ -409,10 +410,18 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         iterate grows along nearly floppy directions and so does its energy's round-off margin,
         which covers the computed energies' drift below the exact one; every reported bound
         stays rigorous, ``HierarchyResult.margin_orders``): not the default.
+    release : callable or None
+        Called as ``release(A, order, shift)`` once the blocked copy ``A = P H P^T + shift I``
+        (``(P x)[i] = x[order[i]]``, ``shift`` [N/m]; pyamg's level-0 matrix) is made and ``asm``
+        is no longer referenced here, before pyamg's setup: the caller may drop its ``H`` there
+        and read it from ``A`` (issue 26, ``microhom.shared_h``; the relaxation hierarchy does
+        where ``A`` is float64).
 
     Returns
     -------
     (LinearOperator (ndof, ndof), AMGInfo)
+        The operator also carries ``op.amg = (pyamg hierarchy, order, inv)`` and ``op.shift``
+        [N/m], the shift of its level-0 matrix ``P H P^T + shift I``.
     """
     try:
         import pyamg
@@ -434,13 +443,17 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     # pseudo-inverse takes the translations
     # (the block order of the former path: sorted where the permutation kept H's rows sorted, and
     # in float32, whose astype sorted them; see blocked_copy)
-    Hc = sp.csc_matrix(asm.H)
-    sort = dtype == np.float32 or (Hc.has_sorted_indices and _permuted_sorted(Hc.indptr, Hc.indices, inv))
-    H = blocked_copy(Hc, order, bs, _SHIFT * float(Hc.diagonal()[order].mean()), dtype, sort=sort)
-    del Hc
     B = near_null_space(asm)
     if candidates == "rigid":
         B = B[:, :_n_rigid(asm.net.dim, B.shape[1])]
+    Hc = sp.csc_matrix(asm.H)
+    sort = dtype == np.float32 or (Hc.has_sorted_indices and _permuted_sorted(Hc.indptr, Hc.indices, inv))
+    shift = _SHIFT * float(Hc.diagonal()[order].mean())
+    H = blocked_copy(Hc, order, bs, shift, dtype, sort=sort)
+    del Hc
+    if release is not None:
+        asm = None                                       # nothing below reads it: the caller may drop H
+        release(H, order, shift)
     smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
                 {"sweep": "symmetric", "iterations": int(sweeps)})
     extra = {}                                           # only what differs from pyamg's defaults
@@ -465,6 +478,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
 
     op = sla.LinearOperator((n, n), matvec=apply, matmat=apply, dtype=float)
     op.amg = (ml, order, inv)                          # for coarse_correction (already held by the V-cycle)
+    op.shift = shift                                   # of ml.levels[0].A (microhom.shared_h)
     info = AMGInfo(levels=len(ml.levels), operator_complexity=float(ml.operator_complexity()),
                    blocksize=bs, setup_time=time.perf_counter() - t0)
     return op, info

@@ -4,6 +4,7 @@
                                     [--exact auto|yes|no] [--max-order 60] [--max-memory BYTES] [--phases]
                                     [--stop-after ORDERS]
                                     [--setup-options [NAME ...]] [--setup-only] [--dual-clusters SIZE]
+                                    [--amg NAME]
 
 A jittered, diluted, polydisperse FCC (``fcc_network``: 4 m^3 spheres, m the smallest giving at
 least ``--n``; 8 % compression, jitter 0.03 D, radii 0.47-0.53 D, a fraction ``--keep`` of the
@@ -102,7 +103,18 @@ def instrument_phases(stop_after=None):
         def timed(*a, **k):
             _reset_peak()
             t, c = time.perf_counter(), time.process_time()
-            r = f(*a, **k)
+            if len(a) == 1 and set(k) == {"release"} and k["release"] is not None:
+                # amg_preconditioner(asm, release=...): the caller drops H in release(); this frame
+                # must not keep the assembly alive through pyamg's setup (issue 26)
+                box, rel = list(a), k["release"]
+                del a, k
+
+                def release(*args):
+                    box.clear()
+                    rel(*args)
+                r = f(box.pop(), release=release)
+            else:
+                r = f(*a, **k)
             peak, rss = _status_gb()
             print(f"    phase {label:20s} wall {time.perf_counter() - t:8.2f} s  cpu {time.process_time() - c:8.2f} s  "
                   f"peak {peak:6.2f} GiB  rss {rss:6.2f} GiB  load {os.getloadavg()[0]:.1f}", flush=True)
@@ -140,6 +152,7 @@ SETUP_OPTIONS = {
     "default": {},
     "rigid": dict(candidates="rigid"),             # 6 near-null vectors per sphere instead of 9
     "jacobi": dict(smooth="jacobi"),               # one Jacobi step instead of energy minimisation
+    "jacobi+rigid": dict(smooth="jacobi", candidates="rigid"),   # both (issue 26: the setup's transient)
     "plain": dict(smooth="none"),                  # plain aggregation
     "theta0.1": dict(theta=0.1),                   # strength threshold 0.1 instead of 0
     "theta0.25": dict(theta=0.25),
@@ -275,6 +288,30 @@ def compare_setups(n, keep, kt, tol, exact, names, max_order=60):
     return rows
 
 
+def _hierarchy_amg(opts):
+    """``--amg``: the hierarchy's ``amg_preconditioner`` with the options ``opts``; its wrapper
+    keeps no reference to the assembly through the setup (the hierarchy may drop ``H`` in
+    ``release``, issue 26). Returns a function that puts the original back."""
+    import inspect
+
+    import microhom.hierarchy as hi
+    real = hi.amg_preconditioner
+    d = {k: v.default for k, v in inspect.signature(real).parameters.items() if v.default is not inspect.Parameter.empty}
+    d.update(opts)
+
+    def amg(*a, release=None):
+        box = list(a)
+        del a
+        # every keyword spelled out: a call with **kwargs would hold the assembly in its argument tuple
+        return real(box.pop(), sweeps=d["sweeps"], candidates=d["candidates"], smooth=d["smooth"], theta=d["theta"],
+                    max_coarse=d["max_coarse"], improve=d["improve"], dtype=d["dtype"], release=release)
+    hi.amg_preconditioner = amg
+
+    def undo():
+        hi.amg_preconditioner = real
+    return undo
+
+
 def run_one(n, keep, kt, tol, exact, max_order=60, max_memory=None, bound="auto", hier_memory=None):
     t0 = time.perf_counter()
     net = fcc_network(n, keep=keep, kt=kt)
@@ -334,6 +371,8 @@ def main(argv=None):
     ap.add_argument("--dual-clusters", type=int, default=None, metavar="SIZE",
                     help="the dual bound's two-level statics with clusters of about SIZE spheres "
                          "(microhom.hierarchy.DUAL_CLUSTERS; default: the code's)")
+    ap.add_argument("--amg", choices=tuple(SETUP_OPTIONS), default=None,
+                    help="the hierarchy's own multilevel options (a --setup-options name) for a plain or --phases run")
     a = ap.parse_args(argv)
     if a.dual_clusters is not None:
         if a.dual_clusters < 8:
@@ -347,12 +386,14 @@ def main(argv=None):
         return [compare_setups(n, a.keep, a.kt, a.tol, a.exact, names, a.max_order) for n in a.n]
     if a.stop_after is not None and (not a.phases or a.stop_after < 1):
         ap.error(f"--stop-after needs --phases and an integer >= 1, got {a.stop_after}")
+    undo = _hierarchy_amg(SETUP_OPTIONS[a.amg]) if a.amg else (lambda: None)
     restore = instrument_phases(a.stop_after) if a.phases else (lambda: None)
     try:
         rows = [run_one(n, a.keep, a.kt, a.tol, a.exact, a.max_order, a.max_memory, a.bound, a.hier_memory)
                 for n in a.n]
     finally:
         restore()
+        undo()
     for r in rows:
         print(r)
     return rows

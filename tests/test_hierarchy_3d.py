@@ -117,6 +117,10 @@ def test_plan_memory_counts_six_unknowns_per_sphere():
     c = plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=True, dim=3)
     assert c.dense == 24 * 6000 ** 2 and c.assembly == 48 * 36 * (1000 + 2 * 2000)
     assert c.preconditioner == 700 * 6000 * 2 + 80 * 36 * (1000 + 2 * 2000)
+    # H read from the multilevel copy (issue 26): 70 bytes per non-zero, 3D only
+    d = plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=True, dim=3, shared_h=True)
+    assert d.preconditioner == 700 * 6000 * 2 + 70 * 36 * (1000 + 2 * 2000) and d.assembly == c.assembly
+    assert plan_memory(1000, 2000, max_order=4, soft_modes=0, dense=False, shared_h=True) == a
     with pytest.raises(ValueError, match="dim must be 2 or 3"):
         plan_memory(10, 10, dim=4)
 
@@ -142,6 +146,9 @@ def test_plan_memory_3d_against_the_measured_peak():
     assert h.certified
     p = plan_memory(net.n_particles, net.n_contacts, max_order=60, full=True, soft_modes=0, dense=False, dim=3)
     assert peak <= p.total <= 4 * peak, (peak, p.total)
+    q = plan_memory(net.n_particles, net.n_contacts, max_order=60, full=True, soft_modes=0, dense=False, dim=3,
+                    shared_h=True)            # this run read H from the multilevel copy (issue 26)
+    assert peak <= q.total < p.total, (peak, q.total)
 
 
 # ---- lattices: closed forms and flags -----------------------------------------------------------

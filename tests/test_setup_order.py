@@ -50,6 +50,7 @@ def _run(net, kw, monkeypatch, old):
             seen.setdefault(_label, asm)
             return _real(asm, *a, **k)
         monkeypatch.setattr(hi, name, rec)
+    monkeypatch.setattr(hi, "SHARE_H", False)     # H read from the multilevel copy: tests/test_shared_h.py
     if old:
         monkeypatch.setattr(hi, "_amg_certain", lambda run, o: False)
         monkeypatch.setattr(hi, "_slim", lambda asm: asm)
