@@ -1159,7 +1159,11 @@ def _coarse_solver(asm, R):
     """``z -> y`` solving ``R^T H R y = z`` (singular by the global translations and the floppy
     modes, on which ``K B R y`` vanishes: a shifted sparse LU and three refinement steps)."""
     from .factor import factor
-    Hc = (R.T @ (asm.H @ R)).tocsr()
+    if asm.H is not None:
+        Hc = (R.T @ (asm.H @ R)).tocsr()
+    else:       # the hierarchy dropped H (microhom.shared_h): H = Bs^T Ks Bs without pre-stress
+        BR = asm.Bs @ R
+        Hc = (BR.T @ (asm.Ks @ BR)).tocsr()
     dg = Hc.diagonal()
     shift = 1e-10 * float(dg[dg > 0].mean()) if (dg > 0).any() else 1.0
     lu = factor((Hc + shift * sps.eye(Hc.shape[0])).tocsr(), spd=True, dim=asm.net.dim, backend=COARSE_BACKEND)

@@ -151,3 +151,18 @@ def test_bench_statics_rows():
     assert two["depth_max"] < one["depth_max"]
     with pytest.raises(SystemExit):
         bench_spheres.main(["--n", "100", "--exact", "no", "--dual-clusters", "3"])
+
+
+def test_coarse_solver_without_the_assemblys_h():
+    """The relaxation hierarchy drops the assembly's H in its lean 3D path (microhom.shared_h);
+    the two-level statics' coarse matrix is then ``R^T Bs^T Ks Bs R``: the same field to
+    round-off, balanced."""
+    from dataclasses import replace
+    net, size = CASES["3D sliding"]
+    asm = assemble(net, pin=False)
+    r = _loads(asm)
+    c = build_equilibrator(asm, clusters=size).correct(r)
+    c2 = build_equilibrator(replace(asm, H=None), clusters=size).correct(r)
+    res = np.asarray(asm.Bs.T @ c2.reshape(-1, r.shape[1])) - r
+    assert np.abs(res).max() <= 1e-9 * np.abs(r).max()
+    assert np.abs(c2 - c).max() <= 1e-8 * np.abs(c).max()
