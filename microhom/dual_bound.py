@@ -563,7 +563,7 @@ def _ball(start, target, ptr, adj_q, regular):
 
 def _seed_matrix(seed, g):
     """Equilibrium matrix of the seed on its internal contacts (rows: the seed's unknowns)."""
-    usable, pdof, pairs, B, Q, nk, Kq, nl = g.usable, g.pdof, g.pairs, g.B, g.Q, g.nk, g.Kq, g.nl
+    usable, pdof, pairs, B, Q, Kq, nl = g.usable, g.pdof, g.pairs, g.B, g.Q, g.Kq, g.nl
     d = B.shape[1]
     seed = np.asarray(seed, dtype=np.int64)
     inc = np.concatenate([g.adj_e[g.ptr[p]:g.ptr[p + 1]] for p in seed]) if len(seed) else np.zeros(0, np.int64)
@@ -588,27 +588,39 @@ def _seed_matrix(seed, g):
     return A, Kl, se, sd
 
 
+def _trimmed(ball, g, rigid):
+    """The list ``ball`` of particles trimmed (the one with the fewest usable contacts inside
+    first) until its internal contacts carry every self-equilibrated load (rank = unknowns -
+    ``rigid``); None if no ball of two or more particles does."""
+    n = g.pdof.shape[0]
+    pairs = g.pairs
+    while len(ball) >= 2:
+        A, Kl, se, sd = _seed_matrix(np.array(ball), g)
+        if len(se):
+            w = np.linalg.eigvalsh(A @ Kl @ A.T)
+            if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
+                return np.array(ball, dtype=np.int64)
+        ins = np.zeros(n, bool)
+        ins[ball] = True
+        q = pairs[g.usable & ins[pairs[:, 0]] & ins[pairs[:, 1]]]
+        # contacts of each particle inside the ball (a contact with its own image once)
+        inner = (np.bincount(q[:, 0], minlength=n) + np.bincount(q[q[:, 1] != q[:, 0], 1], minlength=n))[ball]
+        ball.pop(int(np.argmin(inner)))
+    return None
+
+
 def _seed(deg, target, g, regular, tries=20):
     """A rigid seed cluster: a ball around a well-connected particle, trimmed (the particle with
     the fewest contacts inside first) until its internal contacts carry every self-equilibrated
     load (rank = unknowns - rigid motions)."""
-    ptr, adj_q, usable, pairs, pdof = g.ptr, g.adj_q, g.usable, g.pairs, g.pdof
+    ptr, adj_q = g.ptr, g.adj_q
     d = g.B.shape[1]
     rigid = d + rotational_dofs(d)
     cand = np.argsort(-np.where(regular, deg, -1), kind="stable")[:tries]
     for start in cand:
-        ball = _ball(start, target, ptr, adj_q, regular)
-        while len(ball) >= 2:
-            A, Kl, se, sd = _seed_matrix(np.array(ball), g)
-            if len(se):
-                w = np.linalg.eigvalsh(A @ Kl @ A.T)
-                if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
-                    return np.array(ball, dtype=np.int64)
-            ins = np.zeros(pdof.shape[0], bool)
-            ins[ball] = True
-            inner = [int((ins[pairs[usable & ((pairs[:, 0] == p) | (pairs[:, 1] == p))]].all(axis=1)).sum())
-                     for p in ball]
-            ball.pop(int(np.argmin(inner)))
+        ball = _trimmed(_ball(start, target, ptr, adj_q, regular), g, rigid)
+        if ball is not None:
+            return ball
     # none: a single particle (no internal contact; its whole load is left, carried by the cycles)
     return np.array(cand[:1], dtype=np.int64)
 
@@ -1084,18 +1096,9 @@ def _cluster_seed(members, deg, target, g, regular):
                         nxt.append(q)
             ball.extend(nxt)
             front = nxt
-        ball = ball[:target]
-        while len(ball) >= 2:
-            A, Kl, se, sd = _seed_matrix(np.array(ball), g)
-            if len(se):
-                w = np.linalg.eigvalsh(A @ Kl @ A.T)
-                if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
-                    return np.array(ball, dtype=np.int64)
-            ins = np.zeros(g.pdof.shape[0], bool)
-            ins[ball] = True
-            sel = g.usable & ins[g.pairs[:, 0]] & ins[g.pairs[:, 1]]
-            inner = np.bincount(g.pairs[sel].ravel(), minlength=g.pdof.shape[0])[ball]
-            ball.pop(int(np.argmin(inner)))
+        ball = _trimmed(ball[:target], g, rigid)
+        if ball is not None:
+            return ball
     return mem[:1]
 
 

@@ -1259,15 +1259,14 @@ def _early_multilevel(run, o):
     taken from ``H`` before (``run.M_own``: the same matrix)."""
     run.lean = _lean(run, o)
     share = SHARE_H and run.lean and run.asm.net.dim == 3
-    release = None
     if share:
         run.M_own = _own_blocks(run.asm.H, dof_layout(run.asm)[0])
 
-        def release(A, order, shift):         # a float64 copy only (not a float32 hierarchy)
-            if sp.issparse(A) and A.format in ("bsr", "csr") and A.dtype == np.float64:
-                run.H_shared = ShiftedCopy(A, order, shift)
-                run.asm = replace(run.asm, H=None)
-    run.P_amg, info = amg_preconditioner(run.asm, release=release)
+    def drop(A, order, shift):                # a float64 copy only (not a float32 hierarchy)
+        if sp.issparse(A) and A.format in ("bsr", "csr") and A.dtype == np.float64:
+            run.H_shared = ShiftedCopy(A, order, shift)
+            run.asm = replace(run.asm, H=None)
+    run.P_amg, info = amg_preconditioner(run.asm, release=drop if share else None)
     run.t_prec = run.t_early = info.setup_time
 
 
