@@ -8,9 +8,9 @@ from scipy.optimize import minimize
 
 import dem.analysis.stiffness
 from dem.analysis.stiffness import (StiffnessResult, affine_stiffness, count_modes, factorise, have_cholmod,
-                           isotropic_moduli, mandel_to_strain, mandel_to_tensor, mandel_to_voigt, reduce_system, relax,
-                           relaxed_tensor, stiffness, strain_to_mandel, stress_increment,
-                           tensor_to_mandel, voigt_to_mandel)
+                           isotropic_moduli, mandel_to_tensor, mandel_to_voigt, reduce_system, relax,
+                           relaxed_tensor, stiffness, strain_to_mandel, stress_increment)
+from microhom.tensors import mandel_to_strain, tensor_to_mandel, voigt_to_mandel
 from microhom.kinematics import assemble
 from microhom import lattices
 from microhom.network import ContactNetwork, from_overlaps
