@@ -450,8 +450,12 @@ class Equilibrator:
         r = np.asarray(r, dtype=float)
         one = r.ndim == 1
         r = r[:, None] if one else r
-        out = np.concatenate([self._correct(r[:, a:a + chunk]) for a in range(0, r.shape[1], chunk)],
-                             axis=2) if r.shape[1] else np.zeros((self._data["C"], self._data["d"], 0))
+        if not r.shape[1]:
+            out = np.zeros((self._data["C"], self._data["d"], 0))
+        elif r.shape[1] <= chunk:        # one chunk: no concatenated copy (issue 26: 0.5 GB at 1e6)
+            out = self._correct(r)
+        else:
+            out = np.concatenate([self._correct(r[:, a:a + chunk]) for a in range(0, r.shape[1], chunk)], axis=2)
         return out[:, :, 0] if one else out
 
     def _correct(self, r):
@@ -475,12 +479,16 @@ class Equilibrator:
         y = T["solve"](np.asarray(T["R"].T @ r))
         f1 = np.asarray(T["Ks"] @ (T["Bs"] @ np.asarray(T["R"] @ y)))
         r2 = r - np.asarray(T["Bs"].T @ f1)
-        c, _ = Equilibrator(0, 0, 0, 0, 0, True, 0.0, T["local"])._tree(r2)
-        return c + f1.reshape(c.shape)
+        c, _ = Equilibrator(0, 0, 0, 0, 0, True, 0.0, T["local"])._tree(r2, own=True)
+        c += f1.reshape(c.shape)          # in place: one (C, d, s) array fewer (issue 26)
+        return c
 
-    def _tree(self, r):
+    def _tree(self, r, own=False):
+        """Forces ``c`` (C, d, s) carrying ``r`` (ndof, s) by the construction order, and the load
+        left on the seed. ``own``: ``r`` is a temporary the caller gives up (worked on in place,
+        without a copy)."""
         D = self._data
-        load = np.array(r, dtype=float, order="C", copy=True)
+        load = np.ascontiguousarray(r, dtype=float) if own else np.array(r, dtype=float, order="C", copy=True)
         c = np.zeros((D["C"], D["d"], r.shape[1]))
         if D["block"] is not None:        # the particles the order could not attach: one sparse solve
             A, AS, KAT, lu, be, bcols = D["block"]
