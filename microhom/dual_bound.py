@@ -893,14 +893,22 @@ def _best_in_span(asm, G0, W, eq, Kp, passes):
     ``= L0 + b^T S^+ b - (beta - S^+ b)^T S (beta - S^+ b)`` (docs/theory.md section 12), so
     ``beta = S^+ b``. Any ``beta`` is a bound: the pseudo-inverse's accuracy decides only how
     tight."""
-    W = np.asarray(W, dtype=float)
-    if W.ndim != 2 or W.shape[0] != asm.ndof or not np.all(np.isfinite(W)):
-        raise ValueError(f"trial must be a finite array of shape (ndof, p) = ({asm.ndof}, p), got "
-                         f"shape {W.shape}" + ("" if W.ndim != 2 or W.shape[0] != asm.ndof else " with non-finite entries"))
-    if not W.shape[1]:
+    Ws = [np.asarray(w, dtype=float) for w in (W if isinstance(W, (list, tuple)) else [W])]
+    for w in Ws:
+        if w.ndim != 2 or w.shape[0] != asm.ndof or not np.all(np.isfinite(w)):
+            raise ValueError(f"trial must be a finite array of shape (ndof, p) = ({asm.ndof}, p) or a list of "
+                             f"them, got shape {w.shape}"
+                             + ("" if w.ndim != 2 or w.shape[0] != asm.ndof else " with non-finite entries"))
+    d, p = asm.net.dim, sum(w.shape[1] for w in Ws)
+    if not p:
         return G0
-    d, p = asm.net.dim, W.shape[1]
-    Phi = np.asarray(asm.Ks @ (asm.Bs @ W))
+    # column block by column block, without stacking the trial (the same numbers: each column of a
+    # sparse product is summed alone)
+    Phi = np.empty((asm.Bs.shape[0], p))
+    a = 0
+    for w in Ws:
+        Phi[:, a:a + w.shape[1]] = asm.Ks @ (asm.Bs @ w)
+        a += w.shape[1]
     for _ in range(passes):
         # in place, six columns at a time (the statics' own chunks: the same numbers), without a
         # second Phi and the whole correction beside it (issue 26: 3 p columns of dC floats were live)
@@ -941,7 +949,8 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     before the statics (docs/theory.md section 12, "A correction before the statics"): e.g. a
     V-cycle of ``microhom.multilevel.amg_preconditioner`` or its ``coarse_correction``. Any
     ``y`` keeps the bound rigorous (only its gap depends on it); ``DualBound.gap`` is then that
-    of the corrected iterate. ``trial``: None (default) or trial relaxations ``W`` (ndof, p); the
+    of the corrected iterate. ``trial``: None (default) or trial relaxations ``W`` (ndof, p) (or a
+    list of such blocks, their columns taken together without a stacked copy); the
     field is then the best, in the Loewner order, of ``G0 + Pi K B W beta`` over ``beta`` (p, m)
     (``Pi`` the statics' projector on equilibrated fields; docs/theory.md section 12, "The best
     field in a small subspace"), e.g. the hierarchy's next preconditioned residual and its last

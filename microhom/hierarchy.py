@@ -1796,7 +1796,7 @@ def _best_lower(run, C, cg):
     if run.dual is not None and _dual_due(run, C, cg):   # its own round-off margin is subtracted already
         tb = time.perf_counter()
         prev = run.dual_prev_X if run.dual_prev_X is not None else 0.0
-        W = np.hstack([cg.Z, cg.X - prev]) if DUAL_TRIAL else None
+        W = [cg.Z, cg.X - prev] if DUAL_TRIAL else None     # not stacked: one copy fewer (issue 26)
         b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse, trial=W)
         run.n_dual += 1
         if b.valid:     # the statics' own gap schedules (_dual_due), or the interval's width (DUAL_SCHEDULE)
