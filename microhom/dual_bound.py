@@ -711,12 +711,15 @@ def _trimmed(ball, g, rigid):
     every member has at least as many force components inside as unknowns: otherwise a motion of
     that member alone meets no internal force, and it is not a rigid motion of the ball when every
     member has all its ``nl`` unknowns (rigid motions move each member's translations or
-    rotations), so the rank falls short anyway (where some unknown is eliminated: always computed)."""
-    full = bool((g.pdof[np.asarray(ball, dtype=np.int64)] >= 0).all()) and g.nl > g.B.shape[1]
+    rotations), so the rank falls short anyway (where some unknown is eliminated: always computed).
+    Likewise in 3D a sphere with two contacts inside: its rotation about the line through the two
+    contact points moves neither."""
+    d = g.B.shape[1]
+    full = bool((g.pdof[np.asarray(ball, dtype=np.int64)] >= 0).all()) and g.nl > d
     while len(ball) >= 2:
         b = np.array(ball, dtype=np.int64)
         inner, comps = _inside(b, g)
-        if not full or (comps >= g.nl).all():
+        if not full or ((comps >= g.nl).all() and (d == 2 or (inner >= 3).all())):
             A, Kl, se, sd = _seed_matrix(b, g)
             if len(se):
                 w = np.linalg.eigvalsh(A @ Kl @ A.T)
@@ -785,7 +788,7 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000,
     g = _Graph(ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
     regular = _regular(neq, g)
     if clusters is not None:
-        two = _two_level(asm, g, neq, int(clusters))
+        two = _two_level(asm, g, neq, int(clusters), regular)
         if two is not None:
             st = two["stats"]
             return Equilibrator(n_seed=st["n_seed"], n_attached=st["n_attached"], n_stalled=st["n_alone"],
@@ -872,15 +875,25 @@ def _block(data, asm, stalled, idx, usable, Kq, block_max):
     return True
 
 
+def _regular(neq, g, which=None, out=None):
+    """Particles whose whole usable contact set carries any load (:class:`_Graph` ``g``): (N,)
+    bool; with ``which`` (n,) and ``out`` (N,) only those particles recomputed in ``out`` (the
+    answer depends on a particle's usable contacts alone: unchanged contacts, unchanged answer)."""
+    N = neq.shape[0]
+    if which is None:
+        return _regular_at(np.arange(N), neq, g, np.zeros(N, np.bool_))
+    return _regular_at(np.asarray(which, dtype=np.int64), neq, g, out.copy())
+
+
 @numba.njit(cache=True)
-def _regular(neq, g):
-    """Particles whose whole usable contact set carries any load (:class:`_Graph` ``g``)."""
+def _regular_at(which, neq, g, out):
+    """:func:`_regular` at the particles ``which`` (n,), written into ``out`` (N,)."""
     N = neq.shape[0]
     idx = np.zeros(N, np.int64)
     slot = np.full(N, -1, np.int64)
-    out = np.zeros(N, np.bool_)
     one = np.empty(1, np.int64)
-    for p in range(N):
+    for p in which:
+        out[p] = False
         if neq[p] > 0:
             one[0] = p
             out[p] = _try_unit(one, slot, idx, 1, g)
@@ -1263,6 +1276,18 @@ def _cluster_seed(members, deg, target, g, regular):
     return mem[:1]
 
 
+def _block_diag(mats):
+    """``scipy.sparse.block_diag(mats, format="csr")`` of dense 2D blocks (every entry of a block
+    stored, zeros too, rows in column order: the same arrays), assembled directly as CSR."""
+    nr = np.array([a.shape[0] for a in mats], np.int64)
+    nc = np.array([a.shape[1] for a in mats], np.int64)
+    c0 = np.concatenate([[0], np.cumsum(nc)])
+    indptr = np.concatenate([[0], np.cumsum(np.repeat(nc, nr))])
+    indices = np.concatenate([np.tile(np.arange(c0[k], c0[k + 1]), nr[k]) for k in range(len(mats))])
+    data = np.concatenate([np.asarray(a, float).ravel() for a in mats])
+    return sps.csr_matrix((data, indices, indptr), shape=(int(nr.sum()), int(c0[-1])))
+
+
 def _seeds_solve(seeds, g):
     """Block-diagonal dense least-``K^+``-norm operators of the seeds (one per cluster) on their
     own contacts: the arrays :meth:`Equilibrator._tree` reads (``seed_Y`` and ``seed_A`` sparse)."""
@@ -1282,7 +1307,7 @@ def _seeds_solve(seeds, g):
     if not Ys:
         return dict(seed_Y=None, seed_e=np.zeros(0, np.int64))
     se = np.concatenate(es)
-    return dict(seed_Y=sps.block_diag(Ys, format="csr"), seed_A=sps.block_diag(As, format="csr"),
+    return dict(seed_Y=_block_diag(Ys), seed_A=_block_diag(As),
                 seed_e=se, seed_dofs=np.concatenate(ds), seed_Q=g.Q[se])
 
 
@@ -1345,12 +1370,13 @@ COARSE_BACKEND = "auto"
 UNIT_MAX = 8
 
 
-def _two_level(asm, g0, neq, size):
+def _two_level(asm, g0, neq, size, regular0):
     """The two-level statics (docs/theory.md section 12, "Two-level statics"): clusters of about
     ``size`` particles (boxes of the cell; particles without enough contacts inside their box
     moved to the neighbouring one), each grown by statics from its own seed on its own contacts;
     particles that do not attach become clusters of their own; the coarse step on the clusters'
-    rigid motions. None when the cell holds fewer than ``2^d`` boxes of that size."""
+    rigid motions. None when the cell holds fewer than ``2^d`` boxes of that size. ``regular0``
+    (N,): :func:`_regular` on ``g0``."""
     net = asm.net
     N, d = net.n_particles, net.dim
     lab = _box_labels(net, size)
@@ -1367,7 +1393,9 @@ def _two_level(asm, g0, neq, size):
         inner = g0.usable & (lab[pairs[:, 0]] == lab[pairs[:, 1]])
         x, inner = _unwrap(net, inner, N)
         g = g0._replace(usable=inner)
-        regular = _regular(neq, g)
+        cut = np.zeros(N, bool)              # particles with a contact of g0 not used here
+        cut[pairs[g0.usable & ~inner].ravel()] = True
+        regular = _regular(neq, g, np.flatnonzero(cut), regular0)
         deg = np.bincount(pairs[inner].ravel(), minlength=N)
         if rnd == 0:              # the seeds stay (attached first, they never move)
             order = np.argsort(lab, kind="stable")
