@@ -237,6 +237,35 @@ def _unit_gram(mem, slot, idx, before, g):
 
 
 @numba.njit(cache=True)
+def _short(mem, slot, idx, before, g):
+    """Is the unit's ``A`` (:func:`_unit_local`) surely short of full row rank by counting? A member
+    with fewer force components on the unit's contacts than unknowns moves alone without meeting
+    any; in 3D a particle with all its six unknowns and two contacts turns alone about the line
+    through the two contact points."""
+    ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl = g
+    n = mem.shape[0]
+    comps = np.zeros(n, np.int64)
+    cnt = np.zeros(n, np.int64)
+    for u in range(n):
+        for t in range(ptr[mem[u]], ptr[mem[u] + 1]):
+            e, q = adj_e[t], adj_q[t]
+            if not (usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))):
+                continue
+            comps[u] += nk[e]
+            cnt[u] += 1
+            if slot[q] >= 0:
+                comps[slot[q]] += nk[e]
+                cnt[slot[q]] += 1
+    for u in range(n):
+        rows = 0
+        for k in range(nl):
+            rows += pdof[mem[u], k] >= 0
+        if comps[u] < rows or (B.shape[1] == 3 and nl == 6 and rows == 6 and cnt[u] < 3):
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def _chol_ok(M, shift):
     """Does the Cholesky factorisation of ``M - shift I`` (n, n) meet only positive pivots?"""
     n = M.shape[0]
@@ -283,10 +312,15 @@ def _clear_accept(M):
 @numba.njit(cache=True)
 def _try_unit(mem, slot, idx, before, g):
     """Does the unit carry any load on its contacts to the built particles (full row rank; every
-    eigenvalue of ``A Kl A^T`` above ``_ACCEPT`` times the largest)? Clear cases decided on the
-    Gram matrix by :func:`_clear_accept`, the rest by the eigenvalues of the product."""
+    eigenvalue of ``A Kl A^T`` above ``_ACCEPT`` times the largest)? Units short by counting
+    (:func:`_short`) fail at once; clear cases are decided on the Gram matrix by
+    :func:`_clear_accept`, the rest by the eigenvalues of the product."""
     for u in range(mem.shape[0]):
         slot[mem[u]] = u
+    if _short(mem, slot, idx, before, g):
+        for u in range(mem.shape[0]):
+            slot[mem[u]] = -1
+        return False
     M, ncol = _unit_gram(mem, slot, idx, before, g)
     clear = -1 if M.shape[0] == 0 or ncol < M.shape[0] else _clear_accept(M)
     if clear < 0 and M.shape[0] > 0 and ncol >= M.shape[0]:
