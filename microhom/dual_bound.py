@@ -720,21 +720,25 @@ def _seed_matrix(seed, g):
     return A, Kl, se, sd
 
 
+@numba.njit(cache=True)
 def _inside(b, g):
     """Per member of the ball ``b`` (n,) its usable contacts inside the ball (a contact with its own
     image once) and their force components, each (n,); from the members' adjacency only (O(the
-    ball's degree), not O(all contacts))."""
-    inc = np.unique(np.concatenate([g.adj_e[g.ptr[p]:g.ptr[p + 1]] for p in b]))
-    inc = inc[g.usable[inc]]
-    srt = np.argsort(b, kind="stable")
+    ball's degree log n), not O(all contacts))."""
+    n = b.shape[0]
+    srt = np.argsort(b, kind="mergesort")
     sb = b[srt]
-    q = g.pairs[inc]
-    ok = np.isin(q[:, 0], sb) & np.isin(q[:, 1], sb)
-    q, w = q[ok], g.nk[inc[ok]]
-    i0, i1 = srt[np.searchsorted(sb, q[:, 0])], srt[np.searchsorted(sb, q[:, 1])]
-    two = q[:, 1] != q[:, 0]
-    inner = np.bincount(i0, minlength=len(b)) + np.bincount(i1[two], minlength=len(b))
-    comps = np.bincount(i0, w, len(b)) + np.bincount(i1[two], w[two], len(b))
+    inner = np.zeros(n, np.int64)
+    comps = np.zeros(n, np.int64)
+    for u in range(n):
+        for t in range(g.ptr[b[u]], g.ptr[b[u] + 1]):
+            e, q = g.adj_e[t], g.adj_q[t]
+            if not g.usable[e] or (q == b[u] and g.adj_s[t] == 1):
+                continue
+            k = np.searchsorted(sb, q)
+            if k < n and sb[k] == q:
+                inner[u] += 1
+                comps[u] += g.nk[e]
     return inner, comps
 
 
