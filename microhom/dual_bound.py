@@ -187,18 +187,150 @@ def _operator(A, Kl):
 
 
 @numba.njit(cache=True)
+def _unit_gram(mem, slot, idx, before, g):
+    """The symmetric part of ``A Kl A^T`` (nrow, nrow) of :func:`_unit_local`'s unit (members in ``slot``),
+    summed contact by contact without forming ``A`` (its rounding differs from the product's: only
+    for the clear decisions of :func:`_clear_accept`), and the number of force unknowns ``ncol``."""
+    ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl = g
+    d = B.shape[1]
+    nrow = 0
+    rowof = np.full((mem.shape[0], nl), -1, np.int64)
+    for u in range(mem.shape[0]):
+        for k in range(nl):
+            if pdof[mem[u], k] >= 0:
+                rowof[u, k] = nrow
+                nrow += 1
+    M = np.zeros((nrow, nrow))
+    a = np.zeros((2 * nl, d))        # one contact's nonzero rows of A (at most two members')
+    ak = np.zeros((2 * nl, d))       # and of A Kq
+    rows = np.empty(2 * nl, np.int64)
+    ncol = 0
+    for u in range(mem.shape[0]):
+        for t in range(ptr[mem[u]], ptr[mem[u] + 1]):
+            e, q = adj_e[t], adj_q[t]
+            if not (usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))):
+                continue
+            m = nk[e]
+            ncol += m
+            nr = 0
+            for side in range(2):
+                x = pairs[e, side]
+                for k in range(nl if slot[x] >= 0 else 0):
+                    if rowof[slot[x], k] < 0:
+                        continue
+                    rows[nr] = rowof[slot[x], k]
+                    for b in range(m):
+                        a[nr, b] = 0.0
+                        for y in range(d):
+                            a[nr, b] += B[e, y, side * nl + k] * Q[e, y, b]
+                    nr += 1
+            for i in range(nr):
+                for b in range(m):
+                    ak[i, b] = 0.0
+                    for b2 in range(m):
+                        ak[i, b] += a[i, b2] * Kq[e, b2, b]
+            for i in range(nr):
+                for j in range(nr):
+                    for b in range(m):
+                        M[rows[i], rows[j]] += ak[i, b] * a[j, b]
+    return 0.5 * (M + M.T), ncol
+
+
+@numba.njit(cache=True)
+def _short(mem, slot, idx, before, g):
+    """Is the unit's ``A`` (:func:`_unit_local`) surely short of full row rank by counting? A member
+    with fewer force components on the unit's contacts than unknowns moves alone without meeting
+    any; in 3D a particle with all its six unknowns and two contacts turns alone about the line
+    through the two contact points."""
+    ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl = g
+    n = mem.shape[0]
+    comps = np.zeros(n, np.int64)
+    cnt = np.zeros(n, np.int64)
+    for u in range(n):
+        for t in range(ptr[mem[u]], ptr[mem[u] + 1]):
+            e, q = adj_e[t], adj_q[t]
+            if not (usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))):
+                continue
+            comps[u] += nk[e]
+            cnt[u] += 1
+            if slot[q] >= 0:
+                comps[slot[q]] += nk[e]
+                cnt[slot[q]] += 1
+    for u in range(n):
+        rows = 0
+        for k in range(nl):
+            rows += pdof[mem[u], k] >= 0
+        if comps[u] < rows or (B.shape[1] == 3 and nl == 6 and rows == 6 and cnt[u] < 3):
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def _chol_ok(M, shift):
+    """Does the Cholesky factorisation of ``M - shift I`` (n, n) meet only positive pivots?"""
+    n = M.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = M[j, j] - shift
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            v = 0.5 * (M[i, j] + M[j, i])
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@numba.njit(cache=True)
+def _clear_accept(M):
+    """The test ``w_min > _ACCEPT w_max`` on the symmetric positive semi-definite ``M`` when it is
+    clear by a factor 2 (1: passes, 0: fails), else -1 (decide by the eigenvalues). With ``U`` the
+    largest absolute row sum (>= w_max) and ``L`` the largest diagonal entry (<= w_max, >= U / n):
+    ``M - 2 _ACCEPT U I`` positive definite means ``w_min > 2 _ACCEPT w_max``; ``M - _ACCEPT L / 2 I``
+    not, ``w_min < _ACCEPT w_max / 2``. Rounding (about ``n eps U``, far below ``_ACCEPT L``) can
+    blur neither, nor the eigenvalue solver's (same order) the exact test's answer there."""
+    n = M.shape[0]
+    U, L = 0.0, 0.0
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += abs(M[i, j])
+        U, L = max(U, s), max(L, M[i, i])
+    if not L > 0.0:
+        return -1
+    if _chol_ok(M, 2.0 * _ACCEPT * U):
+        return 1
+    if not _chol_ok(M, 0.5 * _ACCEPT * L):
+        return 0
+    return -1
+
+
+@numba.njit(cache=True)
 def _try_unit(mem, slot, idx, before, g):
-    """Does the unit carry any load on its contacts to the built particles (full row rank)?"""
+    """Does the unit carry any load on its contacts to the built particles (full row rank; every
+    eigenvalue of ``A Kl A^T`` above ``_ACCEPT`` times the largest)? Units short by counting
+    (:func:`_short`) fail at once; clear cases are decided on the Gram matrix by
+    :func:`_clear_accept`, the rest by the eigenvalues of the product."""
     for u in range(mem.shape[0]):
         slot[mem[u]] = u
-    A, Kl, _, _ = _unit_local(mem, slot, idx, before, g)
+    if _short(mem, slot, idx, before, g):
+        for u in range(mem.shape[0]):
+            slot[mem[u]] = -1
+        return False
+    M, ncol = _unit_gram(mem, slot, idx, before, g)
+    clear = -1 if M.shape[0] == 0 or ncol < M.shape[0] else _clear_accept(M)
+    if clear < 0 and M.shape[0] > 0 and ncol >= M.shape[0]:
+        A, Kl, _, _ = _unit_local(mem, slot, idx, before, g)
+        P = A @ Kl @ A.T
+        w = np.linalg.eigvalsh(0.5 * (P + P.T))
+        clear = 1 if w[0] > _ACCEPT * w[-1] else 0
     for u in range(mem.shape[0]):
         slot[mem[u]] = -1
-    if A.shape[0] == 0 or A.shape[1] < A.shape[0]:
-        return False
-    M = A @ Kl @ A.T
-    w = np.linalg.eigvalsh(0.5 * (M + M.T))
-    return w[0] > _ACCEPT * w[-1]
+    return clear == 1
 
 
 @numba.njit(cache=True)
@@ -596,26 +728,49 @@ def _seed_matrix(seed, g):
     return A, Kl, se, sd
 
 
+@numba.njit(cache=True)
+def _inside(b, g):
+    """Per member of the ball ``b`` (n,) its usable contacts inside the ball (a contact with its own
+    image once) and their force components, each (n,); from the members' adjacency only (O(the
+    ball's degree log n), not O(all contacts))."""
+    n = b.shape[0]
+    srt = np.argsort(b, kind="mergesort")
+    sb = b[srt]
+    inner = np.zeros(n, np.int64)
+    comps = np.zeros(n, np.int64)
+    for u in range(n):
+        for t in range(g.ptr[b[u]], g.ptr[b[u] + 1]):
+            e, q = g.adj_e[t], g.adj_q[t]
+            if not g.usable[e] or (q == b[u] and g.adj_s[t] == 1):
+                continue
+            k = np.searchsorted(sb, q)
+            if k < n and sb[k] == q:
+                inner[u] += 1
+                comps[u] += g.nk[e]
+    return inner, comps
+
+
 def _trimmed(ball, g, rigid):
     """The list ``ball`` of particles trimmed (the one with the fewest usable contacts inside
     first) until its internal contacts carry every self-equilibrated load (rank = unknowns -
-    ``rigid``); None if no ball of two or more particles does."""
+    ``rigid``); None if no ball of two or more particles does. The rank is computed only where
+    every member has at least as many force components inside as unknowns: otherwise a motion of
+    that member alone meets no internal force, and it is not a rigid motion of the ball when every
+    member has all its ``nl`` unknowns (rigid motions move each member's translations or
+    rotations), so the rank falls short anyway (where some unknown is eliminated: always computed).
+    Likewise in 3D a sphere with two contacts inside: its rotation about the line through the two
+    contact points moves neither."""
+    d = g.B.shape[1]
+    full = bool((g.pdof[np.asarray(ball, dtype=np.int64)] >= 0).all()) and g.nl > d
     while len(ball) >= 2:
         b = np.array(ball, dtype=np.int64)
-        A, Kl, se, sd = _seed_matrix(b, g)
-        if len(se):
-            w = np.linalg.eigvalsh(A @ Kl @ A.T)
-            if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
-                return b
-        # usable contacts of each member inside the ball (a contact with its own image once), from
-        # the members' adjacency only: O(the ball's degree), not O(all contacts), per trim
-        inc = np.unique(np.concatenate([g.adj_e[g.ptr[p]:g.ptr[p + 1]] for p in ball]))
-        q = g.pairs[inc[g.usable[inc]]]
-        srt = np.argsort(b, kind="stable")
-        sb = b[srt]
-        q = q[np.isin(q[:, 0], sb) & np.isin(q[:, 1], sb)]
-        i0, i1 = srt[np.searchsorted(sb, q[:, 0])], srt[np.searchsorted(sb, q[:, 1])]
-        inner = np.bincount(i0, minlength=len(ball)) + np.bincount(i1[q[:, 1] != q[:, 0]], minlength=len(ball))
+        inner, comps = _inside(b, g)
+        if not full or ((comps >= g.nl).all() and (d == 2 or (inner >= 3).all())):
+            A, Kl, se, sd = _seed_matrix(b, g)
+            if len(se):
+                w = np.linalg.eigvalsh(A @ Kl @ A.T)
+                if int((w > _RANK_TOL * w.max()).sum()) == len(sd) - rigid:
+                    return b
         ball.pop(int(np.argmin(inner)))
     return None
 
@@ -679,7 +834,7 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000,
     g = _Graph(ptr, adj_e, adj_s, adj_q, usable, pdof, pairs, B, Q, nk, Kq, nl)
     regular = _regular(neq, g)
     if clusters is not None:
-        two = _two_level(asm, g, neq, int(clusters))
+        two = _two_level(asm, g, neq, int(clusters), regular)
         if two is not None:
             st = two["stats"]
             return Equilibrator(n_seed=st["n_seed"], n_attached=st["n_attached"], n_stalled=st["n_alone"],
@@ -766,15 +921,25 @@ def _block(data, asm, stalled, idx, usable, Kq, block_max):
     return True
 
 
+def _regular(neq, g, which=None, out=None):
+    """Particles whose whole usable contact set carries any load (:class:`_Graph` ``g``): (N,)
+    bool; with ``which`` (n,) and ``out`` (N,) only those particles recomputed in ``out`` (the
+    answer depends on a particle's usable contacts alone: unchanged contacts, unchanged answer)."""
+    N = neq.shape[0]
+    if which is None:
+        return _regular_at(np.arange(N), neq, g, np.zeros(N, np.bool_))
+    return _regular_at(np.asarray(which, dtype=np.int64), neq, g, out.copy())
+
+
 @numba.njit(cache=True)
-def _regular(neq, g):
-    """Particles whose whole usable contact set carries any load (:class:`_Graph` ``g``)."""
+def _regular_at(which, neq, g, out):
+    """:func:`_regular` at the particles ``which`` (n,), written into ``out`` (N,)."""
     N = neq.shape[0]
     idx = np.zeros(N, np.int64)
     slot = np.full(N, -1, np.int64)
-    out = np.zeros(N, np.bool_)
     one = np.empty(1, np.int64)
-    for p in range(N):
+    for p in which:
+        out[p] = False
         if neq[p] > 0:
             one[0] = p
             out[p] = _try_unit(one, slot, idx, 1, g)
@@ -1037,6 +1202,42 @@ def _box_labels(net, size):
     return lab
 
 
+@numba.njit(cache=True)
+def _csr_argmax(indptr, indices, data, ncols):
+    """``scipy.sparse`` ``argmax(axis=1)`` of a CSR matrix (n, ncols) with sorted, summed indices,
+    in one pass (scipy's loops in Python per row): the column of each row's first largest stored
+    value; an empty row 0; a row whose largest stored value is not positive and that has implicit
+    zeros: the first missing column (stored maximum negative) or, maximum zero, the smaller of that
+    column and the maximum's position in the row (scipy's rule, kept as it is)."""
+    n = indptr.shape[0] - 1
+    out = np.zeros(n, np.int64)
+    for i in range(n):
+        p, q = indptr[i], indptr[i + 1]
+        if q == p:
+            continue
+        m = p
+        for t in range(p + 1, q):
+            if data[t] > data[m]:
+                m = t
+        if data[m] > 0 or q - p == ncols:
+            out[i] = indices[m]
+            continue
+        miss = q - p if q - p < ncols else -1        # the first column missing from the row
+        for t in range(p, q):
+            if indices[t] != t - p:
+                miss = t - p
+                break
+        out[i] = min(m - p, miss) if data[m] == 0 else miss
+    return out
+
+
+def _argmax_rows(M):
+    """``M.argmax(axis=1)`` (n,) of the sparse ``M`` (n, m), as scipy gives it (:func:`_csr_argmax`)."""
+    M = M.tocsr()
+    M.sum_duplicates()
+    return _csr_argmax(M.indptr.astype(np.int64), M.indices.astype(np.int64), M.data, M.shape[1])
+
+
 def _reassign(lab, pairs, usable, nk, need, passes=3):
     """Each particle with fewer than ``need`` (N,) force components on contacts inside its box moves to
     the neighbouring box it has the most components to (``passes`` times)."""
@@ -1050,12 +1251,21 @@ def _reassign(lab, pairs, usable, nk, need, passes=3):
             break
         M = sps.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([lab[j], lab[i]]))),
                            shape=(N, lab.max() + 1)).tocsr()
-        best = np.asarray(M.argmax(axis=1)).ravel()
+        best = _argmax_rows(M)
         moved = bad & (np.asarray(M.max(axis=1).toarray()).ravel() > own)
         if not moved.any():
             break
         lab = np.where(moved, best, lab)
     return lab
+
+
+@numba.njit(cache=True)
+def _continue(x, ch, pr, step, order):
+    """``x[ch[k]] = x[pr[k]] + step[k]`` (x (N, d), step (n, d)) for ``k`` in ``order`` (n,), in
+    place: a parent placed before its children continues the positions along a tree."""
+    for k in order:
+        for a in range(x.shape[1]):
+            x[ch[k], a] = x[pr[k], a] + step[k, a]
 
 
 def _unwrap(net, inner, N):
@@ -1087,8 +1297,7 @@ def _unwrap(net, inner, N):
     step = np.sign(sg)[:, None] * c[np.abs(sg) - 1]
     pos_in = np.empty(N + 1, np.int64)
     pos_in[order] = np.arange(len(order))
-    for k in np.argsort(pos_in[ch], kind="stable"):     # parents before children
-        x[ch[k]] = x[pr[k]] + step[k]
+    _continue(x, ch, pr, step, np.argsort(pos_in[ch], kind="stable"))     # parents before children
     ok = inner.copy()
     ok[e] = np.abs(x[pairs[e, 1]] - x[pairs[e, 0]] - c[e]).max(axis=1) <= 1e-9 * (1 + np.abs(c[e]).max(axis=1))
     return x, ok
@@ -1122,6 +1331,18 @@ def _cluster_seed(members, deg, target, g, regular):
     return mem[:1]
 
 
+def _block_diag(mats):
+    """``scipy.sparse.block_diag(mats, format="csr")`` of dense 2D blocks (every entry of a block
+    stored, zeros too, rows in column order: the same arrays), assembled directly as CSR."""
+    nr = np.array([a.shape[0] for a in mats], np.int64)
+    nc = np.array([a.shape[1] for a in mats], np.int64)
+    c0 = np.concatenate([[0], np.cumsum(nc)])
+    indptr = np.concatenate([[0], np.cumsum(np.repeat(nc, nr))])
+    indices = np.concatenate([np.tile(np.arange(c0[k], c0[k + 1]), nr[k]) for k in range(len(mats))])
+    data = np.concatenate([np.asarray(a, float).ravel() for a in mats])
+    return sps.csr_matrix((data, indices, indptr), shape=(int(nr.sum()), int(c0[-1])))
+
+
 def _seeds_solve(seeds, g):
     """Block-diagonal dense least-``K^+``-norm operators of the seeds (one per cluster) on their
     own contacts: the arrays :meth:`Equilibrator._tree` reads (``seed_Y`` and ``seed_A`` sparse)."""
@@ -1141,7 +1362,7 @@ def _seeds_solve(seeds, g):
     if not Ys:
         return dict(seed_Y=None, seed_e=np.zeros(0, np.int64))
     se = np.concatenate(es)
-    return dict(seed_Y=sps.block_diag(Ys, format="csr"), seed_A=sps.block_diag(As, format="csr"),
+    return dict(seed_Y=_block_diag(Ys), seed_A=_block_diag(As),
                 seed_e=se, seed_dofs=np.concatenate(ds), seed_Q=g.Q[se])
 
 
@@ -1204,12 +1425,13 @@ COARSE_BACKEND = "auto"
 UNIT_MAX = 8
 
 
-def _two_level(asm, g0, neq, size):
+def _two_level(asm, g0, neq, size, regular0):
     """The two-level statics (docs/theory.md section 12, "Two-level statics"): clusters of about
     ``size`` particles (boxes of the cell; particles without enough contacts inside their box
     moved to the neighbouring one), each grown by statics from its own seed on its own contacts;
     particles that do not attach become clusters of their own; the coarse step on the clusters'
-    rigid motions. None when the cell holds fewer than ``2^d`` boxes of that size."""
+    rigid motions. None when the cell holds fewer than ``2^d`` boxes of that size. ``regular0``
+    (N,): :func:`_regular` on ``g0``."""
     net = asm.net
     N, d = net.n_particles, net.dim
     lab = _box_labels(net, size)
@@ -1226,7 +1448,9 @@ def _two_level(asm, g0, neq, size):
         inner = g0.usable & (lab[pairs[:, 0]] == lab[pairs[:, 1]])
         x, inner = _unwrap(net, inner, N)
         g = g0._replace(usable=inner)
-        regular = _regular(neq, g)
+        cut = np.zeros(N, bool)              # particles with a contact of g0 not used here
+        cut[pairs[g0.usable & ~inner].ravel()] = True
+        regular = _regular(neq, g, np.flatnonzero(cut), regular0)
         deg = np.bincount(pairs[inner].ravel(), minlength=N)
         if rnd == 0:              # the seeds stay (attached first, they never move)
             order = np.argsort(lab, kind="stable")
@@ -1244,7 +1468,7 @@ def _two_level(asm, g0, neq, size):
         w = g0.nk[g0.usable].astype(float)
         M = sps.coo_matrix((np.concatenate([w * att[j], w * att[i]]), (np.concatenate([i, j]), np.concatenate([lab[j], lab[i]]))),
                            shape=(N, lab.max() + 1)).tocsr()[alone]
-        best = np.asarray(M.argmax(axis=1)).ravel()
+        best = _argmax_rows(M)
         lab = lab.copy()
         lab[alone] = best
     n_tree = len(uptr) - 1
