@@ -1480,6 +1480,10 @@ def _two_level(asm, g0, neq, size, regular0):
     tree, _ = _operators(members, uptr, idx, g)
     local = dict(C=pairs.shape[0], d=d, graph=g, tree=tree, n_tree=n_tree, block=None, Lres=None)
     local.update(_seeds_solve(seeds, g))
+    # what the peeling reads is kept; the adjacency and the stiffness were for the construction
+    # (issue 26: 120 bytes per contact, 0.4 GB at 1e6 spheres)
+    none = np.zeros(0, np.int64)
+    local["graph"] = g._replace(adj_e=none, adj_s=none, adj_q=none, Kq=np.zeros((0, d, d)))
     R = _rigid_columns(lab, x, g.pdof, d, ncl)
     solve, nc, nnz = _coarse_solver(asm, R)
     stats = dict(n_clusters=ncl - len(alone), n_alone=len(alone), n_seed=int(sum(len(s) for s in seeds)),
