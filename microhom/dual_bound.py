@@ -1183,10 +1183,13 @@ def _coarse_solver(asm, R):
 
 
 ROUNDS = 2
-#: the two-level statics' coarse solve in 3D: "amg" (CG with smoothed aggregation, memory O(nnz);
-#: docs/theory.md section 12, "The coarse solve") or a back end of ``microhom.factor.factor``
-#: ("auto", the former default, "pardiso", "cholmod", "splu": a shifted factor, refined)
-COARSE_BACKEND = "amg"
+#: the two-level statics' coarse solve in 3D: a back end of ``microhom.factor.factor`` ("auto",
+#: "pardiso", "cholmod", "splu": a shifted factor, refined) or "amg" (CG with smoothed aggregation,
+#: memory O(nnz); docs/theory.md section 12, "The coarse solve"). "auto" stays the default: measured
+#: (docs/results/spheres.md, "The statics' coarse solve without a factor"), the factor takes no more
+#: memory up to 1.08e5 spheres and 0.7 of "amg"'s with 2 744 clusters, and "amg" solves 50-70 times
+#: slower, missing its tolerance (then the factor) with 2 744 clusters
+COARSE_BACKEND = "auto"
 #: the same in 2D (the factor: 2D results unchanged)
 COARSE_BACKEND_2D = "auto"
 UNIT_MAX = 8
