@@ -1401,27 +1401,35 @@ def _rigid_columns(lab, x, pdof, d, ncl):
 
 def _coarse_solver(asm, R):
     """``z -> y`` solving ``R^T H R y = z`` (singular by the global translations and the floppy
-    modes, on which ``K B R y`` vanishes: a shifted sparse LU and three refinement steps)."""
-    from .factor import factor
+    modes, on which ``K B R y`` vanishes), by ``COARSE_BACKEND`` (3D; ``COARSE_BACKEND_2D`` in
+    2D): ``"amg"`` CG preconditioned by smoothed aggregation (``microhom.coarse_solve.amg_solver``,
+    memory O(nnz)), a back end of ``microhom.factor.factor`` the shifted factor and three
+    refinement steps (``coarse_solve.factor_solver``, the former solve)."""
+    from .coarse_solve import amg_solver, factor_solver
     if asm.H is not None:
         Hc = (R.T @ (asm.H @ R)).tocsr()
     else:       # the hierarchy dropped H (microhom.shared_h): H = Bs^T Ks Bs without pre-stress
         BR = asm.Bs @ R
         Hc = (BR.T @ (asm.Ks @ BR)).tocsr()
-    dg = Hc.diagonal()
-    shift = 1e-10 * float(dg[dg > 0].mean()) if (dg > 0).any() else 1.0
-    lu = factor((Hc + shift * sps.eye(Hc.shape[0])).tocsr(), spd=True, dim=asm.net.dim, backend=COARSE_BACKEND)
-
-    def solve(z):
-        y = np.asarray(lu.solve(np.ascontiguousarray(z))).reshape(z.shape)
-        for _ in range(3):
-            y += np.asarray(lu.solve(np.ascontiguousarray(z - Hc @ y))).reshape(z.shape)
-        return y
+    d = asm.net.dim
+    backend = COARSE_BACKEND if d == 3 else COARSE_BACKEND_2D
+    if backend == "amg":
+        solve = amg_solver(Hc, d + rotational_dofs(d), d)
+    else:
+        solve = factor_solver(Hc, d, backend)
     return solve, Hc.shape[0], Hc.nnz
 
 
 ROUNDS = 2
+#: the two-level statics' coarse solve in 3D: a back end of ``microhom.factor.factor`` ("auto",
+#: "pardiso", "cholmod", "splu": a shifted factor, refined) or "amg" (CG with smoothed aggregation,
+#: memory O(nnz); docs/theory.md section 12, "The coarse solve"). "auto" stays the default: measured
+#: (docs/results/spheres.md, "The statics' coarse solve without a factor"), the factor takes no more
+#: memory up to 1.08e5 spheres and 0.7 of "amg"'s with 2 744 clusters, and "amg" solves 50-70 times
+#: slower, missing its tolerance (then the factor) with 2 744 clusters
 COARSE_BACKEND = "auto"
+#: the same in 2D (the factor: 2D results unchanged)
+COARSE_BACKEND_2D = "auto"
 UNIT_MAX = 8
 
 
