@@ -484,15 +484,20 @@ def _operators(members, uptr, idx, g):
 
 
 @numba.njit(cache=True)
-def _peel(load, c, tree, g, a0, a1):
+def _peel(load, c, tree, g, rows, a0, a1):
     """Leaf to root: each unit ``a0 <= a < a1`` of the :class:`_Tree` ``tree`` (reversed
     construction order) hands its load to its parent contacts (``c`` += forces, (C, d, s)); the
-    reactions load the other ends (:class:`_Graph` ``g``). ``load`` (ndof, s) keeps what is left
-    (round-off where the local solve has full rank)."""
+    reactions ``B_e^T f`` load the other ends (:class:`_Graph` ``g`` for the force bases). ``rows``:
+    the assembly's ``Bs`` (d C, ndof) as CSR arrays (indptr, indices, data), row ``d e + x`` the
+    component ``x`` of contact ``e`` (:func:`_bs_rows`; the same numbers as ``g.B``, which the
+    statics then need not keep: 288 bytes per contact in 3D). ``load`` (ndof, s) keeps what is
+    left (round-off where the local solve has full rank)."""
     pptr, pe, rptr, rdof, yptr, Y = tree
-    pdof, pairs, B, Q, nk, nl = g.pdof, g.pairs, g.B, g.Q, g.nk, g.nl
-    d = B.shape[1]
+    Q, nk, nl = g.Q, g.nk, g.nl
+    indptr, indices, data = rows
+    d = Q.shape[1]
     s = load.shape[1]
+    v = np.empty((2 * nl, s))
     for a in range(a1 - 1, a0 - 1, -1):
         m = rptr[a + 1] - rptr[a]
         ncol = (yptr[a + 1] - yptr[a]) // max(m, 1)
@@ -516,18 +521,21 @@ def _peel(load, c, tree, g, a0, a1):
             for x in range(d):
                 for j in range(s):
                     c[e, x, j] += f[x, j]
-            for side in range(2):
-                q = pairs[e, side]
-                for k in range(nl):
-                    g = pdof[q, k]
-                    if g < 0:
-                        continue
-                    kk = side * nl + k
+            # the rows of one contact hold the same unknowns in the same order: v = B_e^T f summed
+            # over x in order, as from the dense B_e
+            r0 = indptr[d * e]
+            n = indptr[d * e + 1] - r0
+            v[:n] = 0.0
+            for x in range(d):
+                rx = indptr[d * e + x]
+                for p in range(n):
+                    val = data[rx + p]
                     for j in range(s):
-                        v = 0.0
-                        for x in range(d):
-                            v += B[e, x, kk] * f[x, j]
-                        load[g, j] -= v
+                        v[p, j] += val * f[x, j]
+            for p in range(n):
+                u = indices[r0 + p]
+                for j in range(s):
+                    load[u, j] -= v[p, j]
 
 
 # ---- the equilibrator ---------------------------------------------------------------------------
@@ -635,7 +643,7 @@ class Equilibrator:
                 f[ok] += D["Q"][be[ok], :, b][:, :, None] * y[bcols[ok, b]][:, None, :]
             np.add.at(c, be, f)
             load -= A @ y
-        _peel(load, c, D["tree"], D["graph"], 0, D["n_tree"])
+        _peel(load, c, D["tree"], D["graph"], D["rows"], 0, D["n_tree"])
         if D["seed_Y"] is not None and len(D["seed_e"]):   # the seed: dense least squares on its contacts
             ls = load[D["seed_dofs"]]
             y = D["seed_Y"] @ ls
@@ -660,6 +668,12 @@ def _force_basis(asm: Assembly):
     Kq[stick] = K[stick]
     Kq[~stick, 0, 0] = (np.asarray(net.kn, float) * np.ones(C))[~stick]
     return Q, nk, Kq
+
+
+def _bs_rows(asm: Assembly):
+    """The assembly's ``Bs`` as the CSR arrays :func:`_peel` reads (no copy of a CSR ``Bs``)."""
+    Bs = asm.Bs if sps.isspmatrix_csr(asm.Bs) else sps.csr_matrix(asm.Bs)
+    return (Bs.indptr, Bs.indices, Bs.data)
 
 
 def _particle_dofs(asm: Assembly):
@@ -861,7 +875,7 @@ def build_equilibrator(asm: Assembly, seed_size=None, block_max: int = 300_000,
     idx[stalled] = n_tree + 1        # one block after every attached unit: the stalled and deficient
     idx[deficient] = n_tree + 1      # particles (its load is the network's own: consistent)
     tree, deficit = _operators(members, uptr, idx, g)
-    data = dict(C=C, d=d, nl=nl, pairs=pairs, B=B, Q=Q, nk=nk, pdof=pdof, graph=g, tree=tree,
+    data = dict(C=C, d=d, nl=nl, pairs=pairs, B=B, Q=Q, nk=nk, pdof=pdof, graph=g, rows=_bs_rows(asm), tree=tree,
                 seed_Y=None, Lres=None, n_tree=n_tree, block=None)
     resolved = _block(data, asm, np.concatenate([stalled, deficient]), idx, usable, Kq, block_max)
     _seed_solve(data, seed)
@@ -1488,10 +1502,12 @@ def _two_level(asm, g0, neq, size, regular0):
     tree, _ = _operators(members, uptr, idx, g)
     local = dict(C=pairs.shape[0], d=d, graph=g, tree=tree, n_tree=n_tree, block=None, Lres=None)
     local.update(_seeds_solve(seeds, g))
-    # what the peeling reads is kept; the adjacency and the stiffness were for the construction
-    # (issue 26: 120 bytes per contact, 0.4 GB at 1e6 spheres)
+    # what the peeling reads is kept (it reads B from the assembly's Bs); the adjacency, the dense
+    # B and the stiffness were for the construction (issue 26: 408 bytes per contact, 1.4 GB at 1e6)
     none = np.zeros(0, np.int64)
-    local["graph"] = g._replace(adj_e=none, adj_s=none, adj_q=none, Kq=np.zeros((0, d, d)))
+    local["graph"] = g._replace(adj_e=none, adj_s=none, adj_q=none, Kq=np.zeros((0, d, d)),
+                                B=np.zeros((0,) + g.B.shape[1:]))
+    local["rows"] = _bs_rows(asm)
     R = _rigid_columns(lab, x, g.pdof, d, ncl)
     solve, nc, nnz = _coarse_solver(asm, R)
     stats = dict(n_clusters=ncl - len(alone), n_alone=len(alone), n_seed=int(sum(len(s) for s in seeds)),
