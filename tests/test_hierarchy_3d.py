@@ -415,3 +415,17 @@ def test_every_order_with_its_margin_bounds_the_exact_tensor_when_cg_stagnates(m
         assert la.eigvalsh(C + s * np.eye(6) - ex.C_mandel).min() >= -1e-12 * scale
     assert np.allclose(h.C_upper, h.C_orders[-1] + m[-1] * np.eye(6), rtol=0, atol=1e-15 * scale)
     assert not h.certified                               # the margin, not a wrong bound, keeps it open
+
+
+def test_memory_guard_says_where_its_3d_figures_overestimate():
+    """A refused run on the lean 3D path (H read from the multilevel copy) says that the figures
+    overestimate large sphere networks and what was measured; a 2D refusal does not."""
+    from microhom.hierarchy import HierarchyMemoryError
+    from studies.bench_spheres import fcc_network
+    from studies.bench_stiffness import diluted_triangular
+    with pytest.raises(HierarchyMemoryError, match=r"overestimate: 1e6 spheres peaked at 19.4 GiB"):
+        relaxation_hierarchy(fcc_network(100, keep=0.6, kt=0.5), spectral_bound="none", dual_bound=True,
+                             soft_modes=0, max_memory=1e5)
+    with pytest.raises(HierarchyMemoryError) as e:
+        relaxation_hierarchy(diluted_triangular(300, z=4.6, kt=0.5, seed=1), max_memory=1e5)
+    assert "overestimate" not in str(e.value)
