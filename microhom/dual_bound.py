@@ -108,6 +108,14 @@ class _Tree(NamedTuple):
 
 
 @numba.njit(cache=True)
+def _joins(t, slot, idx, before, g):
+    """Is the contact at adjacency slot ``t`` one of the unit's (members marked in ``slot``): usable,
+    to a particle built before (``idx < before``) or to another member (counted from its first end)?"""
+    e, q = g.adj_e[t], g.adj_q[t]
+    return g.usable[e] and ((slot[q] >= 0 and g.adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))
+
+
+@numba.njit(cache=True)
 def _unit_local(mem, slot, idx, before, g):
     """Equilibrium matrix ``A`` (rows, cols) of the unit ``mem`` (one or two particles, marked in
     ``slot``) on its usable contacts to particles with ``idx < before`` and between its members,
@@ -133,8 +141,8 @@ def _unit_local(mem, slot, idx, before, g):
     for u in range(mem.shape[0]):
         p = mem[u]
         for t in range(ptr[p], ptr[p + 1]):
-            e, q = adj_e[t], adj_q[t]
-            if usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before)):
+            e = adj_e[t]
+            if _joins(t, slot, idx, before, g):
                 es[ne] = e
                 ne += 1
                 ncol += nk[e]
@@ -207,8 +215,8 @@ def _unit_gram(mem, slot, idx, before, g):
     ncol = 0
     for u in range(mem.shape[0]):
         for t in range(ptr[mem[u]], ptr[mem[u] + 1]):
-            e, q = adj_e[t], adj_q[t]
-            if not (usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))):
+            e = adj_e[t]
+            if not _joins(t, slot, idx, before, g):
                 continue
             m = nk[e]
             ncol += m
@@ -249,7 +257,7 @@ def _short(mem, slot, idx, before, g):
     for u in range(n):
         for t in range(ptr[mem[u]], ptr[mem[u] + 1]):
             e, q = adj_e[t], adj_q[t]
-            if not (usable[e] and ((slot[q] >= 0 and adj_s[t] == 0) or (slot[q] < 0 and idx[q] < before))):
+            if not _joins(t, slot, idx, before, g):
                 continue
             comps[u] += nk[e]
             cnt[u] += 1
