@@ -569,6 +569,7 @@ class _BlockPCG:
         self.scale2 = float(max(zz.max(initial=0.0), 1e-300))
         self.Rk = np.zeros((B.shape[1], B.shape[1]))
         self._chunks = []                                # earlier H-orthonormal blocks and H times them
+        self._last = 0                                   # columns of the last block (last_block)
         self._deflation = []                             # soft modes: conjugated against at every step
         self.unstable = False
         self.n_floppy = 0
@@ -632,10 +633,11 @@ class _BlockPCG:
     def _append(self, P, HP):
         """Store the block in fixed-size column chunks (no re-allocation, no copies); without full
         re-orthogonalisation only the last block is kept (the block CG recurrence)."""
-        if not self.full:
-            self._chunks = [[P, HP, P.shape[1]]]
-            return
         s = P.shape[1]
+        self._last = s
+        if not self.full:
+            self._chunks = [[P, HP, s]]
+            return
         if not self._chunks or self._chunks[-1][2] + s > _CHUNK:
             self._chunks.append([np.empty((P.shape[0], _CHUNK), order="F"),
                                  np.empty((P.shape[0], _CHUNK), order="F"), 0])
@@ -643,6 +645,15 @@ class _BlockPCG:
         c[0][:, c[2]:c[2] + s] = P
         c[1][:, c[2]:c[2] + s] = HP
         c[2] += s
+
+    def last_block(self):
+        """The last H-orthonormal search block ``P_k`` (ndof, s), a view of the stored one (None
+        before the first step): the last step is ``X_k - X_{k-1} = P_k alpha_k``, so its columns
+        span a subspace of ``P_k``'s."""
+        if not self._chunks:
+            return None
+        Pc, _, m = self._chunks[-1]
+        return Pc[:, m - self._last:m]
 
     def _conjugate(self, P):
         """``P - sum_j P_j (HP_j^T P)`` over every stored block (full H-conjugation) and the
@@ -903,7 +914,7 @@ class _Run:
     dual_last: tuple = None          # the last evaluated dual bound: (C_lower, gap (K, G), CG residual norm)
     n_dual: int = 0                  # dual bounds evaluated
     dual_coarse: object = None       # r -> y before the dual bound's statics (_dual_correction), or None
-    dual_prev_X: np.ndarray = None   # the iterate of the previous order (the dual bound's trial step)
+    dual_prev_X: np.ndarray = None   # the iterate of the previous order (the dual bound's trial step; not on the lean path)
 
 
 def _max_order_ok(v):
@@ -1530,8 +1541,10 @@ def _cg_step(run, max_order, full, preconditioner):
     # kt/kn-scaled products otherwise drifts the residual and stalls the lower bound; docs/theory.md section 9)
     far = run.lam_n is not None or run.far_ratio
     H = run.H_shared if run.H_shared is not None and preconditioner == "amg" else asm.H
+    # the 3D lean path (H read from the multilevel copy) iterates on the true residual too: one
+    # (ndof, 6) block fewer (the recursive one; issue 26: 0.27 GiB at 1e6 spheres)
     cg = _BlockPCG(H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
-                   true_residual=far)
+                   true_residual=far or _lean_cg(run))
     if run.dual is not None and preconditioner == "amg":
         run.dual_coarse = _dual_correction(H, P)
     rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
@@ -1802,8 +1815,7 @@ def _best_lower(run, C, cg):
     cands = [L - run.margins[-1] * np.eye(L.shape[0]) for L in cands]   # round-off of the energy
     if run.dual is not None and _dual_due(run, C, cg):   # its own round-off margin is subtracted already
         tb = time.perf_counter()
-        prev = run.dual_prev_X if run.dual_prev_X is not None else 0.0
-        W = [cg.Z, cg.X - prev] if DUAL_TRIAL else None     # not stacked: one copy fewer (issue 26)
+        W = _dual_trial(run, cg)
         b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse, trial=W)
         run.n_dual += 1
         if b.valid:     # the statics' own gap schedules (_dual_due), or the interval's width (DUAL_SCHEDULE)
@@ -1813,7 +1825,7 @@ def _best_lower(run, C, cg):
         run.t_bound += time.perf_counter() - tb
     if run.dual is not None and run.dual_last is not None:   # any order's field bounds the exact C
         cands.append(run.dual_last[0])
-    if run.dual is not None and DUAL_TRIAL:
+    if run.dual is not None and DUAL_TRIAL and not _lean_cg(run):
         run.dual_prev_X = cg.X.copy()
     if not cands:
         return None
@@ -1830,7 +1842,8 @@ def _best_lower(run, C, cg):
 DUAL_VCYCLES = 0
 #: the dual bound's field is the best one in the span of the next preconditioned residual ``Z`` and
 #: the last step ``X_k - X_{k-1}`` (``dual_lower_bound``'s ``trial``; docs/theory.md section 12,
-#: "The best field in a small subspace")
+#: "The best field in a small subspace"); on the 3D lean path the last search block, whose span
+#: holds the last step (:func:`_dual_trial`)
 DUAL_TRIAL = True
 #: particles per cluster of the dual bound's two-level statics in 3D (``build_equilibrator``'s
 #: ``clusters``; docs/theory.md section 12, "Two-level statics"), or None: the one-seed statics.
@@ -1838,6 +1851,28 @@ DUAL_TRIAL = True
 #: 3.2e4 spheres (43 s CPU against 49), 8 instead of 18 at 1.08e5 (201 s against 310). 2D keeps
 #: the one-seed statics; networks under 400 spheres get it too (fewer than 8 clusters)
 DUAL_CLUSTERS = 400
+
+
+def _lean_cg(run):
+    """The 3D lean path: the CG reads ``H`` from the multilevel copy (:func:`_early_multilevel`);
+    it keeps the fewest (ndof, 6) blocks (true residual, :func:`_dual_trial`; issue 26)."""
+    return run.H_shared is not None
+
+
+def _dual_trial(run, cg):
+    """The dual bound's trial span (``DUAL_TRIAL``; None without): the next preconditioned
+    residual ``Z`` and the last step, as blocks (not stacked: one copy fewer). The last step is
+    ``X_k - X_{k-1}`` (a copy of ``X_{k-1}`` kept per order) or, on the lean path
+    (:func:`_lean_cg`), the last search block ``P_k`` whose span contains it (``X_k - X_{k-1} =
+    P_k alpha_k``): the best field over a span that contains the other is at least as good, and
+    no copy of ``X`` is kept (issue 26: two (ndof, 6) blocks, 0.54 GiB at 1e6 spheres)."""
+    if not DUAL_TRIAL:
+        return None
+    if _lean_cg(run):
+        last = cg.last_block()
+        return [cg.Z] if last is None else [cg.Z, last]
+    prev = run.dual_prev_X if run.dual_prev_X is not None else 0.0
+    return [cg.Z, cg.X - prev]
 
 
 def _dual_correction(H, P, steps=None):

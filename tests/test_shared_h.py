@@ -216,3 +216,54 @@ def test_bench_wrappers_hold_no_h(net, monkeypatch):
         restore()
         undo()
     assert alive == [(False, "jacobi")] and h.certified
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_last_block_spans_the_last_step(full):
+    """``_BlockPCG.last_block``: ``X_k - X_{k-1}`` lies in the span of the last search block, at
+    every step (least squares residual at round-off); a block of another step does not hold it."""
+    asm = assemble(fcc_network(100, keep=0.65, kt=0.5, seed=4), prestress=False, pin=False)
+    M, Minv = hi.block_preconditioner(asm)[:2]
+    cg = hi._BlockPCG(asm.H, M, Minv, -asm.F, full=full, true_residual=True)
+    assert cg.last_block() is None
+    blocks, steps = [], []
+    for _ in range(5):
+        prev = cg.X.copy()
+        cg.step()
+        blocks.append(cg.last_block().copy())
+        steps.append(cg.X - prev)
+    for k, (Pk, dX) in enumerate(zip(blocks, steps)):
+        for Q, own in ((Pk, True), (blocks[k - 1], False)):
+            coef = np.linalg.lstsq(Q, dX, rcond=None)[0]
+            rel = np.linalg.norm(Q @ coef - dX) / np.linalg.norm(dX)
+            assert (rel < 1e-10) if own else (rel > 1e-3 or k == 0), (k, own, rel)
+
+
+def test_lean_path_trial_is_the_last_block(net, monkeypatch):
+    """On the shared (lean) path the dual bound's trial is ``[Z, P_k]`` (the next preconditioned
+    residual and the last search block, views of the CG's own arrays: no copy of ``X``), the CG
+    iterates on its true residual, and the interval is certified around the exact moduli."""
+    from dem.analysis.stiffness import stiffness
+    seen = []
+    real = hi.dual_lower_bound
+
+    def spy(asm, X, volume, eq, **k):
+        seen.append(k["trial"])
+        return real(asm, X, volume, eq, **k)
+    cgs = []
+    real_cg = hi._BlockPCG
+
+    def make(*a, **k):
+        cgs.append(real_cg(*a, **k))
+        return cgs[-1]
+    monkeypatch.setattr(hi, "dual_lower_bound", spy)
+    monkeypatch.setattr(hi, "_BlockPCG", make)
+    h = _hier(net, monkeypatch, True)
+    cg = cgs[-1]
+    assert cg.true_residual and cg.R is cg.Rt
+    assert seen and all(len(t) == 2 and t[0].shape[1] == 6 and 0 < t[1].shape[1] <= 6 for t in seen)
+    assert seen[-1][0] is cg.Z and np.shares_memory(seen[-1][1], cg._chunks[-1][0])
+    ex = stiffness(net)
+    assert h.certified
+    for e, x in ((h.K, ex.K), (h.G, ex.G)):
+        assert e.lower <= x * (1 + 1e-12) and x <= e.upper * (1 + 1e-12)
