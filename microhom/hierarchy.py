@@ -1545,6 +1545,8 @@ def _cg_step(run, max_order, full, preconditioner):
     # (ndof, 6) block fewer (the recursive one; issue 26: 0.27 GiB at 1e6 spheres)
     cg = _BlockPCG(H, run.M, P, B, full=full, deflate=run.V_soft, passes=2 if far else 1,
                    true_residual=far or _lean_cg(run))
+    if _lean_cg(run):     # nothing reads F past here on the lean path: B = -F is the CG's (issue 26: 0.27 GiB at 1e6)
+        run.asm = asm = replace(asm, F=None)
     if run.dual is not None and preconditioner == "amg":
         run.dual_coarse = _dual_correction(H, P)
     rigorous = run.lam is not None or run.lam_n is not None or run.dual is not None
