@@ -78,6 +78,7 @@ def test_setup_order_changes_no_number(case, monkeypatch):
         for f in ("B", "K", "D"):
             np.testing.assert_array_equal(getattr(got, f), getattr(ref, f))
         assert seen["amg"].matrices.B is None and seen["amg"].matrices.K is None     # held slim
+        assert seen["amg"].ldof is None                                            # read by the exact solver only
     assert new.order >= 2 and new.certified
     for f in FIELDS:
         a, b = getattr(new, f), getattr(old, f)
