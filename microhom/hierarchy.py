@@ -61,6 +61,7 @@ import scipy.sparse.linalg as sla
 from .kinematics import SPIN_ARMS, Assembly, affine_tensor, assemble, contact_matrices, rotational_dofs, stress0
 from .dual_bound import build_equilibrator, dual_lower_bound
 from .limits import available_memory  # noqa: F401 - part of this API (one implementation)
+from .limits import release_free_memory
 from .multilevel import amg_preconditioner, dof_layout, near_null_space
 from .shared_h import ShiftedCopy
 from .network import ContactNetwork
@@ -1285,6 +1286,7 @@ def _early_multilevel(run, o):
             run.H_shared = ShiftedCopy(A, order, shift)
             run.asm = replace(run.asm, H=None)
     run.P_amg, info = amg_preconditioner(run.asm, release=drop if share else None)
+    release_free_memory()      # the setup's freed small blocks (issue 26)
     run.t_prec = run.t_early = info.setup_time
 
 
@@ -1405,6 +1407,7 @@ def _dual_step(run, dual_bound, large):
         return
     tb = time.perf_counter()
     run.dual = build_equilibrator(_full_matrices(run), clusters=DUAL_CLUSTERS if run.asm.net.dim == 3 else None)
+    release_free_memory()      # the statics' many small arrays left free heap pages behind (issue 26)
     if not run.dual.block_solved:
         run.reasons.append(f"dual lower bound not used: {run.dual.n_stalled} particles could not be attached "
                            "by statics and their block is above block_max (microhom.dual_bound)")
@@ -1820,6 +1823,7 @@ def _best_lower(run, C, cg):
         tb = time.perf_counter()
         W = _dual_trial(run, cg)
         b = dual_lower_bound(run.asm, cg.X, run.area, run.dual, coarse=run.dual_coarse, trial=W)
+        release_free_memory()
         run.n_dual += 1
         if b.valid:     # the statics' own gap schedules (_dual_due), or the interval's width (DUAL_SCHEDULE)
             gap = (np.array(_iso(C)) - np.array(_iso(b.C_lower)) if DUAL_SCHEDULE == "width"
