@@ -1237,12 +1237,17 @@ def _bound_and_margin(asm, G, c3):
     contact components), every sum over contacts chunk by chunk (:func:`_over_contacts`)."""
     Df = asm.Df
 
-    def term(s, Kp):
+    def term(s, Kp):       # each chunk array freed before the next term's (the same numbers)
         Gc, D = G[s], Df[s]
         KpG = _kp_times(Kp, Gc)
-        aK, ac3, aG = np.abs(Kp), np.abs(c3[s]), np.abs(Gc)
-        return (Gc.T @ D, Gc.T @ KpG, ac3.T @ np.abs(D - KpG), ac3.T @ _kp_times(aK, ac3),
-                2 * aG.T @ np.abs(D) + aG.T @ np.abs(KpG), aG.T @ _kp_times(aK, aG))
+        out = [Gc.T @ D, Gc.T @ KpG]
+        ac3, aK = np.abs(c3[s]), np.abs(Kp)
+        out += [ac3.T @ np.abs(D - KpG), ac3.T @ _kp_times(aK, ac3)]
+        del ac3
+        aG = np.abs(Gc)
+        out.append(2 * aG.T @ np.abs(D) + aG.T @ np.abs(KpG))
+        del KpG
+        return tuple(out) + (aG.T @ _kp_times(aK, aG),)
     L, L2, t1, t2, t3, t4 = _over_contacts(asm, term)
     L = L + L.T - L2
     L = 0.5 * (L + L.T)
