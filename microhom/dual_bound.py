@@ -1234,17 +1234,18 @@ def _bound_and_margin(asm, G, c3):
     (times the volume; docs/theory.md section 12, "Round-off") from ``c3`` (d C, m), the statics'
     estimate of the field ``c3*`` that balances ``G`` exactly: the change of the bound from ``G`` to
     ``G + c3*`` (``c3`` taken twice) and the evaluation error of ``L`` (dot products over the d C
-    contact components), every sum over contacts chunk by chunk (:func:`_over_contacts`)."""
+    contact components), every sum over contacts chunk by chunk (:func:`_over_contacts`). ``G`` and
+    ``c3`` are overwritten by their absolute values (the caller's temporaries: no copy beside them)."""
     Df = asm.Df
+    ac3 = np.abs(c3, out=c3)          # only |c3| enters the margin
 
     def term(s, Kp):       # each chunk array freed before the next term's (the same numbers)
         Gc, D = G[s], Df[s]
         KpG = _kp_times(Kp, Gc)
         out = [Gc.T @ D, Gc.T @ KpG]
-        ac3, aK = np.abs(c3[s]), np.abs(Kp)
-        out += [ac3.T @ np.abs(D - KpG), ac3.T @ _kp_times(aK, ac3)]
-        del ac3
-        aG = np.abs(Gc)
+        aK = np.abs(Kp)
+        out += [ac3[s].T @ np.abs(D - KpG), ac3[s].T @ _kp_times(aK, ac3[s])]
+        aG = np.abs(Gc, out=Gc)       # the chunk's signed G no longer needed
         out.append(2 * aG.T @ np.abs(D) + aG.T @ np.abs(KpG))
         del KpG
         return tuple(out) + (aG.T @ _kp_times(aK, aG),)
@@ -1296,7 +1297,7 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     if trial is not None:
         G = _best_in_span(asm, G, trial, eq, passes)
     rho = np.asarray(asm.Bs.T @ G)
-    L, margin = _bound_and_margin(asm, G, _statics_out(eq, -rho))
+    L, margin = _bound_and_margin(asm, G, _statics_out(eq, -rho))     # G is |G| after it
     del G
     margin /= volume
     C_lower = L / volume - margin * np.eye(asm.Df.shape[1])
