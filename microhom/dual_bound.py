@@ -610,7 +610,8 @@ class Equilibrator:
     def correct(self, r: np.ndarray, chunk: int | None = None) -> np.ndarray:
         """Forces ``c`` (C, d, s) with ``B^T c = r`` for loads ``r`` (ndof, s) in the range of
         ``B^T`` (orthogonal to the rigid translations), ``chunk`` (default :attr:`group`) columns
-        at a time (each column's numbers do not depend on it)."""
+        at a time (a column's numbers depend on it only at round-off: the coarse factor's solve and
+        the peeling's small products round differently for other column counts)."""
         r = np.asarray(r, dtype=float)
         chunk = self.group if chunk is None else chunk
         one = r.ndim == 1
@@ -1124,8 +1125,8 @@ def _over_contacts(asm, term):
 
 def _balance(eq, Bs, A):
     """``A += T(-B^T A)`` in place (``A`` (d C, s) forces, ``T`` the statics ``eq``), :attr:`Equilibrator.group`
-    columns at a time: no whole-width correction beside ``A`` (issue 26); each column's numbers do
-    not depend on the grouping."""
+    columns at a time: no whole-width correction beside ``A`` (issue 26); the grouping changes a
+    column's numbers only at round-off (:meth:`Equilibrator.correct`)."""
     k = eq.group
     for a in range(0, A.shape[1], k):
         b = min(a + k, A.shape[1])
