@@ -49,6 +49,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
 from .kinematics import Assembly, rotational_dofs
+from .network import _norms
 from .results import Result
 
 __all__ = ["DualBound", "Equilibrator", "build_equilibrator", "dual_lower_bound"]
@@ -57,6 +58,15 @@ _RANK_TOL = 1e-9       # eigenvalue of the local A K A^T below this fraction of 
 _ACCEPT = 1e-4         # a unit joins only if every eigenvalue of its A K A^T is above this fraction (cond <= 1e4)
 _U = np.finfo(float).eps
 _VALID_RESIDUAL = 1e-9  # relative equilibrium residual above which the field is not taken as balanced
+#: contacts per chunk of the dual bound's sums over contacts (gap, ``S``, ``b``, ``L`` and the margins'
+#: terms): each chunk's per-contact compliance and products are formed alone, so that no (d C, m)
+#: temporary besides ``G``, ``Phi`` and the statics' output exists (issue 26). A network of fewer
+#: contacts is one chunk: the very operations of the sums over all contacts, bit for bit
+CHUNK = 1 << 18
+#: load columns per statics call of the two-level statics in 3D (issue 26: the coarse step's
+#: ``f1``, ``r2`` and the peeled forces are this many columns wide); the one-seed statics and 2D
+#: keep their six
+TWO_COLS = 2
 
 
 # ---- local statics (numba) ----------------------------------------------------------------------
@@ -592,18 +602,26 @@ class Equilibrator:
     _data: dict = field(repr=False)
     n_clusters: int = 0
 
-    def correct(self, r: np.ndarray, chunk: int = 6) -> np.ndarray:
+    @property
+    def group(self) -> int:
+        """Load columns per statics call: ``TWO_COLS`` for the two-level statics in 3D, else 6."""
+        return TWO_COLS if self._data.get("two") is not None and self._data["d"] == 3 else 6
+
+    def correct(self, r: np.ndarray, chunk: int | None = None) -> np.ndarray:
         """Forces ``c`` (C, d, s) with ``B^T c = r`` for loads ``r`` (ndof, s) in the range of
-        ``B^T`` (orthogonal to the rigid translations)."""
+        ``B^T`` (orthogonal to the rigid translations), ``chunk`` (default :attr:`group`) columns
+        at a time (a column's numbers depend on it only at round-off: the coarse factor's solve and
+        the peeling's small products round differently for other column counts)."""
         r = np.asarray(r, dtype=float)
+        chunk = self.group if chunk is None else chunk
         one = r.ndim == 1
         r = r[:, None] if one else r
-        if not r.shape[1]:
-            out = np.zeros((self._data["C"], self._data["d"], 0))
-        elif r.shape[1] <= chunk:        # one chunk: no concatenated copy (issue 26: 0.5 GB at 1e6)
+        if r.shape[1] <= chunk and r.shape[1]:   # one chunk: no copy (issue 26: 0.5 GB at 1e6)
             out = self._correct(r)
-        else:
-            out = np.concatenate([self._correct(r[:, a:a + chunk]) for a in range(0, r.shape[1], chunk)], axis=2)
+        else:           # filled chunk by chunk (no list of chunks beside a concatenated copy)
+            out = np.empty((self._data["C"], self._data["d"], r.shape[1]))
+            for a in range(0, r.shape[1], chunk):
+                out[:, :, a:a + chunk] = self._correct(r[:, a:a + chunk])
         return out[:, :, 0] if one else out
 
     def _correct(self, r):
@@ -1051,13 +1069,18 @@ class DualBound(Result):
     valid: bool
 
 
-def _compliance(asm: Assembly):
-    """Per-contact ``K^+`` (C, d, d): ``nn/kn + (I - nn)/kt_eff`` (``nn/kn`` when sliding) [m/N]."""
+def _compliance(asm: Assembly, c0: int = 0, c1: int | None = None):
+    """Per-contact ``K^+`` (c1 - c0, d, d) of the contacts ``c0 <= c < c1`` (default all C):
+    ``nn/kn + (I - nn)/kt_eff`` (``nn/kn`` when sliding) [m/N]; each contact's numbers do not depend
+    on the range."""
     net = asm.net
-    n = net.normals
+    C = net.n_contacts
+    sl = slice(c0, C if c1 is None else c1)
+    b = net.branch[sl]
+    n = b / _norms(b)[:, None]             # net.normals of the range (the same operations)
     nn = n[:, :, None] * n[:, None, :]
-    kn = np.asarray(net.kn, float) * np.ones(net.n_contacts)
-    kt = net.effective_kt
+    kn = np.broadcast_to(np.asarray(net.kn, float), (C,))[sl]
+    kt = net.effective_kt[sl]
     inv_kt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
     eye = np.eye(net.dim)
     return nn / kn[:, None, None] + inv_kt[:, None, None] * (eye - nn)
@@ -1073,44 +1096,97 @@ def _iso(C):
     return isotropic_moduli(C)
 
 
-def _best_in_span(asm, G0, W, eq, Kp, passes):
-    """The Loewner-best equilibrated field ``G0 + Phi beta``, ``Phi = Pi K B W`` (each column of
-    ``K B W`` balanced by the statics, ``passes`` times): with ``S = Phi^T K^+ Phi`` and
-    ``b = Phi^T (D - K^+ G0)`` the bound is ``L0 + b^T beta + beta^T b - beta^T S beta``
-    ``= L0 + b^T S^+ b - (beta - S^+ b)^T S (beta - S^+ b)`` (docs/theory.md section 12), so
-    ``beta = S^+ b``. Any ``beta`` is a bound: the pseudo-inverse's accuracy decides only how
-    tight."""
+def _chunks(C):
+    """Contact ranges ``(c0, c1)`` of at most ``CHUNK`` contacts covering ``range(C)`` (one, empty,
+    for no contact)."""
+    return [(c0, min(C, c0 + CHUNK)) for c0 in range(0, max(C, 1), CHUNK)]
+
+
+def _kp_times(Kp, A):
+    """``K^+ A`` (n, p) for the rows ``A`` (n = d c, p) of ``c`` contacts, ``Kp`` (c, d, d) theirs."""
+    d = Kp.shape[1]
+    return np.einsum("cxy,cyp->cxp", Kp, A.reshape(-1, d, A.shape[1])).reshape(-1, A.shape[1])
+
+
+def _over_contacts(asm, term):
+    """The sums over the contacts of the matrices ``term(rows, Kp)`` returns (a tuple), chunk by
+    chunk (``CHUNK``; ``rows`` the chunk's slice of the d C rows, ``Kp`` its :func:`_compliance`).
+    One chunk: the very operations of the sum over all contacts. Several: each dot product is summed
+    in pieces of at most ``d CHUNK`` terms and the k pieces then added, whose error bound
+    (``gamma_{n_max + k - 1} <= gamma_n``, and ``sqrt(n_max + k - 1) <= sqrt(n)`` for the margin's
+    estimate) is no larger than the plain sum's: the round-off margin covers them as before."""
+    d = asm.net.dim
+    total = None
+    for c0, c1 in _chunks(asm.net.n_contacts):
+        t = term(slice(d * c0, d * c1), _compliance(asm, c0, c1))
+        total = t if total is None else tuple(a + b for a, b in zip(total, t))
+    return total
+
+
+def _balance(eq, Bs, A):
+    """``A += T(-B^T A)`` in place (``A`` (d C, s) forces, ``T`` the statics ``eq``), :attr:`Equilibrator.group`
+    columns at a time: no whole-width correction beside ``A`` (issue 26); the grouping changes a
+    column's numbers only at round-off (:meth:`Equilibrator.correct`)."""
+    k = eq.group
+    for a in range(0, A.shape[1], k):
+        b = min(a + k, A.shape[1])
+        A[:, a:b] += eq.correct(-np.asarray(Bs.T @ A[:, a:b])).reshape(-1, b - a)
+
+
+def _check_trial(asm, W):
+    """The trial blocks (ndof, p_i) as float arrays; ValueError naming ``trial`` otherwise."""
     Ws = [np.asarray(w, dtype=float) for w in (W if isinstance(W, (list, tuple)) else [W])]
     for w in Ws:
         if w.ndim != 2 or w.shape[0] != asm.ndof or not np.all(np.isfinite(w)):
             raise ValueError(f"trial must be a finite array of shape (ndof, p) = ({asm.ndof}, p) or a list of "
                              f"them, got shape {w.shape}"
                              + ("" if w.ndim != 2 or w.shape[0] != asm.ndof else " with non-finite entries"))
-    d, p = asm.net.dim, sum(w.shape[1] for w in Ws)
-    if not p:
-        return G0
-    # column block by column block, without stacking the trial (the same numbers: each column of a
-    # sparse product is summed alone)
-    Phi = np.empty((asm.Bs.shape[0], p))
-    a = 0
+    return Ws
+
+
+def _span_fields(asm, Ws, eq, passes):
+    """``Phi = Pi K B W`` (d C, p): the trial blocks' columns side by side (no stacked trial), made
+    and balanced ``passes`` times in place, :attr:`Equilibrator.group` columns at a time (each column
+    of a sparse product summed alone: the same numbers as whole; issue 26)."""
+    Phi = np.empty((asm.Bs.shape[0], sum(w.shape[1] for w in Ws)))
+    a, k = 0, eq.group
     for w in Ws:
-        Phi[:, a:a + w.shape[1]] = asm.Ks @ (asm.Bs @ w)
+        for j in range(0, w.shape[1], k):
+            j1 = min(j + k, w.shape[1])
+            Phi[:, a + j:a + j1] = asm.Ks @ (asm.Bs @ w[:, j:j1])
         a += w.shape[1]
     for _ in range(passes):
-        # in place, six columns at a time (the statics' own chunks: the same numbers), without a
-        # second Phi and the whole correction beside it (issue 26: 3 p columns of dC floats were live)
-        for a in range(0, p, 6):
-            k = min(6, p - a)
-            Phi[:, a:a + k] += eq.correct(-np.asarray(asm.Bs.T @ Phi[:, a:a + k])).reshape(-1, k)
-    KpPhi = np.einsum("cxy,cyp->cxp", Kp, Phi.reshape(-1, d, p)).reshape(-1, p)
-    S = Phi.T @ KpPhi
-    b = Phi.T @ asm.Df - KpPhi.T @ G0
+        _balance(eq, asm.Bs, Phi)
+    return Phi
+
+
+def _best_in_span(asm, G0, W, eq, passes):
+    """The Loewner-best equilibrated field ``G0 + Phi beta``, ``Phi = Pi K B W`` (each column of
+    ``K B W`` balanced by the statics, ``passes`` times): with ``S = Phi^T K^+ Phi`` and
+    ``b = Phi^T (D - K^+ G0)`` the bound is ``L0 + b^T beta + beta^T b - beta^T S beta``
+    ``= L0 + b^T S^+ b - (beta - S^+ b)^T S (beta - S^+ b)`` (docs/theory.md section 12), so
+    ``beta = S^+ b``. Any ``beta`` is a bound: the pseudo-inverse's accuracy decides only how
+    tight. ``G0`` (d C, m) is updated in place and returned."""
+    Ws = _check_trial(asm, W)
+    if not sum(w.shape[1] for w in Ws):
+        return G0
+    Phi = _span_fields(asm, Ws, eq, passes)
+
+    def term(s, Kp):
+        P = Phi[s]
+        KpPhi = _kp_times(Kp, P)
+        return P.T @ KpPhi, P.T @ asm.Df[s], KpPhi.T @ G0[s]
+    S, b, b2 = _over_contacts(asm, term)
+    b = b - b2
     w, V = np.linalg.eigh(0.5 * (S + S.T))
     keep = w > 1e-12 * w.max(initial=0.0)
     if not keep.any():
         return G0
     beta = (V[:, keep] / w[keep]) @ (V[:, keep].T @ b)
-    return G0 + Phi @ beta
+    d = asm.net.dim
+    for c0, c1 in _chunks(asm.net.n_contacts):      # G0 + Phi beta, in place, chunk by chunk
+        G0[d * c0:d * c1] += Phi[d * c0:d * c1] @ beta
+    return G0
 
 
 def _coarse_step(asm, X, coarse):
@@ -1123,6 +1199,63 @@ def _coarse_step(asm, X, coarse):
         raise ValueError(f"coarse(r) must return a finite array of shape {X.shape}, got shape {y.shape}"
                          + ("" if y.shape != X.shape else " with non-finite entries"))
     return X + y
+
+
+def _statics_field(asm, X, eq, passes):
+    """``G = K (D + B X) + Corr`` (d C, m) balanced by the statics ``eq`` (``passes`` times, in place)
+    and the gap ``Corr^T K^+ Corr`` (m, m) (times the volume). ``Corr = G - G0`` is taken in place
+    in the kept ``G0``, not by a second product (issue 26)."""
+    T = np.asarray(asm.Bs @ X)
+    T += asm.Df                                                        # D + B X without a third array
+    G = np.asarray(asm.Ks @ T)
+    del T
+    G0 = G.copy()
+    for _ in range(passes):
+        _balance(eq, asm.Bs, G)
+    corr = np.subtract(G, G0, out=G0)                                   # the statics' correction
+    gap, = _over_contacts(asm, lambda s, Kp: (corr[s].T @ _kp_times(Kp, corr[s]),))
+    return G, gap
+
+
+def _statics_out(eq, r):
+    """``T(r)`` (d C, m) of the loads ``r`` (ndof, m), :attr:`Equilibrator.group` columns at a time
+    into one array (no list of pieces beside it)."""
+    m = r.shape[1]
+    if m <= eq.group:
+        return eq.correct(r).reshape(-1, m)
+    out = np.empty((eq._data["C"] * eq._data["d"], m))
+    for a in range(0, m, eq.group):
+        b = min(a + eq.group, m)
+        out[:, a:b] = eq.correct(r[:, a:b]).reshape(-1, b - a)
+    return out
+
+
+def _bound_and_margin(asm, G, c3):
+    """``L = G^T D + D^T G - G^T K^+ G`` (m, m) of the field ``G`` (d C, m) and the round-off margin
+    (times the volume; docs/theory.md section 12, "Round-off") from ``c3`` (d C, m), the statics'
+    estimate of the field ``c3*`` that balances ``G`` exactly: the change of the bound from ``G`` to
+    ``G + c3*`` (``c3`` taken twice) and the evaluation error of ``L`` (dot products over the d C
+    contact components), every sum over contacts chunk by chunk (:func:`_over_contacts`). ``G`` and
+    ``c3`` are overwritten by their absolute values (the caller's temporaries: no copy beside them)."""
+    Df = asm.Df
+    ac3 = np.abs(c3, out=c3)          # only |c3| enters the margin
+
+    def term(s, Kp):       # each chunk array freed before the next term's (the same numbers)
+        Gc, D = G[s], Df[s]
+        KpG = _kp_times(Kp, Gc)
+        out = [Gc.T @ D, Gc.T @ KpG]
+        aK = np.abs(Kp)
+        out += [ac3[s].T @ np.abs(D - KpG), ac3[s].T @ _kp_times(aK, ac3[s])]
+        aG = np.abs(Gc, out=Gc)       # the chunk's signed G no longer needed
+        out.append(2 * aG.T @ np.abs(D) + aG.T @ np.abs(KpG))
+        del KpG
+        return tuple(out) + (aG.T @ _kp_times(aK, aG),)
+    L, L2, t1, t2, t3, t4 = _over_contacts(asm, term)
+    L = L + L.T - L2
+    L = 0.5 * (L + L.T)
+    t1, t2, t3, t4 = (_gersh(t) for t in (t1, t2, t3, t4))
+    g_n = np.sqrt(G.shape[0]) * _U
+    return L, 2 * 2 * t1 + 4 * t2 + g_n * t3 + (asm.net.dim + 1) * _U * t4
 
 
 def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: Equilibrator | None = None,
@@ -1160,42 +1293,15 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     if coarse is not None:
         X = _coarse_step(asm, X, coarse)
     eq = equilibrator if equilibrator is not None else build_equilibrator(asm)
-    m = asm.Df.shape[1]
-    d = asm.net.dim
-    Kp = _compliance(asm)
-    G = np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))                      # (dC, m)
-    for _ in range(passes):
-        G += eq.correct(-np.asarray(asm.Bs.T @ G)).reshape(-1, m)       # in place (issue 26)
-    corr = G - np.asarray(asm.Ks @ (asm.Df + asm.Bs @ X))              # the statics' correction
-    gap = corr.T @ np.einsum("cxy,cym->cxm", Kp, corr.reshape(-1, d, m)).reshape(-1, m) / volume
-    del corr
+    G, gap = _statics_field(asm, X, eq, passes)
+    gap /= volume
     if trial is not None:
-        G = _best_in_span(asm, G, trial, eq, Kp, passes)
+        G = _best_in_span(asm, G, trial, eq, passes)
     rho = np.asarray(asm.Bs.T @ G)
-    c3 = eq.correct(-rho).reshape(-1, m)                                  # distance to exact equilibrium
-    KpG = np.einsum("cxy,cym->cxm", Kp, G.reshape(-1, d, m)).reshape(-1, m)
-    L = G.T @ asm.Df
-    L = L + L.T - G.T @ KpG
-    L = 0.5 * (L + L.T)
-    # margins: the exactly equilibrated field G + c3* (c3 its computed estimate, taken twice) and the
-    # evaluation of L (dot products over the d C contact components)
-    # (each term's arrays freed before the next: issue 26; the same numbers)
-    aK = np.abs(Kp)
-    ac3 = np.abs(c3)
-    del c3
-    t1 = _gersh(ac3.T @ np.abs(asm.Df - KpG))
-    Kc3 = np.einsum("cxy,cym->cxm", aK, ac3.reshape(-1, d, m)).reshape(-1, m)
-    t2 = _gersh(ac3.T @ Kc3)
-    del Kc3, ac3
-    n = G.shape[0]
-    g_n = np.sqrt(n) * _U
-    aG = np.abs(G)
-    t3 = _gersh(2 * aG.T @ np.abs(asm.Df) + aG.T @ np.abs(KpG))
-    del KpG
-    t4 = _gersh(aG.T @ np.einsum("cxy,cym->cxm", aK, aG.reshape(-1, d, m)).reshape(-1, m))
-    margin = 2 * 2 * t1 + 4 * t2 + g_n * t3 + (d + 1) * _U * t4
+    L, margin = _bound_and_margin(asm, G, _statics_out(eq, -rho))     # G is |G| after it
+    del G
     margin /= volume
-    C_lower = L / volume - margin * np.eye(m)
+    C_lower = L / volume - margin * np.eye(asm.Df.shape[1])
     scale = asm.F_scale if asm.F_scale > 0 else 1.0
     K_l, G_l = _iso(C_lower)
     res = float(np.abs(rho).max(initial=0.0) / scale)
