@@ -63,10 +63,12 @@ _VALID_RESIDUAL = 1e-9  # relative equilibrium residual above which the field is
 #: temporary besides ``G``, ``Phi`` and the statics' output exists (issue 26). A network of fewer
 #: contacts is one chunk: the very operations of the sums over all contacts, bit for bit
 CHUNK = 1 << 18
-#: load columns per statics call of the two-level statics in 3D (issue 26: the coarse step's
-#: ``f1``, ``r2`` and the peeled forces are this many columns wide); the one-seed statics and 2D
-#: keep their six
-TWO_COLS = 2
+#: load columns per statics call of the two-level statics in 3D (issue 26: ``r2`` and the peeled
+#: forces are this many columns wide; the coarse step's ``f1`` is made in chunks of contacts and
+#: not kept beside them, :func:`_coarse_forces`); the one-seed statics and 2D keep their six. Six:
+#: fewer columns cost time (a dual bound with a 12-column trial at 1.08e5 spheres, one thread:
+#: 5.5-7.0 s with 6, 8.3-8.6 s with 3, 10.1-10.6 s with 2) for 0.1-0.2 GB at 1e6 each column
+TWO_COLS = 6
 
 
 # ---- local statics (numba) ----------------------------------------------------------------------
@@ -643,10 +645,14 @@ class Equilibrator:
         on ``r - B^T c1`` (no net force or moment on any cluster; docs/theory.md section 12)."""
         T = self._data["two"]
         y = T["solve"](np.asarray(T["R"].T @ r))
-        f1 = np.asarray(T["Ks"] @ (T["Bs"] @ np.asarray(T["R"] @ y)))
+        u = np.asarray(T["R"] @ y)
+        f1 = np.empty((T["Bs"].shape[0], r.shape[1]))
+        _coarse_forces(T, u, f1)
         r2 = r - np.asarray(T["Bs"].T @ f1)
+        del f1                            # not live beside the peeled forces: recomputed below (issue 26)
         c, _ = Equilibrator(0, 0, 0, 0, 0, True, 0.0, T["local"])._tree(r2, own=True)
-        c += f1.reshape(c.shape)          # in place: one (C, d, s) array fewer (issue 26)
+        del r2
+        _coarse_forces(T, u, c.reshape(-1, r.shape[1]), add=True)    # c += f1, in place
         return c
 
     def _tree(self, r, own=False):
@@ -1094,6 +1100,22 @@ def _gersh(A):
 def _iso(C):
     from .tensors import isotropic_moduli
     return isotropic_moduli(C)
+
+
+def _coarse_forces(T, u, out, add=False):
+    """``out = K B u`` (``add``: ``out += K B u``), (d C, s), for the two-level statics' arrays
+    ``T`` (its ``Bs``, ``Ks``) and ``u`` (ndof, s), CHUNK contacts' rows at a time: each row of a
+    CSR product is its own sum in the stored order, so the numbers are those of ``Ks @ (Bs @ u)``
+    (``Ks`` is block diagonal: a chunk's rows have their columns in the chunk) without its
+    (d C, s) temporary (issue 26)."""
+    d = T["local"]["d"]
+    for c0, c1 in _chunks(T["local"]["C"]):
+        rows = slice(d * c0, d * c1)
+        f = np.asarray(T["Ks"][rows][:, rows] @ (T["Bs"][rows] @ u))
+        if add:
+            out[rows] += f
+        else:
+            out[rows] = f
 
 
 def _chunks(C):

@@ -86,3 +86,22 @@ def test_statics_columns_alone(name):
         assert np.abs(c2 - c).max() <= 1e-12 * np.abs(c).max()
     res = np.asarray(asm.Bs.T @ c.reshape(-1, 7)) - r
     assert np.abs(res).max() <= 1e-11 * np.abs(r).max()
+
+
+def test_coarse_forces_by_chunks_bit_for_bit(monkeypatch):
+    """The two-level statics' coarse forces ``K B u`` taken CHUNK contacts' rows at a time (and
+    added in place) are ``Ks @ (Bs @ u)`` to the last bit, and the statics' corrections with tiny
+    chunks equal those with one chunk."""
+    net, asm, eq, _ = _setup("3D two-level")
+    T = eq._data["two"]
+    u = np.random.default_rng(4).normal(size=(asm.ndof, 5))
+    ref = np.asarray(T["Ks"] @ (T["Bs"] @ u))
+    r = np.asarray(asm.Bs.T @ np.random.default_rng(6).normal(size=(asm.Bs.shape[0], 6)))
+    c_one = eq.correct(r)
+    monkeypatch.setattr(db, "CHUNK", 7)
+    out = np.empty_like(ref)
+    db._coarse_forces(T, u, out)
+    assert np.array_equal(out, ref)
+    db._coarse_forces(T, u, out, add=True)
+    assert np.array_equal(out, ref + ref)
+    assert np.array_equal(eq.correct(r), c_one)
