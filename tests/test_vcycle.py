@@ -140,3 +140,41 @@ def test_hierarchy_same_orders_and_interval_as_with_pyamg(monkeypatch):
     assert np.array_equal(h_fast.K_orders, h_pyamg.K_orders) and np.array_equal(h_fast.G_orders, h_pyamg.G_orders)
     for a, b in ((h_fast.K, h_pyamg.K), (h_fast.G, h_pyamg.G)):
         assert (a.lower, a.upper) == (b.lower, b.upper)
+
+
+def _owns(a):
+    """Whether ``a`` is (a view of) an array of exactly its bytes."""
+    return multilevel._buffer_bytes(a) == a.nbytes
+
+
+@pytest.mark.parametrize("smooth", ["energy", "jacobi"])
+@pytest.mark.parametrize("name", ["2d", "3d"])
+def test_slimmed_hierarchy_gives_the_same_cycle(name, smooth, monkeypatch):
+    """After pyamg's setup the preconditioner drops what only the setup reads (near-null space B,
+    ...) and gives every prolongator compact arrays (``multilevel._slim_levels``, issue 26): the
+    V-cycle is array_equal to that of the hierarchy as pyamg left it (the same pyamg setup with
+    ``_slim_levels`` a no-op), in 2D and 3D, float64 and float32."""
+    asm = assemble(NETWORKS[name](), pin=False)
+    r = np.random.default_rng(5).standard_normal((asm.ndof, 6))
+    for dtype in (np.float64, np.float32):
+        kw = dict(smooth=smooth, candidates="rigid", dtype=dtype)
+        with monkeypatch.context() as m:
+            m.setattr(multilevel, "_slim_levels", lambda ml, coarse_dtype=None: None)
+            P0, _ = amg_preconditioner(asm, **kw)
+        ml0 = P0.amg[0]
+        assert any(hasattr(lvl, "B") for lvl in ml0.levels)            # pyamg keeps B: there is something to drop
+        P1, info = amg_preconditioner(asm, **kw)
+        ml1 = P1.amg[0]
+        assert info.levels >= 2
+        for lvl, lvl0 in zip(ml1.levels, ml0.levels):
+            assert not any(hasattr(lvl, k) for k in multilevel._SETUP_ONLY)
+            if hasattr(lvl, "P"):
+                assert all(_owns(a) for a in (lvl.P.data, lvl.P.indices, lvl.P.indptr))
+                for a in ("data", "indices", "indptr"):
+                    assert np.array_equal(getattr(lvl.P, a), getattr(lvl0.P, a))
+                assert lvl.R.P is lvl.P
+        assert ml1.levels[0].A is not None and np.array_equal(ml1.levels[0].A.data, ml0.levels[0].A.data)
+        assert np.array_equal(P1 @ r, P0 @ r)
+        assert np.array_equal(P1 @ r[:, 0], P0 @ r[:, 0])
+        if smooth == "jacobi":                                          # pyamg's oversize buffer, now freed
+            assert not _owns(ml0.levels[0].P.data)
