@@ -21,7 +21,11 @@ alternative: pyamg's smoothed aggregation (Vanek, Mandel & Brezina 1996) with
 defaults are the call above. Its memory (issue 26, docs/results/spheres.md, "Memory at 1e6
 spheres"): pyamg gets the permuted, shifted ``H`` built once in blocks (``blocked_copy``, int32
 indices, no transient CSR copies) and keeps no transposed copy of each prolongator (``R @ x`` is
-computed from ``P``); both give the former V-cycle bit for bit.
+computed from ``P``); after the setup every level drops what only the setup reads (its near-null
+space ``B``, ...) and every ``P`` gets compact arrays (pyamg's Jacobi smoother leaves it a view of
+a buffer 1.3 times its size): 622.8 MB -> 554.4 MB held at 1.08e5 spheres; all give the former
+V-cycle bit for bit. ``coarse_dtype=np.float32`` stores the levels past the first in float32
+(a mixed-precision V-cycle, level 0 float64): 417.9 MB.
 
 The V-cycle is applied by ``microhom.vcycle.VCycle`` (issue 26): pyamg's cycle, sum for sum, as
 numba kernels that spread the columns of a block (the CG's 6 load columns in 3D, 3 in 2D) over
@@ -46,6 +50,7 @@ Shapes: ``asm.ndof`` unknowns; the operator applies to (ndof,) or (ndof, s) arra
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -336,12 +341,115 @@ def _share_restrictions(ml):
     return freed
 
 
+#: what pyamg's setup leaves on a level that no V-cycle reads (near-null candidates, tentative
+#: prolongator, aggregates, strength): dropped after the setup (issue 26)
+_SETUP_ONLY = ("B", "BH", "T", "AggOp", "C")
+
+
+def _buffer_bytes(a):
+    """Bytes of the array that owns ``a``'s memory (``a``'s own where it is not a view)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a.nbytes
+
+
+def _compact(M, dtype=None):
+    """The sparse matrix ``M`` (BSR or CSR) with its entries cast to ``dtype`` (None: kept) and
+    every array owning exactly its entries: pyamg's Jacobi prolongation smoother leaves ``P`` a
+    view of a buffer sized for ``nnz(A) + nnz(T)`` blocks (scipy's BSR difference, then
+    ``prune``), up to 40 % more than ``P``'s (issue 26). ``M`` itself when nothing changes; the
+    same numbers otherwise."""
+    data = M.data if dtype is None or M.dtype == dtype else M.data.astype(dtype)
+    new = [a if _buffer_bytes(a) == a.nbytes else a.copy() for a in (data, M.indices, M.indptr)]
+    if all(a is b for a, b in zip(new, (M.data, M.indices, M.indptr))):
+        return M
+    if M.format == "bsr":
+        return type(M)(tuple(new), shape=M.shape, blocksize=M.blocksize)
+    return type(M)(tuple(new), shape=M.shape)
+
+
+def _cast_smoothers(lvl, dtype):
+    """Cast the ``Dinv`` (inverted diagonal blocks) of a level's pre- and post-smoother to
+    ``dtype``, one array for both where pyamg shares it."""
+    cast = {}
+    for name in ("presmoother", "postsmoother"):
+        f = getattr(lvl, name, None)
+        D = (getattr(f, "keywords", None) or {}).get("Dinv")
+        if not isinstance(D, np.ndarray) or D.dtype == dtype:
+            continue
+        cast.setdefault(id(D), D.astype(dtype))
+        setattr(lvl, name, functools.partial(f.func, *f.args, **{**f.keywords, "Dinv": cast[id(D)]}))
+
+
+def _slim_levels(ml, coarse_dtype=None):
+    """After pyamg's setup and ``_share_restrictions``: drop what only the setup reads
+    (``_SETUP_ONLY``), give every ``P`` (and an unshared ``R``) and the coarse levels' ``A``
+    compact arrays (``_compact``), and with ``coarse_dtype`` store the levels past the first
+    (their ``A``, smoothers' ``Dinv``, and every ``P``, ``R``) in it; level 0's ``A`` (the CG's
+    ``H``, ``microhom.shared_h``) and smoother stay as they are. The V-cycle's numbers do not
+    change without ``coarse_dtype`` (tests/test_vcycle.py)."""
+    for i, lvl in enumerate(ml.levels):
+        for k in _SETUP_ONLY:
+            lvl.__dict__.pop(k, None)
+        if i > 0:
+            lvl.A = _compact(lvl.A, coarse_dtype)
+            if coarse_dtype is not None:
+                _cast_smoothers(lvl, coarse_dtype)
+        P, R = getattr(lvl, "P", None), getattr(lvl, "R", None)
+        if sp.issparse(P):
+            lvl.P = _compact(P, coarse_dtype)
+            if isinstance(R, _Restriction):
+                lvl.R = _Restriction(lvl.P)
+            elif sp.issparse(R):
+                lvl.R = _compact(R, coarse_dtype)
+
+
+def _pyamg_options(bs, sweeps, theta, max_coarse, improve):
+    """(smoother, extra keywords) of pyamg's ``smoothed_aggregation_solver`` for
+    ``amg_preconditioner``'s options: only what differs from pyamg's defaults is passed."""
+    smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
+                {"sweep": "symmetric", "iterations": int(sweeps)})
+    extra = {}
+    if theta != 0.0:
+        extra["strength"] = ("symmetric", {"theta": float(theta)})
+    if max_coarse != 10:
+        extra["max_coarse"] = int(max_coarse)
+    if not improve:
+        extra["improve_candidates"] = None
+    return smoother, extra
+
+
+def _slimmed(ml, coarse_dtype):
+    """Share the restrictions, slim the levels (``_slim_levels``, the coarse ones in
+    ``coarse_dtype``) and return ``VCycle.of(ml)``; a mixed hierarchy needs that V-cycle."""
+    _share_restrictions(ml)
+    mixed = coarse_dtype != ml.levels[0].A.dtype and len(ml.levels) > 1
+    if mixed and VCycle.of(ml) is None:
+        raise ValueError(f"coarse_dtype={coarse_dtype} needs microhom.vcycle.VCycle (block Gauss-Seidel on "
+                         "particles of one block size); this network's hierarchy is not one: use coarse_dtype=None")
+    _slim_levels(ml, coarse_dtype if mixed else None)
+    return VCycle.of(ml)
+
+
 #: smooth= of amg_preconditioner: pyamg's prolongation smoother (Jacobi: local weighting, no random
 #: spectral-radius estimate; deterministic like the energy minimisation)
 SMOOTHERS = {"energy": ("energy", {}), "jacobi": ("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
              "none": None}
 #: candidates= of amg_preconditioner: the near-null vectors kept (columns of near_null_space)
 CANDIDATES = ("all", "rigid")
+
+
+def _check_coarse_dtype(coarse_dtype, dtype):
+    """``coarse_dtype`` as a numpy dtype (None: ``dtype``); float32 under float64, or ``dtype``."""
+    if coarse_dtype is None:
+        return np.dtype(dtype)
+    try:
+        cd = np.dtype(coarse_dtype)
+    except TypeError:
+        cd = None
+    if cd is None or cd not in (np.dtype(np.float32), np.dtype(dtype)):
+        raise ValueError(f"coarse_dtype must be None, float32 or dtype ({np.dtype(dtype)}), got {coarse_dtype!r}")
+    return cd
 
 
 def _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype):
@@ -374,7 +482,7 @@ def _per_column(f, r, order, inv, dtype):
 
 def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all", smooth: str = "energy",
                        theta: float = 0.0, max_coarse: int = 10, improve: bool = True, dtype=np.float64,
-                       release=None):
+                       coarse_dtype=None, release=None):
     """Smoothed-aggregation V-cycle approximating ``H^-1`` (see the module docstring).
 
     The bounds of ``microhom.hierarchy`` hold for any preconditioner (each CG block is
@@ -410,6 +518,20 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         iterate grows along nearly floppy directions and so does its energy's round-off margin,
         which covers the computed energies' drift below the exact one; every reported bound
         stays rigorous, ``HierarchyResult.margin_orders``): not the default.
+    coarse_dtype : None or float32
+        Precision of the levels past the first (None: ``dtype``, the default, nothing changes):
+        with float32 under ``dtype`` float64 (a mixed-precision V-cycle, issue 26) every
+        prolongator ``P_l`` ((n_l, n_{l+1}) BSR) and restriction, and every coarser level's
+        ``A_l`` ((n_l, n_l)), smoother's ``Dinv`` ((n_l / b, b, b)) and the coarsest level's
+        pseudo-inverse are float32, converted from pyamg's float64 hierarchy after its setup
+        (rounded once); level 0's ``A`` (``P H P^T + shift I``, the CG's ``H``,
+        ``microhom.shared_h``: its residuals must be float64 for the bounds' round-off margins)
+        and its smoother's ``Dinv`` stay float64, so the fine-level residual and smoothing are
+        float64; ``P_0^T r`` is summed in float64 and rounded to float32, the coarse correction
+        widened back and added into the float64 iterate (``microhom.vcycle``). It needs
+        ``microhom.vcycle.VCycle`` (block Gauss-Seidel smoothing: particles of one block size)
+        and raises ``ValueError`` for a hierarchy it does not take. Measured in
+        docs/results/spheres.md, "A float32 coarse hierarchy".
     release : callable or None
         Called as ``release(A, order, shift)`` once the blocked copy ``A = P H P^T + shift I``
         (``(P x)[i] = x[order[i]]``, ``shift`` [N/m]; pyamg's level-0 matrix) is made and ``asm``
@@ -429,7 +551,7 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
         raise ImportError("preconditioner='amg' needs pyamg (pip install pyamg); "
                           "preconditioner='block' works without it") from exc
     _check_options(sweeps, candidates, smooth, theta, max_coarse, dtype)
-    dtype = np.dtype(dtype)
+    dtype, coarse_dtype = np.dtype(dtype), _check_coarse_dtype(coarse_dtype, dtype)
     t0 = time.perf_counter()
     n = asm.ndof
     part, comp = dof_layout(asm)
@@ -454,22 +576,14 @@ def amg_preconditioner(asm: Assembly, *, sweeps: int = 2, candidates: str = "all
     if release is not None:
         asm = None                                       # nothing below reads it: the caller may drop H
         release(H, order, shift)
-    smoother = ("block_gauss_seidel" if bs > 1 else "gauss_seidel",
-                {"sweep": "symmetric", "iterations": int(sweeps)})
-    extra = {}                                           # only what differs from pyamg's defaults
-    if theta != 0.0:
-        extra["strength"] = ("symmetric", {"theta": float(theta)})
-    if max_coarse != 10:
-        extra["max_coarse"] = int(max_coarse)
-    if not improve:
-        extra["improve_candidates"] = None
+    smoother, extra = _pyamg_options(bs, sweeps, theta, max_coarse, improve)
     ml = pyamg.smoothed_aggregation_solver(H,
                                            B=np.ascontiguousarray(B[order], dtype=dtype),
                                            presmoother=smoother, postsmoother=smoother,
                                            smooth=SMOOTHERS[smooth], **extra)
     del H
-    _share_restrictions(ml)
-    vcycle, fast = ml.aspreconditioner(cycle="V"), VCycle.of(ml)
+    fast = _slimmed(ml, coarse_dtype)
+    vcycle = ml.aspreconditioner(cycle="V")
 
     def apply(r):
         if fast is not None:                             # the same numbers, the columns in parallel

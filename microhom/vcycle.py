@@ -26,10 +26,19 @@ without ``fastmath``), so each column equals pyamg's V-cycle bit for bit
 ``||b - A x||`` twice per application (its stopping test, unused by a preconditioner): two
 products with ``A_0`` that this one does not do.
 
+Mixed precision (``amg_preconditioner(coarse_dtype=np.float32)``, issue 26): a float64 level
+whose prolongator and coarse level are float32. Its residual and smoothing stay float64; step 2
+sums ``P^T r`` in float64 (``P``'s float32 entries widen exactly) and rounds ``b_{l+1}`` once to
+float32; the coarse levels run in float32 as a float32 hierarchy does; step 4 widens ``x_{l+1}``
+to float64 (exactly) and adds ``P x_{l+1}``, summed in float64, into the float64 iterate. These
+are scipy's float64 products with the widened arrays, in their order (tests/test_vcycle.py checks
+the mixed cycle against such a reference to the bit).
+
 Supported: every level's smoother ``block_gauss_seidel`` (``sweep="symmetric"``, square BSR
-blocks, its ``Dinv``), prolongators BSR with the restriction their transpose (``R = P.T`` or
-``multilevel._Restriction``), at least two levels. :meth:`VCycle.of` returns None otherwise
-(the caller keeps pyamg's cycle).
+blocks, its ``Dinv`` in the level's dtype), prolongators BSR with the restriction their
+transpose (``R = P.T`` or ``multilevel._Restriction``) in the coarse level's dtype, each level
+the dtype of the one above or float32 below float64, at least two levels. :meth:`VCycle.of`
+returns None otherwise (the caller keeps pyamg's cycle).
 
 Memory: ``2 s n_l`` floats per level (iterate and right-hand side of each column) held during an
 application, against two of ``n_l`` per column in turn for pyamg's.
@@ -198,7 +207,7 @@ class VCycle:
 
     def __init__(self, ml, levels, coarse):
         self.ml = ml
-        self.levels = levels             # per level but the coarsest: (A, P, pre, post, coarse n)
+        self.levels = levels             # per level but the coarsest: (A, P, pre, post, coarse n, coarse dtype)
         self.coarse = coarse             # the coarsest level's matrix (pyamg's coarse solver's input)
         self.dtype = ml.levels[0].A.dtype
         self.n = ml.levels[0].A.shape[0]
@@ -210,11 +219,11 @@ class VCycle:
         if len(ml.levels) < 2:
             return None
         levels = []
-        for lvl in ml.levels[:-1]:
+        for lvl, coarse in zip(ml.levels[:-1], ml.levels[1:]):
             A, P, R = lvl.A, getattr(lvl, "P", None), getattr(lvl, "R", None)
             if not (sp.issparse(A) and A.format == "bsr" and A.blocksize[0] == A.blocksize[1] > 1
                     and sp.issparse(P) and P.format == "bsr" and P.blocksize[0] == A.blocksize[0]
-                    and A.dtype == P.dtype):
+                    and P.dtype == coarse.A.dtype and _precisions(A.dtype, P.dtype)):
                 return None
             # R: multilevel._Restriction (P^T from P) or pyamg's transposed copy
             if getattr(R, "P", None) is not P and not _is_transpose(R, P):
@@ -226,7 +235,7 @@ class VCycle:
             if any(getattr(f, "keywords", {}).get("blocksize") not in (None, A.blocksize[0])
                    for f in (lvl.presmoother, lvl.postsmoother)):
                 return None                              # pyamg would re-block A: not this cycle
-            levels.append((_bsr(A), _bsr(P), pre, post, P.shape[1]))
+            levels.append((_bsr(A), _bsr(P), pre, post, P.shape[1], P.dtype))
         return cls(ml, levels, ml.levels[-1].A)
 
     def __call__(self, B):
@@ -239,19 +248,20 @@ class VCycle:
         s = B.shape[0]
         groups = _groups(s)
         xs, bs = [], [B]
-        for A, P, pre, _, nc in self.levels:
-            x = np.zeros((s, bs[-1].shape[1]), dtype=self.dtype)
-            _smooth(A, pre[1], x, bs[-1], pre[0], groups)
-            bc = np.zeros((s, nc), dtype=self.dtype)
-            _restrict_residual(A, P, x, bs[-1], bc, groups)
+        for A, P, pre, _, nc, cdt in self.levels:
+            b = bs[-1]
+            x = np.zeros((s, b.shape[1]), dtype=b.dtype)
+            _smooth(A, pre[1], x, b, pre[0], groups)
+            bc = np.zeros((s, nc), dtype=b.dtype)             # summed in this level's precision ...
+            _restrict_residual(A, P, x, b, bc, groups)
             xs.append(x)
-            bs.append(bc)
+            bs.append(bc.astype(cdt, copy=False))             # ... then rounded to the coarse one
         solve = self.ml.coarse_solver
         xc = np.empty_like(bs[-1])
         for c in range(s):
             xc[c] = solve(self.coarse, bs[-1][c].copy())
-        for (A, P, _, post, _), x, b in zip(self.levels[::-1], xs[::-1], bs[-2::-1]):
-            _prolong(P, xc, x, groups)
+        for (A, P, _, post, _, _), x, b in zip(self.levels[::-1], xs[::-1], bs[-2::-1]):
+            _prolong(P, xc.astype(x.dtype, copy=False), x, groups)   # exact widening: P x_c in x's precision
             _smooth(A, post[1], x, b, post[0], groups)
             xc = x
         return xc
@@ -268,6 +278,12 @@ class VCycle:
         out = np.empty_like(r2)                            # r's memory layout, as pyamg's path kept it
         _scatter(X, order, out)
         return out.reshape(r.shape)
+
+
+def _precisions(fine, coarse):
+    """Whether a level of dtype ``fine`` may have its coarse level (and ``P``) in ``coarse``: the
+    same, or float64 over float32 (the mixed cycle)."""
+    return fine == coarse or (fine == np.float64 and coarse == np.float32)
 
 
 def _is_transpose(R, P):

@@ -153,6 +153,7 @@ SETUP_OPTIONS = {
     "rigid": dict(candidates="rigid"),             # 6 near-null vectors per sphere instead of 9
     "jacobi": dict(smooth="jacobi"),               # one Jacobi step instead of energy minimisation
     "jacobi+rigid": dict(smooth="jacobi", candidates="rigid"),   # both (issue 26: the setup's transient)
+    "jacobi+rigid+f32": dict(smooth="jacobi", candidates="rigid", coarse_dtype=np.float32),  # coarse levels float32
     "plain": dict(smooth="none"),                  # plain aggregation
     "theta0.1": dict(theta=0.1),                   # strength threshold 0.1 instead of 0
     "theta0.25": dict(theta=0.25),
@@ -304,7 +305,8 @@ def _hierarchy_amg(opts):
         del a
         # every keyword spelled out: a call with **kwargs would hold the assembly in its argument tuple
         return real(box.pop(), sweeps=d["sweeps"], candidates=d["candidates"], smooth=d["smooth"], theta=d["theta"],
-                    max_coarse=d["max_coarse"], improve=d["improve"], dtype=d["dtype"], release=release)
+                    max_coarse=d["max_coarse"], improve=d["improve"], dtype=d["dtype"],
+                    coarse_dtype=d["coarse_dtype"], release=release)
     hi.amg_preconditioner = amg
 
     def undo():

@@ -12,7 +12,7 @@ from microhom.multilevel import _SHIFT, amg_preconditioner, dof_layout, near_nul
 from tests.test_hierarchy_3d import packing
 
 
-@pytest.mark.parametrize("name", ["default", "rigid", "jacobi", "plain", "theta0.25", "coarse2000",
+@pytest.mark.parametrize("name", ["default", "rigid", "jacobi", "jacobi+rigid+f32", "plain", "theta0.25", "coarse2000",
                                   "noimprove", "float32"])
 def test_every_option_keeps_the_exact_moduli_inside_the_interval(name):
     """Frictional, diluted, jittered FCC (108 spheres, kt = 0.5 kn): the hierarchy with the dual
