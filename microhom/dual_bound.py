@@ -609,27 +609,29 @@ class Equilibrator:
         """Load columns per statics call: ``TWO_COLS`` for the two-level statics in 3D, else 6."""
         return TWO_COLS if self._data.get("two") is not None and self._data["d"] == 3 else 6
 
-    def correct(self, r: np.ndarray, chunk: int | None = None) -> np.ndarray:
+    def correct(self, r: np.ndarray, chunk: int | None = None, own: bool = False) -> np.ndarray:
         """Forces ``c`` (C, d, s) with ``B^T c = r`` for loads ``r`` (ndof, s) in the range of
         ``B^T`` (orthogonal to the rigid translations), ``chunk`` (default :attr:`group`) columns
         at a time (a column's numbers depend on it only at round-off: the coarse factor's solve and
-        the peeling's small products round differently for other column counts)."""
+        the peeling's small products round differently for other column counts). ``own``: ``r`` is
+        a float64 temporary the caller gives up (the two-level statics works in it: one (ndof, s)
+        array fewer; the same numbers)."""
         r = np.asarray(r, dtype=float)
         chunk = self.group if chunk is None else chunk
         one = r.ndim == 1
         r = r[:, None] if one else r
         if r.shape[1] <= chunk and r.shape[1]:   # one chunk: no copy (issue 26: 0.5 GB at 1e6)
-            out = self._correct(r)
+            out = self._correct(r, own)
         else:           # filled chunk by chunk (no list of chunks beside a concatenated copy)
             out = np.empty((self._data["C"], self._data["d"], r.shape[1]))
             for a in range(0, r.shape[1], chunk):
-                out[:, :, a:a + chunk] = self._correct(r[:, a:a + chunk])
+                out[:, :, a:a + chunk] = self._correct(r[:, a:a + chunk], own)
         return out[:, :, 0] if one else out
 
-    def _correct(self, r):
+    def _correct(self, r, own=False):
         D = self._data
         if D.get("two") is not None:
-            return self._two_level(r)
+            return self._two_level(r, own)
         c, left = self._tree(r)
         if D["Lres"] is not None:       # the seed's leftover (net moment): the reserved cycles
             # c = T(r) + sum_u alpha_u (u - T(B^T u)), B^T (u - T(B^T u)) = Lres[:, u] on the seed
@@ -640,19 +642,25 @@ class Equilibrator:
                 c[e] += D["Ures"][t] @ alpha[D["res_cols"][t]]
         return c
 
-    def _two_level(self, r):
+    def _two_level(self, r, own=False):
         """The coarse step ``c1 = K B R y``, ``R^T H R y = R^T r``, then each cluster's statics
-        on ``r - B^T c1`` (no net force or moment on any cluster; docs/theory.md section 12)."""
+        on ``r - B^T c1`` (no net force or moment on any cluster; docs/theory.md section 12).
+        ``own``: ``r`` is the caller's temporary, ``r - B^T c1`` is formed in it."""
         T = self._data["two"]
+        s = r.shape[1]
         y = T["solve"](np.asarray(T["R"].T @ r))
-        u = np.asarray(T["R"] @ y)
-        f1 = np.empty((T["Bs"].shape[0], r.shape[1]))
-        _coarse_forces(T, u, f1)
-        r2 = r - np.asarray(T["Bs"].T @ f1)
-        del f1                            # not live beside the peeled forces: recomputed below (issue 26)
+        f1 = np.empty((T["Bs"].shape[0], s))
+        _coarse_forces(T, np.asarray(T["R"] @ y), f1)
+        if own:
+            r -= np.asarray(T["Bs"].T @ f1)        # the same numbers as r - B^T f1
+            r2 = r
+        else:
+            r2 = r - np.asarray(T["Bs"].T @ f1)
+        # f1 and R y are not kept beside the peeled forces: recomputed below (issue 26)
+        del f1, r
         c, _ = Equilibrator(0, 0, 0, 0, 0, True, 0.0, T["local"])._tree(r2, own=True)
         del r2
-        _coarse_forces(T, u, c.reshape(-1, r.shape[1]), add=True)    # c += f1, in place
+        _coarse_forces(T, np.asarray(T["R"] @ y), c.reshape(-1, s), add=True)    # c += f1, in place
         return c
 
     def _tree(self, r, own=False):
@@ -1178,7 +1186,7 @@ def _balance(eq, Bs, A):
     k = eq.group
     for a in range(0, A.shape[1], k):
         b = min(a + k, A.shape[1])
-        A[:, a:b] += eq.correct(-np.asarray(Bs.T @ A[:, a:b])).reshape(-1, b - a)
+        A[:, a:b] += eq.correct(-np.asarray(Bs.T @ A[:, a:b]), own=True).reshape(-1, b - a)
 
 
 def _check_trial(asm, W):
@@ -1266,15 +1274,15 @@ def _statics_field(asm, X, eq, passes):
 
 
 def _statics_out(eq, r):
-    """``T(r)`` (d C, m) of the loads ``r`` (ndof, m), :attr:`Equilibrator.group` columns at a time
-    into one array (no list of pieces beside it)."""
+    """``T(r)`` (d C, m) of the loads ``r`` (ndof, m), a temporary it works in (``own``),
+    :attr:`Equilibrator.group` columns at a time into one array (no list of pieces beside it)."""
     m = r.shape[1]
     if m <= eq.group:
-        return eq.correct(r).reshape(-1, m)
+        return eq.correct(r, own=True).reshape(-1, m)
     out = np.empty((eq._data["C"] * eq._data["d"], m))
     for a in range(0, m, eq.group):
         b = min(a + eq.group, m)
-        out[:, a:b] = eq.correct(r[:, a:b]).reshape(-1, b - a)
+        out[:, a:b] = eq.correct(r[:, a:b], own=True).reshape(-1, b - a)
     return out
 
 
@@ -1346,13 +1354,14 @@ def dual_lower_bound(asm: Assembly, X: np.ndarray, volume: float, equilibrator: 
     if trial is not None:
         G = _best_in_span(asm, G, trial, eq, passes)
     rho = np.asarray(asm.Bs.T @ G)
-    L, margin = _bound_and_margin(asm, G, _statics_out(eq, -rho))     # G is |G| after it
-    del G
+    scale = asm.F_scale if asm.F_scale > 0 else 1.0
+    res = float(np.abs(rho).max(initial=0.0) / scale)
+    np.negative(rho, out=rho)           # -B^T G in place: the statics works in it (issue 26)
+    L, margin = _bound_and_margin(asm, G, _statics_out(eq, rho))      # G is |G| after it
+    del rho, G
     margin /= volume
     C_lower = L / volume - margin * np.eye(asm.Df.shape[1])
-    scale = asm.F_scale if asm.F_scale > 0 else 1.0
     K_l, G_l = _iso(C_lower)
-    res = float(np.abs(rho).max(initial=0.0) / scale)
     return DualBound(C_lower=C_lower, K_lower=float(K_l), G_lower=float(G_l), margin=float(margin),
                      residual=res, gap=0.5 * (gap + gap.T), time=time.perf_counter() - t0,
                      valid=bool(eq.block_solved and res <= _VALID_RESIDUAL))
