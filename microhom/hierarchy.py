@@ -1215,9 +1215,9 @@ def _memory_guard(run, max_order, reorthogonalize, preconditioner, soft_modes, m
 
 #: what the guard's message adds where the 3D figures are known to overestimate (the lean path of
 #: large sphere networks; docs/results/spheres.md, "The third run at 1e6 spheres")
-_LARGE_3D_NOTE = ("; on large sphere networks these figures overestimate: 1e6 spheres peaked at 14.5 GiB (the benchmark's multilevel options) "
-                  "where 45 GiB are planned, so a larger max_memory may well fit (the run then is not "
-                  "guarded)")
+_LARGE_3D_NOTE = ("; on large sphere networks these figures overestimate: 1e6 spheres peaked at 14.5 GiB "
+                  "(the benchmark's multilevel options) where 45 GiB are planned, so a larger max_memory "
+                  "may well fit (the run then is not guarded)")
 
 
 def _setup(run, min_contacts, o=None):
