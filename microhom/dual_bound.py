@@ -606,7 +606,8 @@ class Equilibrator:
 
     @property
     def group(self) -> int:
-        """Load columns per statics call: ``TWO_COLS`` for the two-level statics in 3D, else 6."""
+        """The number of load columns per statics call (``TWO_COLS`` for the two-level statics in
+        3D, else 6)."""
         return TWO_COLS if self._data.get("two") is not None and self._data["d"] == 3 else 6
 
     def correct(self, r: np.ndarray, chunk: int | None = None, own: bool = False) -> np.ndarray:
