@@ -713,8 +713,7 @@ def _force_basis(asm: Assembly):
 
 def _bs_rows(asm: Assembly):
     """The assembly's ``Bs`` as the CSR arrays :func:`_peel` reads (no copy of a CSR ``Bs``)."""
-    Bs = asm.Bs if sps.isspmatrix_csr(asm.Bs) else sps.csr_matrix(asm.Bs)
-    return (Bs.indptr, Bs.indices, Bs.data)
+    return _csr(asm.Bs)
 
 
 def _particle_dofs(asm: Assembly):
@@ -1129,7 +1128,8 @@ def _coarse_forces(T, u, out, add=False):
 
 
 def _csr(A):
-    """A CSR matrix's ``(indptr, indices, data)`` (what :func:`_rows_times` reads)."""
+    """A sparse matrix's CSR ``(indptr, indices, data)`` (what :func:`_rows_times` and
+    :func:`_peel` read; no copy of a CSR matrix)."""
     A = A if A.format == "csr" else A.tocsr()
     return (A.indptr, A.indices, A.data)
 
@@ -1275,16 +1275,10 @@ def _statics_field(asm, X, eq, passes):
 
 
 def _statics_out(eq, r):
-    """``T(r)`` (d C, m) of the loads ``r`` (ndof, m), a temporary it works in (``own``),
-    :attr:`Equilibrator.group` columns at a time into one array (no list of pieces beside it)."""
-    m = r.shape[1]
-    if m <= eq.group:
-        return eq.correct(r, own=True).reshape(-1, m)
-    out = np.empty((eq._data["C"] * eq._data["d"], m))
-    for a in range(0, m, eq.group):
-        b = min(a + eq.group, m)
-        out[:, a:b] = eq.correct(r[:, a:b], own=True).reshape(-1, b - a)
-    return out
+    """``T(r)`` (d C, m) of the loads ``r`` (ndof, m), a temporary it works in (``own``;
+    :meth:`Equilibrator.correct` takes :attr:`Equilibrator.group` columns at a time into one
+    array)."""
+    return eq.correct(r, own=True).reshape(-1, r.shape[1])
 
 
 def _bound_and_margin(asm, G, c3):

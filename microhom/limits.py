@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import math
 import os
 import sys
@@ -115,6 +116,12 @@ def _malloc_trim():
     """glibc's ``malloc_trim`` (a ctypes function), or None (not Linux, or another C library)."""
     if not sys.platform.startswith("linux"):
         return None
+    return _libc_trim()
+
+
+@functools.lru_cache(maxsize=1)
+def _libc_trim():
+    """The C library's ``malloc_trim``, looked up once (``find_library`` runs ``ldconfig``), or None."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
         trim = libc.malloc_trim
